@@ -1,0 +1,1 @@
+"""Gaits, swing phases, Algorithm 1 adaptive ground detection and the fixed-threshold baseline, body leveling, the locomotion node and the paper's experiments."""

@@ -1,0 +1,76 @@
+"""AX-12A position units and the servo firmware's control law. Pure numpy.
+
+The firmware is modelled as the project's servo contract (issue "foundation"): every control
+period (1 ms) it reads the integer present tick and the integer goal tick and outputs, at the
+joint, ``clip((stall / slope) * (goal - present), -stall, stall)`` (paper Eq. 13 in output
+units). A compliance margin (dead-band) removes the first ``margin`` ticks of error. The swing-down
+model, the MuJoCo sim and the bus emulator all call :func:`firmware_torque_nm`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .description import BusJoint, ServoParams
+
+
+def theta_to_tick(theta_rad, servo: ServoParams):
+    """Continuous joint-space tick of a DH joint angle (tick 512 = theta 0)."""
+    return servo.center_tick + np.asarray(theta_rad, dtype=float) / servo.rad_per_tick
+
+
+def tick_to_theta(tick, servo: ServoParams):
+    """DH joint angle [rad] of a (possibly fractional) joint-space tick."""
+    return (np.asarray(tick, dtype=float) - servo.center_tick) * servo.rad_per_tick
+
+
+def quantize_tick(tick, servo: ServoParams):
+    """What the servo reports: the nearest integer tick within 0..1023."""
+    return np.clip(np.rint(tick), 0, servo.max_tick).astype(np.int64)
+
+
+def firmware_torque_nm(goal_tick, present_tick, gain_nm_per_tick: float, torque_max_nm: float,
+                       margin_ticks: float = 0.0):
+    """Joint torque the firmware outputs for integer goal and present ticks (vectorised)."""
+    err = np.asarray(goal_tick, dtype=float) - np.asarray(present_tick, dtype=float)
+    eff = np.sign(err) * np.maximum(np.abs(err) - margin_ticks, 0.0)
+    return np.clip(gain_nm_per_tick * eff, -torque_max_nm, torque_max_nm)
+
+
+def servo_tick(theta_rad: float, servo: ServoParams, bus: BusJoint) -> float:
+    """Raw servo tick on the bus for a joint angle, with the joint's mounting direction/offset."""
+    return servo.center_tick + bus.direction * theta_rad / servo.rad_per_tick + bus.offset_ticks
+
+
+def servo_theta(tick: float, servo: ServoParams, bus: BusJoint) -> float:
+    """Joint angle [rad] of a raw servo tick (inverse of :func:`servo_tick`)."""
+    return bus.direction * (tick - servo.center_tick - bus.offset_ticks) * servo.rad_per_tick
+
+
+def winding_current_a(torque_nm, speed_rad_s, servo: ServoParams):
+    """Motor current for a joint torque and speed (torque constant, gear ratio; motor side)."""
+    del speed_rad_s  # the current follows the torque; speed enters the voltage (back-EMF)
+    return np.abs(np.asarray(torque_nm, dtype=float)) / (servo.torque_constant_nm_per_a * servo.gear_ratio)
+
+
+def electrical_power_w(torque_nm, speed_rad_s, servo: ServoParams):
+    """Electrical power a servo draws: copper loss plus mechanical power (never negative).
+
+    ``P = I^2 R + max(tau * omega, 0)``; regeneration is not returned to the battery by the
+    AX-12A's H-bridge, so negative mechanical power counts as zero.
+    """
+    tau = np.asarray(torque_nm, dtype=float)
+    omega = np.asarray(speed_rad_s, dtype=float)
+    i = winding_current_a(tau, omega, servo)
+    return i * i * servo.winding_resistance_ohm + np.maximum(tau * omega, 0.0)
+
+
+def winding_loss_w(torque_nm, servo: ServoParams):
+    """Heat dissipated in the winding (I^2 R) for a joint torque."""
+    i = winding_current_a(torque_nm, 0.0, servo)
+    return i * i * servo.winding_resistance_ohm
+
+
+def degrees_per_tick(servo: ServoParams) -> float:
+    return math.degrees(servo.rad_per_tick)

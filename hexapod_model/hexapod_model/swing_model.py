@@ -1,0 +1,328 @@
+"""Swing-down model of one leg with its AX-12A servos (paper Sec. 6-7, Eq. 11-17). Pure numpy/numba.
+
+Dynamics (Eq. 11 with Eq. 12 reflected to the joint, i.e. Eq. 14 in joint units): the femur and
+tibia of one leg form a two-link arm in the leg's vertical plane (coxa held, body level, no ground
+contact)::
+
+    (D(q) + J R^2) q'' + C(q, q') q' + B R^2 q' + F(q') + G(q) = tau_servo
+
+``q = (theta_2, theta_3)`` (DH joint variables, ``psi = theta + theta_off`` is the link angle
+above the horizontal for the femur). ``F`` is Coulomb friction ``tau_c R`` (optionally a larger
+break-away torque at rest). ``tau_servo`` is the firmware law of :mod:`hexapod_model.servo`,
+recomputed every control period (1 ms) from the integer present tick and held in between.
+
+Time stepping: ``substeps`` semi-implicit Euler steps per control period (default 1: within 0.05
+tick of a 50-substep reference over the Fig. 9 swings, see the tests), damping implicit,
+friction as a velocity-level impulse (so a joint at rest sticks exactly until the drive torque
+exceeds the break-away torque). The kernel is compiled with numba when available.
+
+``predict_swing_down`` is the paper's ``CalcModel`` for L simultaneously swinging legs: it builds
+the interpolated goal sequence of Eq. 15 (one new goal every ``t_con = L * T_com``), simulates the
+legs and returns the predicted femur position at each sequential read of Algorithm 1 (leg ``l``
+of step ``k`` is sampled at ``k t_con + l T_com``) with the Eq. 17 threshold.
+
+Sign convention for errors: the paper notes the comparison depends on the direction of motion
+and on how the servo is mounted. All errors here are *lag in the direction of motion*,
+``err = s (theta_des - theta)`` in ticks with ``s = sign(theta_fin - theta_init)`` of the femur,
+so a leg held up by the ground shows a growing positive error.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .description import Robot, joint_name
+from .servo import theta_to_tick
+
+try:  # numba makes one 2 s prediction take well under a millisecond; the pure-Python path is exact too
+    from numba import njit
+except ImportError:  # pragma: no cover - numba is a pinned dependency
+    def njit(*args, **kwargs):
+        if args and callable(args[0]):
+            return args[0]
+        return lambda f: f
+
+# Indices into the packed parameter vector of the kernel.
+(P_M1, P_LC1, P_I1, P_M2, P_LC2, P_I2, P_A2, P_G, P_OFF2, P_OFF3, P_J2, P_J3, P_B2, P_B3,
+ P_FC2, P_FC3, P_FS2, P_FS3, P_KP, P_TMAX2, P_TMAX3, P_MARG2, P_MARG3, P_RPT, P_CENTER, P_MAXTICK,
+ P_CONTROL, P_SUBSTEPS, P_DT, N_PARAMS) = range(30)
+
+V_STICK = 1e-7  # rad/s: below this a joint counts as at rest (break-away friction applies)
+
+
+@njit(cache=True, fastmath=True)
+def _rollout_kernel(p, q0, qd0, goals, out_q, out_qd, out_tau):
+    """Simulate ``len(goals)`` control periods; ``out_q[k]`` is the state at the start of period k."""
+    m1, lc1, i1 = p[P_M1], p[P_LC1], p[P_I1]
+    m2, lc2, i2, a2, g = p[P_M2], p[P_LC2], p[P_I2], p[P_A2], p[P_G]
+    off2, off3 = p[P_OFF2], p[P_OFF3]
+    n_sub = int(p[P_SUBSTEPS])
+    h = p[P_DT] / n_sub
+    q2, q3 = q0[0], q0[1]
+    v2, v3 = qd0[0], qd0[1]
+    out_q[0, 0] = q2
+    out_q[0, 1] = q3
+    out_qd[0, 0] = v2
+    out_qd[0, 1] = v3
+    k11c = m1 * lc1 * lc1 + i1 + m2 * (a2 * a2 + lc2 * lc2) + i2 + p[P_J2]
+    k12c = m2 * lc2 * lc2 + i2
+    k22 = m2 * lc2 * lc2 + i2 + p[P_J3]
+    kc = m2 * a2 * lc2
+    gm1 = g * (m1 * lc1 + m2 * a2)
+    gm2 = g * m2 * lc2
+    for k in range(goals.shape[0]):
+        tau2 = 0.0
+        tau3 = 0.0
+        if p[P_CONTROL] > 0.5:
+            pt2 = min(max(np.rint(p[P_CENTER] + q2 / p[P_RPT]), 0.0), p[P_MAXTICK])
+            pt3 = min(max(np.rint(p[P_CENTER] + q3 / p[P_RPT]), 0.0), p[P_MAXTICK])
+            e2 = goals[k, 0] - pt2
+            e3 = goals[k, 1] - pt3
+            e2 = np.sign(e2) * max(abs(e2) - p[P_MARG2], 0.0)
+            e3 = np.sign(e3) * max(abs(e3) - p[P_MARG3], 0.0)
+            tau2 = min(max(p[P_KP] * e2, -p[P_TMAX2]), p[P_TMAX2])
+            tau3 = min(max(p[P_KP] * e3, -p[P_TMAX3]), p[P_TMAX3])
+        out_tau[k, 0] = tau2
+        out_tau[k, 1] = tau3
+        for _ in range(n_sub):
+            psi2 = q2 + off2
+            psi3 = q3 + off3
+            c3 = math.cos(psi3)
+            s3 = math.sin(psi3)
+            d11 = k11c + 2.0 * kc * c3
+            d12 = k12c + kc * c3
+            hh = -kc * s3
+            cor1 = hh * (2.0 * v2 * v3 + v3 * v3)
+            cor2 = -hh * v2 * v2
+            g2 = gm2 * math.cos(psi2 + psi3)
+            g1 = gm1 * math.cos(psi2) + g2
+            a11 = d11 + h * p[P_B2]
+            a22 = k22 + h * p[P_B3]
+            det = a11 * a22 - d12 * d12
+            inv11 = a22 / det
+            inv22 = a11 / det
+            inv12 = -d12 / det
+            r1 = d11 * v2 + d12 * v3 + h * (tau2 - cor1 - g1)
+            r2 = d12 * v2 + k22 * v3 + h * (tau3 - cor2 - g2)
+            w2 = inv11 * r1 + inv12 * r2
+            w3 = inv12 * r1 + inv22 * r2
+            lim2 = p[P_FS2] if abs(v2) < V_STICK else p[P_FC2]
+            lim3 = p[P_FS3] if abs(v3) < V_STICK else p[P_FC3]
+            f2 = 0.0
+            f3 = 0.0
+            for _it in range(3):  # Gauss-Seidel on the two friction impulses
+                u2 = w2 + h * (inv11 * f2 + inv12 * f3)
+                f2 = min(max(f2 - u2 / (h * inv11), -lim2), lim2)
+                u3 = w3 + h * (inv12 * f2 + inv22 * f3)
+                f3 = min(max(f3 - u3 / (h * inv22), -lim3), lim3)
+            v2 = w2 + h * (inv11 * f2 + inv12 * f3)
+            v3 = w3 + h * (inv12 * f2 + inv22 * f3)
+            if abs(v2) < V_STICK:
+                v2 = 0.0
+            if abs(v3) < V_STICK:
+                v3 = 0.0
+            q2 += h * v2
+            q3 += h * v3
+        out_q[k + 1, 0] = q2
+        out_q[k + 1, 1] = q3
+        out_qd[k + 1, 0] = v2
+        out_qd[k + 1, 1] = v3
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """Result of :meth:`LegModel.rollout`: ``q[k]``/``qd[k]`` at ``t = k dt``; ``tau[k]`` held on [k, k+1)."""
+
+    dt_s: float
+    q_rad: np.ndarray
+    qd_rad_s: np.ndarray
+    tau_nm: np.ndarray
+
+    def theta_at(self, t_s) -> np.ndarray:
+        """Joint angles at arbitrary times (linear interpolation between control periods)."""
+        t = np.asarray(t_s, dtype=float)
+        grid = np.arange(len(self.q_rad)) * self.dt_s
+        return np.stack([np.interp(t, grid, self.q_rad[:, j]) for j in range(2)], axis=-1)
+
+
+class LegModel:
+    """The two-link swing-down model of one leg, parameters taken from the robot description."""
+
+    def __init__(self, robot: Robot, leg: int, substeps: int = 1, control: bool = True,
+                 friction: bool = True, damping: bool = True, gravity: bool = True):
+        self.robot = robot
+        self.leg = leg
+        s = robot.servo
+        femur, tibia = robot.links['femur'], robot.links['tibia']
+        a2, a3 = robot.dh['femur'].a_m, robot.dh['tibia'].a_m
+        m2, lc2, i2 = tibia.mass_kg, tibia.com_from_joint_m, tibia.inertia_about_com_kgm2
+        payload = robot.leg_payload_kg(leg)
+        if payload > 0:  # point mass at the tibia tip: combine with the tibia link
+            m_tot = m2 + payload
+            lc_new = (m2 * lc2 + payload * a3) / m_tot
+            i2 = i2 + m2 * (lc2 - lc_new) ** 2 + payload * (a3 - lc_new) ** 2
+            m2, lc2 = m_tot, lc_new
+        eff = [robot.joint_effects(joint_name(leg, r)) for r in ('femur', 'tibia')]
+        p = np.zeros(N_PARAMS)
+        p[P_M1], p[P_LC1], p[P_I1] = femur.mass_kg, femur.com_from_joint_m, femur.inertia_about_com_kgm2
+        p[P_M2], p[P_LC2], p[P_I2], p[P_A2] = m2, lc2, i2, a2
+        p[P_G] = robot.gravity_mps2 if gravity else 0.0
+        p[P_OFF2], p[P_OFF3] = robot.dh['femur'].theta_off_rad, robot.dh['tibia'].theta_off_rad
+        p[P_J2] = p[P_J3] = s.reflected_inertia_kgm2
+        for j, e in enumerate(eff):
+            fc = (s.reflected_coulomb_nm + e.extra_coulomb_nm) if friction else 0.0
+            p[P_B2 + j] = (s.reflected_damping_nms_per_rad + e.extra_damping_nms_per_rad) if damping else 0.0
+            p[P_FC2 + j] = fc
+            p[P_FS2 + j] = max(fc, e.static_friction_nm) if friction else 0.0
+            p[P_TMAX2 + j] = s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
+            p[P_MARG2 + j] = s.compliance_margin_ticks + e.deadband_margin_ticks
+        p[P_KP] = s.gain_nm_per_tick
+        p[P_RPT], p[P_CENTER], p[P_MAXTICK] = s.rad_per_tick, s.center_tick, s.max_tick
+        p[P_CONTROL] = 1.0 if control else 0.0
+        p[P_SUBSTEPS] = int(substeps)
+        p[P_DT] = s.control_period_s
+        self.params = p
+        self.dt_s = s.control_period_s
+
+    def rollout(self, q0_rad, qd0_rad_s, goal_ticks) -> Rollout:
+        """Simulate from ``q0`` with integer goal ticks per control period (array of shape (n, 2))."""
+        goals = np.ascontiguousarray(goal_ticks, dtype=np.float64)
+        if goals.ndim != 2 or goals.shape[1] != 2:
+            raise ValueError(f'goal_ticks must have shape (n, 2), got {goals.shape}')
+        q0 = np.asarray(q0_rad, dtype=np.float64).reshape(2)
+        qd0 = np.asarray(qd0_rad_s, dtype=np.float64).reshape(2)
+        if not (np.all(np.isfinite(goals)) and np.all(np.isfinite(q0)) and np.all(np.isfinite(qd0))):
+            raise ValueError('swing-down model inputs contain NaN or infinity')
+        n = len(goals)
+        q = np.empty((n + 1, 2))
+        qd = np.empty((n + 1, 2))
+        tau = np.empty((n, 2))
+        _rollout_kernel(self.params, q0, qd0, goals, q, qd, tau)
+        return Rollout(self.dt_s, q, qd, tau)
+
+    # -- analysis helpers used by tests and tools
+    def mass_matrix(self, q_rad) -> np.ndarray:
+        p = self.params
+        psi3 = q_rad[1] + p[P_OFF3]
+        kc = p[P_M2] * p[P_A2] * p[P_LC2]
+        d11 = p[P_M1] * p[P_LC1] ** 2 + p[P_I1] + p[P_M2] * (p[P_A2] ** 2 + p[P_LC2] ** 2) + p[P_I2] \
+            + 2 * kc * math.cos(psi3) + p[P_J2]
+        d12 = p[P_M2] * p[P_LC2] ** 2 + p[P_I2] + kc * math.cos(psi3)
+        d22 = p[P_M2] * p[P_LC2] ** 2 + p[P_I2] + p[P_J3]
+        return np.array([[d11, d12], [d12, d22]])
+
+    def gravity_torque_nm(self, q_rad) -> np.ndarray:
+        """G(q): joint torques needed to hold the leg against gravity."""
+        p = self.params
+        psi2, psi23 = q_rad[0] + p[P_OFF2], q_rad[0] + q_rad[1] + p[P_OFF2] + p[P_OFF3]
+        g2 = p[P_G] * p[P_M2] * p[P_LC2] * math.cos(psi23)
+        return np.array([p[P_G] * (p[P_M1] * p[P_LC1] + p[P_M2] * p[P_A2]) * math.cos(psi2) + g2, g2])
+
+    def energy_j(self, q_rad, qd_rad_s) -> float:
+        """Kinetic (links + reflected rotors) plus potential energy."""
+        p = self.params
+        qd = np.asarray(qd_rad_s)
+        psi2, psi23 = q_rad[0] + p[P_OFF2], q_rad[0] + q_rad[1] + p[P_OFF2] + p[P_OFF3]
+        pot = p[P_G] * ((p[P_M1] * p[P_LC1] + p[P_M2] * p[P_A2]) * math.sin(psi2)
+                        + p[P_M2] * p[P_LC2] * math.sin(psi23))
+        return float(0.5 * qd @ self.mass_matrix(q_rad) @ qd + pot)
+
+
+# ----------------------------------------------------------------------------- CalcModel
+class SwingDownError(ValueError):
+    """Bad input to the swing-down prediction (the message names it)."""
+
+
+@dataclass(frozen=True)
+class SwingDownPrediction:
+    """Predictions at every femur read of Algorithm 1; arrays are indexed ``[step k, leg slot l]``."""
+
+    legs: tuple[int, ...]
+    t_con_s: float
+    t_com_s: float
+    epsilon_tick: float
+    direction: np.ndarray          # (L,) +1/-1: sign of the femur motion
+    t_read_s: np.ndarray           # (K, L) read instants relative to swing-down start
+    theta_des_tick: np.ndarray     # (K, L) integer femur goal in effect (written at k t_con)
+    theta_est_tick: np.ndarray     # (K, L) predicted femur tick at the read instant (continuous)
+    err_est_tick: np.ndarray       # (K, L) predicted lag in the direction of motion
+    threshold_tick: np.ndarray     # (K, L) Eq. 17: err_est + epsilon
+    reached_fin: np.ndarray        # (K,) True once the goal has reached theta_fin
+    rollouts: tuple[Rollout, ...]  # full 1 kHz trajectories per leg
+
+
+def interpolated_goals(theta_init_tick, theta_fin_tick, t_des_s: float, t_con_s: float, n_steps: int) -> np.ndarray:
+    """Eq. 15 / Algorithm 1 lines 3 and 6: ``theta_des(k) = theta_init + (k+1) dtheta``, capped at theta_fin.
+
+    Returns continuous goals of shape (n_steps, ...) matching the trailing shape of the inputs.
+    """
+    init = np.asarray(theta_init_tick, dtype=float)
+    fin = np.asarray(theta_fin_tick, dtype=float)
+    n_interp = t_des_s / t_con_s
+    frac = np.minimum((np.arange(n_steps) + 1.0) / n_interp, 1.0)
+    return init + frac.reshape((-1,) + (1,) * init.ndim) * (fin - init)
+
+
+def goals_per_period(goal_steps: np.ndarray, t_con_s: float, dt_s: float, n_periods: int) -> np.ndarray:
+    """The goal in effect at each servo control period: the latest one written at or before it."""
+    t = np.arange(n_periods) * dt_s
+    k = np.floor(t / t_con_s + 1e-9).astype(int)
+    return goal_steps[np.clip(k, 0, len(goal_steps) - 1)]
+
+
+def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_s: float, t_com_s: float,
+                       epsilon_tick: float = 3.0, n_steps: int | None = None, qd0_rad_s=None,
+                       models: dict | None = None, read_delay_s=None) -> SwingDownPrediction:
+    """CalcModel for ``legs`` swinging down together, read sequentially in the given order.
+
+    ``theta_init_rad``/``theta_fin_rad``: arrays (L, 2) of (femur, tibia) DH angles. ``n_steps``:
+    control steps to predict (default: until theta_fin plus 20 % settling). ``models`` may carry
+    cached :class:`LegModel` per leg. ``read_delay_s`` (L,) shifts each leg's reported sample
+    earlier (a readout delay effect).
+    """
+    legs = tuple(int(x) for x in legs)
+    L = len(legs)
+    if L == 0:
+        raise SwingDownError('no legs given')
+    init = np.asarray(theta_init_rad, dtype=float).reshape(L, 2)
+    fin = np.asarray(theta_fin_rad, dtype=float).reshape(L, 2)
+    for name, v in (('t_des_s', t_des_s), ('t_com_s', t_com_s), ('epsilon_tick', epsilon_tick)):
+        if not np.isfinite(v) or (name != 'epsilon_tick' and v <= 0):
+            raise SwingDownError(f'{name} must be a finite positive number, got {v!r}')
+    if not (np.all(np.isfinite(init)) and np.all(np.isfinite(fin))):
+        raise SwingDownError('initial or final joint angles contain NaN or infinity')
+    servo = robot.servo
+    t_con = L * t_com_s                                         # Algorithm 1, line 1
+    n_interp = int(math.ceil(t_des_s / t_con - 1e-9))
+    if n_steps is None:
+        n_steps = int(math.ceil(n_interp * 1.2)) + 1
+    init_t = theta_to_tick(init, servo)
+    fin_t = theta_to_tick(fin, servo)
+    goal_steps = np.rint(interpolated_goals(init_t, fin_t, t_des_s, t_con, n_steps))   # (K, L, 2) integer ticks
+    k_idx = np.arange(n_steps)
+    t_read = k_idx[:, None] * t_con + np.arange(L)[None, :] * t_com_s                  # lines 8-15
+    if read_delay_s is not None:
+        t_read_sample = np.maximum(t_read - np.asarray(read_delay_s, dtype=float)[None, :], 0.0)
+    else:
+        t_read_sample = t_read
+    dt = servo.control_period_s
+    n_periods = int(math.ceil(t_read.max() / dt)) + 2
+    goals = np.ascontiguousarray(goals_per_period(goal_steps, t_con, dt, n_periods).transpose(1, 0, 2))  # (L, n, 2)
+    qd0 = np.zeros((L, 2)) if qd0_rad_s is None else np.asarray(qd0_rad_s, dtype=float).reshape(L, 2)
+    rollouts = []
+    theta_est = np.empty((n_steps, L))
+    for slot, leg in enumerate(legs):
+        model = (models or {}).get(leg) or LegModel(robot, leg)
+        ro = model.rollout(init[slot], qd0[slot], goals[slot])
+        rollouts.append(ro)
+        grid = np.arange(len(ro.q_rad)) * dt
+        theta_est[:, slot] = theta_to_tick(np.interp(t_read_sample[:, slot], grid, ro.q_rad[:, 0]), servo)
+    direction = np.where(fin_t[:, 0] >= init_t[:, 0], 1.0, -1.0)
+    des = goal_steps[:, :, 0]
+    err_est = direction[None, :] * (des - theta_est)
+    return SwingDownPrediction(
+        legs=legs, t_con_s=t_con, t_com_s=t_com_s, epsilon_tick=float(epsilon_tick), direction=direction,
+        t_read_s=t_read, theta_des_tick=des, theta_est_tick=theta_est, err_est_tick=err_est,
+        threshold_tick=err_est + epsilon_tick, reached_fin=(k_idx + 1) >= n_interp, rollouts=tuple(rollouts))

@@ -1,0 +1,122 @@
+"""The swing-down model (Eq. 11-17): physics checks and the paper's Fig. 8/9 behaviour."""
+import math
+
+import numpy as np
+import pytest
+
+from hexapod_model.description import Effect, load_robot
+from hexapod_model.servo import theta_to_tick
+from hexapod_model.swing_model import LegModel, SwingDownError, interpolated_goals, predict_swing_down
+
+RAISED = [0.45, 0.1]     # femur, tibia at the end of swing-forward [rad]
+BELOW = [-0.15, -0.05]   # theta_fin: below the expected ground
+
+
+@pytest.fixture(scope='module')
+def robot():
+    return load_robot()
+
+
+def test_energy_is_conserved_without_damping_friction_control(robot):
+    model = LegModel(robot, 1, substeps=20, control=False, friction=False, damping=False)
+    q0 = np.array([0.6, 0.4])
+    ro = model.rollout(q0, [0.0, 0.0], np.zeros((2000, 2)))
+    e = np.array([model.energy_j(q, qd) for q, qd in zip(ro.q_rad[::50], ro.qd_rad_s[::50])])
+    ke_max = max(0.5 * qd @ model.mass_matrix(q) @ qd for q, qd in zip(ro.q_rad, ro.qd_rad_s))
+    assert ke_max > 0.01                                    # the leg really fell and swung
+    assert np.max(np.abs(e - e[0])) < 2e-3 * ke_max
+    # with damping switched back on, energy only decreases
+    damped = LegModel(robot, 1, substeps=20, control=False, friction=False)
+    ro = damped.rollout(q0, [0.0, 0.0], np.zeros((2000, 2)))
+    e = np.array([damped.energy_j(q, qd) for q, qd in zip(ro.q_rad[::10], ro.qd_rad_s[::10])])
+    assert np.all(np.diff(e) < 1e-9)
+
+
+@pytest.mark.parametrize('q', [[0.0, 0.0], [0.3, 0.2], [-0.2, 0.5]])
+def test_steady_state_femur_error_is_gravity_over_gain(robot, q):
+    # Hand derivation: at rest the servo must supply G(q); the firmware torque is
+    # (1.5 N m / 32) per tick of error, so the error is G / (1.5/32) ticks. The firmware sees integer
+    # ticks, so the leg settles on the tick boundary nearest that value: within half a tick.
+    f, t = robot.links['femur'], robot.links['tibia']
+    psi2 = q[0] - 0.22
+    psi23 = psi2 + q[1] - 0.81
+    g_femur = 9.81 * ((f.mass_kg * 0.046 + t.mass_kg * 0.066) * math.cos(psi2) + t.mass_kg * 0.062 * math.cos(psi23))
+    expected = g_femur / (1.5 / 32)
+    model = LegModel(robot, 1, friction=False)
+    goal = np.rint(theta_to_tick(np.array(q), robot.servo))
+    ro = model.rollout(q, [0, 0], np.tile(goal, (4000, 1)))
+    err = goal[0] - theta_to_tick(ro.q_rad[2000:, 0], robot.servo)
+    assert np.std(err) < 0.05                                # settled
+    assert abs(err.mean() - expected) <= 0.5 + 1e-6
+    assert expected > 1.0                                   # a real, visible gravity error
+
+
+def test_one_substep_matches_fine_integration(robot):
+    init, fin = np.array([RAISED] * 3), np.array([BELOW] * 3)
+    for t_des in (0.5, 1.0, 2.0):
+        fine = predict_swing_down(robot, [1, 6, 3], init, fin, t_des, 0.001,
+                                  models={leg: LegModel(robot, leg, substeps=50) for leg in (1, 6, 3)})
+        coarse = predict_swing_down(robot, [1, 6, 3], init, fin, t_des, 0.001)
+        assert np.max(np.abs(fine.theta_est_tick - coarse.theta_est_tick)) < 0.1
+
+
+def test_interpolation_eq15():
+    g = interpolated_goals(100.0, 40.0, t_des_s=0.03, t_con_s=0.003, n_steps=12)
+    assert g[0] == pytest.approx(94.0) and g[9] == pytest.approx(40.0) and g[11] == pytest.approx(40.0)
+    assert np.diff(g[:10]) == pytest.approx(np.full(9, -6.0))
+
+
+def _fig9(robot, t_des):
+    return predict_swing_down(robot, [1, 6, 3], np.array([RAISED] * 3), np.array([BELOW] * 3), t_des, 0.001)
+
+
+def test_fig9_early_peak_then_plateau_shrinking_with_t_des(robot):
+    plateaus = []
+    for t_des in (0.5, 1.0, 2.0):
+        p = _fig9(robot, t_des)
+        assert p.t_con_s == pytest.approx(0.003)
+        e = p.err_est_tick[:, 0]
+        t = p.t_read_s[:, 0]
+        moving = ~p.reached_fin
+        k_peak = int(np.argmax(e))
+        assert 0.02 <= t[k_peak] <= 0.12, f't_des={t_des}: peak at {t[k_peak]:.3f} s'
+        mid = moving & (t > 0.3 * t_des) & (t < 0.9 * t_des)
+        plateau = float(np.median(e[mid]))
+        assert np.std(e[mid]) < 0.25 * plateau + 0.2           # flat
+        assert e[k_peak] > 1.3 * plateau                      # the early peak stands out
+        plateaus.append(plateau)
+    assert plateaus[0] > plateaus[1] > plateaus[2] > 0
+
+
+def test_fig8_later_read_leg_sees_smaller_error(robot):
+    p = _fig9(robot, 0.5)
+    mid = (~p.reached_fin) & (p.t_read_s[:, 0] > 0.15) & (p.t_read_s[:, 0] < 0.45)
+    m = p.err_est_tick[mid].mean(axis=0)
+    assert m[0] > m[1] > m[2]
+    assert p.t_read_s[5] == pytest.approx([0.015, 0.016, 0.017])
+
+
+def test_threshold_is_estimate_plus_epsilon(robot):
+    p = _fig9(robot, 1.0)
+    assert p.threshold_tick == pytest.approx(p.err_est_tick + 3.0)
+    assert np.all(p.direction == -1.0)        # the femur moves down: lag counted positive
+
+
+def test_effects_change_the_prediction(robot):
+    base = _fig9(robot, 1.0).err_est_tick[:, 0]
+    heavy = robot.with_effects([Effect('mass_error', ('leg1_tibia',), {'payload_kg': 0.1})])
+    sticky = robot.with_effects([Effect('static_friction', ('leg1_femur',), {'tau_s_nm': 0.3})])
+    e_heavy = _fig9(heavy, 1.0).err_est_tick[:, 0]
+    e_sticky = _fig9(sticky, 1.0).err_est_tick[:, 0]
+    # a payload pulls the descending leg ahead of its goal (less lag); stiction delays the start
+    assert e_heavy[100:250].mean() < base[100:250].mean() - 0.5
+    assert e_sticky[:20].max() > base[:20].max() + 2
+
+
+def test_bad_inputs_are_named(robot):
+    with pytest.raises(SwingDownError, match='t_des_s'):
+        predict_swing_down(robot, [1], [RAISED], [BELOW], 0.0, 0.001)
+    with pytest.raises(SwingDownError, match='NaN'):
+        predict_swing_down(robot, [1], [[np.nan, 0]], [BELOW], 1.0, 0.001)
+    with pytest.raises(SwingDownError, match='no legs'):
+        predict_swing_down(robot, [], [], [], 1.0, 0.001)
