@@ -1,0 +1,45 @@
+"""The recording and topic contract shared by driver, sim, controller, replay and tools.
+
+Bags are rosbag2-layout MCAP (``metadata.yaml`` + ``.mcap``; ros2msg schemas, CDR). Joint names
+are ``leg{1..6}_{coxa,femur,tibia}``; angles are the DH joint variable theta in radians.
+
+``/joint_commands`` (sensor_msgs/msg/JointState): goal positions sent to the servos, one message
+per bus write (sync write), ``header.stamp`` = time of the write.
+``/joint_states`` (sensor_msgs/msg/JointState): measured positions, one message per bus read
+transaction (a single joint), ``header.stamp`` = the time the position was sampled (the start of
+the read transaction). Velocity/effort may be filled where measured.
+
+The driver (hardware) and the sim node expose exactly the same topics and services, so the
+controller cannot tell them apart.
+"""
+
+JOINT_COMMANDS = '/joint_commands'          # sensor_msgs/msg/JointState, in
+JOINT_STATES = '/joint_states'              # sensor_msgs/msg/JointState, out, one per read
+READ_SCHEDULE = '/read_schedule'            # hexapod_msgs/msg/ReadSchedule, in
+SERVO_DIAGNOSTICS = '/servo_diagnostics'    # hexapod_msgs/msg/ServoDiagnostics, out, periodic
+BUS_TIMING = '/bus_timing'                  # hexapod_msgs/msg/BusTiming, out, periodic
+EMERGENCY_STOP = '/emergency_stop'          # std_srvs/srv/Trigger: torque off on every servo
+POWER = '/power'                            # sensor_msgs/msg/BatteryState (sim: battery model)
+IMU = '/imu'                                # sensor_msgs/msg/Imu (sim only; the method needs none)
+CLOCK = '/clock'                            # rosgraph_msgs/msg/Clock (sim, replay)
+GROUND_DETECTION = '/ground_detection'      # hexapod_msgs/msg/LegGroundDetection (controller)
+CMD_VEL = '/cmd_vel'                        # geometry_msgs/msg/Twist (controller input)
+PREDICT_SWING_DOWN = '/predict_swing_down'  # hexapod_msgs/srv/PredictSwingDown (model node)
+# Evaluation-only ground truth published by the sim; never consumed by any estimator/controller.
+SIM_TRUTH_CONTACTS = '/sim/foot_contacts'   # hexapod_msgs-free: std_msgs/msg/Float64MultiArray
+SIM_TRUTH_POSE = '/sim/body_pose'           # geometry_msgs/msg/PoseStamped
+
+MSG_TYPES = {
+    JOINT_COMMANDS: 'sensor_msgs/msg/JointState',
+    JOINT_STATES: 'sensor_msgs/msg/JointState',
+    READ_SCHEDULE: 'hexapod_msgs/msg/ReadSchedule',
+    SERVO_DIAGNOSTICS: 'hexapod_msgs/msg/ServoDiagnostics',
+    BUS_TIMING: 'hexapod_msgs/msg/BusTiming',
+    POWER: 'sensor_msgs/msg/BatteryState',
+    IMU: 'sensor_msgs/msg/Imu',
+    CLOCK: 'rosgraph_msgs/msg/Clock',
+    GROUND_DETECTION: 'hexapod_msgs/msg/LegGroundDetection',
+    CMD_VEL: 'geometry_msgs/msg/Twist',
+    SIM_TRUTH_CONTACTS: 'std_msgs/msg/Float64MultiArray',
+    SIM_TRUTH_POSE: 'geometry_msgs/msg/PoseStamped',
+}
