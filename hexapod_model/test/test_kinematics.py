@@ -14,18 +14,19 @@ def robot():
 
 
 def test_default_stance_by_hand(robot):
-    # theta = 0 for every joint: psi2 = -0.22, psi3 = -0.81 (Table 1). In the leg plane:
-    r = 0.052 + 0.066 * math.cos(-0.22) + 0.138 * math.cos(-0.22 - 0.81)
-    z = 0.066 * math.sin(-0.22) + 0.138 * math.sin(-0.22 - 0.81)
-    assert r == pytest.approx(0.18745, abs=1e-5) and z == pytest.approx(-0.13271, abs=1e-5)
+    # home stance theta = (0, 0.5, -0.8): psi2 = 0.5 - 0.22 = 0.28, psi3 = -0.8 - 0.81 = -1.61
+    # (Table 1 offsets). In the leg's vertical plane:
+    r = 0.052 + 0.066 * math.cos(0.28) + 0.138 * math.cos(0.28 - 1.61)
+    z = 0.066 * math.sin(0.28) + 0.138 * math.sin(0.28 - 1.61)
+    assert r == pytest.approx(0.14834, abs=1e-5) and z == pytest.approx(-0.11578, abs=1e-5)
     feet = stance_feet(robot)
     # Table 2 mounts: (px, py, beta) -> foot = mount + r (cos beta, sin beta)
     mounts = [(0.1206, 0.0605, math.pi / 4), (0.1206, -0.0605, 7 * math.pi / 4), (-0.1206, 0.0605, 3 * math.pi / 4),
               (-0.1206, -0.0605, 5 * math.pi / 4), (0.0, 0.1005, math.pi / 2), (0.0, -0.1005, 3 * math.pi / 2)]
     for foot, (px, py, b) in zip(feet, mounts):
         assert foot == pytest.approx([px + r * math.cos(b), py + r * math.sin(b), z], abs=1e-9)
-    # front-left foot by hand: 120.6 + 187.45 cos 45deg = 253.15 mm
-    assert feet[0][:2] * 1000 == pytest.approx([253.15, 193.05], abs=0.01)
+    # front-left foot by hand: 120.6 + 148.34 cos 45deg = 225.49 mm, 60.5 + 104.89 = 165.39 mm
+    assert feet[0][:2] * 1000 == pytest.approx([225.49, 165.39], abs=0.01)
 
 
 def test_femur_lifts_with_positive_angle(robot):
@@ -40,9 +41,9 @@ def test_fk_of_ik_is_identity_over_grid(robot, leg):
     outward = np.array([math.cos(m.beta_rad), math.sin(m.beta_rad), 0.0])
     side = np.array([-outward[1], outward[0], 0.0])
     n = 0
-    for dr in np.linspace(-0.05, 0.0, 5):
-        for ds in np.linspace(-0.04, 0.04, 5):
-            for dz in np.linspace(0.0, 0.06, 5):
+    for dr in np.linspace(-0.03, 0.02, 5):
+        for ds in np.linspace(-0.05, 0.05, 5):
+            for dz in np.linspace(-0.04, 0.05, 5):
                 p = base + dr * outward + ds * side + np.array([0, 0, dz])
                 th = inverse(robot, leg, p)
                 assert forward(robot, leg, th) == pytest.approx(p, abs=1e-9)

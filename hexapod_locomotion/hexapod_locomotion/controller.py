@@ -1,0 +1,297 @@
+"""The adaptive gait cycle of the paper's Fig. 4, on any :class:`hexapod_model.bus.ServoBus`.
+
+One *phase* moves one gait group: swing-up, swing-forward (joint-space interpolation of the foot
+targets), swing-down with ground detection (Algorithm 1, :mod:`.detector`), then - once every
+swinging leg has stopped - body leveling (Sec. 5, Eq. 8-10) combined with the explicit forward
+motion and turning requested by the velocity command. Pure Python + numpy: time comes from the
+bus, nothing reads a wall clock, so the same code runs lock-stepped in simulation, on the driver,
+and behind the ROS node.
+
+Frames: body frame x forward, y left, z up. Foot targets are planned in the body frame; the
+ground is felt, never assumed, except that ``theta_fin`` is placed ``ground_depth_m`` below the
+nominal stance height so contact always develops (Sec. 7).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from hexapod_model.bus import ServoBus
+from hexapod_model.description import ALL_JOINTS, Robot, joint_name
+from hexapod_model.kinematics import UnreachableTargetError, forward, inverse, stance_feet
+from hexapod_model.leveling import LevelingError, level_body
+from hexapod_model.swing_model import LegModel
+
+from .detector import (STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, ReadResult, SwingDownPhase,
+                       run_swing_down)
+from .gait import Gait
+
+
+class LocomotionError(RuntimeError):
+    """The controller cannot continue safely (message says why)."""
+
+
+@dataclass(frozen=True)
+class LocomotionParams:
+    """Gait-cycle parameters. Lengths in metres, times in seconds."""
+
+    t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
+    t_swing_up_s: float = 0.2
+    t_swing_forward_s: float = 0.3
+    t_level_s: float = 0.4
+    write_period_s: float = 0.01     # goal update period outside the swing-down
+    lift_m: float = 0.05             # swing-up height above the current foothold
+    max_stride_m: float = 0.06       # longest foothold displacement per cycle
+    max_turn_rad: float = 0.25       # largest yaw per cycle
+    ground_depth_m: float = 0.06     # theta_fin: this far below the nominal ground
+    explicit_forward: float = 0.5    # extra body shift per phase, fraction of stride * L / 6
+    background_reads: bool = True    # read joints round-robin whenever the bus would idle
+
+    def __post_init__(self):
+        for f in self.__dataclass_fields__:
+            v = getattr(self, f)
+            if isinstance(v, float) and (not math.isfinite(v) or v < 0):
+                raise LocomotionError(f'locomotion parameter {f} must be finite and >= 0, got {v!r}')
+        for f in ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_level_s', 'write_period_s'):
+            if getattr(self, f) <= 0:
+                raise LocomotionError(f'locomotion parameter {f} must be > 0')
+
+
+@dataclass(frozen=True)
+class VelocityCommand:
+    """Desired body velocity (as geometry_msgs/Twist): vx, vy [m/s], wz [rad/s]."""
+
+    vx: float = 0.05
+    vy: float = 0.0
+    wz: float = 0.0
+
+    def __post_init__(self):
+        for name in ('vx', 'vy', 'wz'):
+            if not math.isfinite(getattr(self, name)):
+                raise LocomotionError(f'velocity command {name} is not finite: {getattr(self, name)!r}')
+
+
+@dataclass
+class LegOutcome:
+    leg: int
+    stop_reason: int
+    stop_time_s: float
+    stop_step: int
+    peak_err_tick: float
+    premature_suspects: int
+
+
+@dataclass
+class PhaseReport:
+    phase: int
+    legs: tuple[int, ...]
+    t_start_s: float
+    t_swing_down_start_s: float
+    t_swing_down_end_s: float
+    t_end_s: float
+    outcomes: list[LegOutcome]
+    body_roll_pitch_rad: tuple[float, float]
+    warnings: list[str] = field(default_factory=list)
+
+
+class GaitController:
+    """Runs the adaptive gait cycle for one gait and detector on a bus."""
+
+    def __init__(self, robot: Robot, gait: Gait, params: LocomotionParams = LocomotionParams(),
+                 detector: DetectorConfig = DetectorConfig(), t_com_s: float | None = None,
+                 on_read: Callable[[ReadResult], None] | None = None,
+                 on_phase: Callable[[PhaseReport], None] | None = None):
+        self.robot = robot
+        self.gait = gait
+        self.params = params
+        self.detector = detector
+        self.t_com_s = robot.bus.t_com_s if t_com_s is None else float(t_com_s)
+        self.on_read = on_read
+        self.on_phase = on_phase
+        self.models = {leg: LegModel(robot, leg) for leg in range(1, 7)}
+        self.neutral = stance_feet(robot)                   # (6, 3) body frame
+        self.body_height_m = -float(self.neutral[0, 2])
+        self.goals = self._stance_goals()
+        self.measured: dict[str, float] = {}
+        self.phase_index = 0
+        self._rr = 0                                        # round-robin read pointer
+
+    # ------------------------------------------------------------------ helpers
+    def _stance_goals(self) -> dict[str, float]:
+        th = self.robot.default_stance_rad
+        return {joint_name(leg, r): th[i] for leg in range(1, 7) for i, r in enumerate(('coxa', 'femur', 'tibia'))}
+
+    def leg_angles(self, leg: int, measured: bool = False) -> np.ndarray:
+        src = self.measured if measured else {}
+        return np.array([src.get(joint_name(leg, r), self.goals[joint_name(leg, r)]) for r in ('coxa', 'femur', 'tibia')])
+
+    def foot(self, leg: int, measured: bool = False) -> np.ndarray:
+        return forward(self.robot, leg, self.leg_angles(leg, measured))
+
+    def idle_until(self, bus: ServoBus, t: float) -> None:
+        """Let time pass until ``t``; with background reads, read joints round-robin meanwhile."""
+        if self.params.background_reads:
+            while bus.now() + self.t_com_s <= t + 1e-12:
+                j = ALL_JOINTS[self._rr % len(ALL_JOINTS)]
+                self._rr += 1
+                theta, _ = bus.read_position(j)
+                self.measured[j] = theta
+        bus.wait_until(t)
+
+    def move_joints(self, bus: ServoBus, target: dict[str, float], duration_s: float) -> None:
+        """Linear joint-space interpolation of the given joints over ``duration_s``."""
+        start = {j: self.goals[j] for j in target}
+        t0 = bus.now()
+        n = max(1, int(round(duration_s / self.params.write_period_s)))
+        for i in range(1, n + 1):
+            a = i / n
+            for j, v in target.items():
+                self.goals[j] = start[j] + a * (v - start[j])
+            bus.sync_write({j: self.goals[j] for j in target})
+            self.idle_until(bus, t0 + i * duration_s / n)
+
+    def _ik(self, leg: int, p) -> np.ndarray:
+        return inverse(self.robot, leg, p)
+
+    # ------------------------------------------------------------------ the cycle
+    def startup(self, bus: ServoBus, duration_s: float = 0.5) -> None:
+        """Move every joint to the home stance."""
+        bus.sync_write(dict(self.goals))
+        self.idle_until(bus, bus.now() + duration_s)
+
+    def step_phase(self, bus: ServoBus, cmd: VelocityCommand = VelocityCommand()) -> PhaseReport:
+        p = self.params
+        legs = self.gait.swing_legs(self.phase_index)
+        L = len(legs)
+        warnings: list[str] = []
+        t_start = bus.now()
+        cycle_s = self.gait.n_phases * (p.t_swing_up_s + p.t_swing_forward_s + p.t_des_s + p.t_level_s)
+        d = np.array([cmd.vx, cmd.vy]) * cycle_s
+        if np.linalg.norm(d) > p.max_stride_m:
+            d *= p.max_stride_m / np.linalg.norm(d)
+        yaw = float(np.clip(cmd.wz * cycle_s, -p.max_turn_rad, p.max_turn_rad))
+
+        # 1. swing-up: lift the feet straight up
+        up = {}
+        for leg in legs:
+            f = self.foot(leg) + np.array([0, 0, p.lift_m])
+            up.update(self._targets(leg, f, warnings))
+        self.move_joints(bus, up, p.t_swing_up_s)
+
+        # 2. swing-forward: to the neutral foothold advanced by half the stride (and turned)
+        fwd = {}
+        c, s = math.cos(yaw / 2), math.sin(yaw / 2)
+        for leg in legs:
+            n = self.neutral[leg - 1]
+            xy = np.array([c * n[0] - s * n[1], s * n[0] + c * n[1]]) + d / 2
+            z = max(self.foot(leg)[2], -self.body_height_m + p.lift_m)
+            fwd.update(self._targets(leg, np.array([xy[0], xy[1], z]), warnings))
+        self.move_joints(bus, fwd, p.t_swing_forward_s)
+
+        # 3. swing-down with ground detection (Algorithm 1)
+        init, fin, coxa = [], [], []
+        for leg in legs:
+            th = self.leg_angles(leg)
+            f = self.foot(leg)
+            th_fin = self._fin_angles(leg, f, warnings)
+            init.append(th[1:])
+            fin.append(th_fin[1:])
+            coxa.append(th[0])
+        t_sd = bus.now()
+        phase = SwingDownPhase(self.robot, legs, coxa, init, fin, p.t_des_s, self.t_com_s, self.detector,
+                               t_start_s=t_sd, models=self.models)
+        run_swing_down(bus, phase, on_read=self.on_read)
+        t_sd_end = bus.now()
+        outcomes = []
+        missed = set()
+        for leg in legs:
+            st = phase.state[leg]
+            g = phase.goals(st.stop_step)
+            for j in ('femur', 'tibia'):
+                self.goals[joint_name(leg, j)] = g[joint_name(leg, j)]
+            self.measured[joint_name(leg, 'femur')] = st.stop_theta_real_rad
+            if st.stop_reason == STOP_THETA_FIN:
+                missed.add(leg)
+                warnings.append(f'leg {leg}: no ground found down to theta_fin; leg excluded from leveling')
+            outcomes.append(LegOutcome(leg, st.stop_reason, st.stop_time_s - t_sd, st.stop_step,
+                                       st.peak_err_tick, st.premature_suspects))
+
+        # 4. body leveling + explicit forward motion + turn
+        swung_feet = {leg: forward(self.robot, leg, [self.goals[joint_name(leg, 'coxa')], phase.state[leg].stop_theta_real_rad,
+                                                     self.goals[joint_name(leg, 'tibia')]]) for leg in legs}
+        roll_pitch = self._level(bus, d * (p.explicit_forward * L / 6.0), swung_feet, missed, warnings)
+        report = PhaseReport(self.phase_index, legs, t_start, t_sd, t_sd_end, bus.now(), outcomes, roll_pitch,
+                             warnings)
+        self.phase_index += 1
+        if self.on_phase is not None:
+            self.on_phase(report)
+        return report
+
+    def _targets(self, leg: int, foot, warnings: list[str]) -> dict[str, float]:
+        try:
+            th = self._ik(leg, foot)
+        except UnreachableTargetError as exc:
+            # Pull the target towards the neutral foothold until it is reachable.
+            n = self.neutral[leg - 1]
+            for a in np.linspace(0.1, 1.0, 10):
+                try:
+                    th = self._ik(leg, (1 - a) * np.asarray(foot) + a * n)
+                    break
+                except UnreachableTargetError:
+                    continue
+            else:
+                raise LocomotionError(f'leg {leg}: no reachable target near {np.round(foot, 3).tolist()}') from exc
+            warnings.append(f'{exc}; target pulled towards the neutral foothold')
+        return {joint_name(leg, r): float(v) for r, v in zip(('coxa', 'femur', 'tibia'), th)}
+
+    def _fin_angles(self, leg: int, foot, warnings: list[str]) -> np.ndarray:
+        """theta_fin: the foot straight below its current position, ground_depth_m under the nominal ground."""
+        depth = self.params.ground_depth_m
+        for _ in range(12):
+            try:
+                return self._ik(leg, np.array([foot[0], foot[1], -self.body_height_m - depth]))
+            except UnreachableTargetError:
+                depth *= 0.7
+        warnings.append(f'leg {leg}: cannot reach below the nominal ground; theta_fin at the nominal ground')
+        return self._ik(leg, np.array([foot[0], foot[1], -self.body_height_m]))
+
+    def _level(self, bus: ServoBus, shift_xy, swung_feet: dict[int, np.ndarray], missed: set[int],
+               warnings: list[str]):
+        """Eq. 8-10 on the support feet, then the yaw that best maps the neutral stance onto the feet
+        (so the body follows turning legs) and the explicit forward shift."""
+        support = [leg for leg in range(1, 7) if leg not in missed]
+        feet = np.array([swung_feet.get(leg, self.foot(leg)) for leg in range(1, 7)])
+        try:
+            pose, _ = level_body(feet[[leg - 1 for leg in support]], self.body_height_m)
+        except LevelingError as exc:
+            warnings.append(f'body leveling skipped: {exc}')
+            return (0.0, 0.0)
+        new_feet = pose.to_body(feet)
+        roll_pitch = pose.roll_pitch_rad()
+        idx = [leg - 1 for leg in support]
+        nf = new_feet[idx, :2] - new_feet[idx, :2].mean(axis=0)
+        nn = self.neutral[idx, :2] - self.neutral[idx, :2].mean(axis=0)
+        yaw = math.atan2(np.sum(nn[:, 0] * nf[:, 1] - nn[:, 1] * nf[:, 0]), np.sum(nn * nf))
+        for scale in (1.0, 0.5, 0.0):
+            c, s = math.cos(-yaw * scale), math.sin(-yaw * scale)
+            rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+            moved = (new_feet - np.array([shift_xy[0], shift_xy[1], 0]) * scale) @ rot.T
+            for leg in missed:        # a leg without ground returns to its neutral stance pose
+                moved[leg - 1] = self.neutral[leg - 1]
+            try:
+                target = {}
+                for leg in range(1, 7):
+                    th = self._ik(leg, moved[leg - 1])
+                    target.update({joint_name(leg, r): float(v) for r, v in zip(('coxa', 'femur', 'tibia'), th)})
+                break
+            except UnreachableTargetError as exc:
+                warnings.append(f'leveling: {exc}; shortening the body motion')
+        else:
+            warnings.append('leveling: no reachable leveled pose; holding the current pose')
+            return roll_pitch
+        self.move_joints(bus, target, self.params.t_level_s)
+        return roll_pitch
+

@@ -1,0 +1,226 @@
+"""Ground detection in the swing-down phase (paper Sec. 7, Algorithm 1). Pure numpy.
+
+Two detectors share one interface:
+
+* ``adaptive`` - the paper's model-based threshold, Eq. 17: ``e_thld(k) = err_est(k) + epsilon``,
+  with ``err_est`` from the swing-down model (:func:`hexapod_model.swing_model.predict_swing_down`)
+  evaluated at the actual sample time of each read;
+* ``fixed`` - the baseline of the earlier work: a constant ``e_thld`` (21 ticks).
+
+:class:`SwingDownPhase` is Algorithm 1 as a state machine: ``goals(k)`` gives the interpolated
+goals of step ``k`` (Eq. 15, lines 5-7), ``on_read`` takes one sequential femur read (lines 9-14)
+and decides whether that leg stops. It never reads a clock: times are arguments. The same object
+drives the lock-stepped simulation loop (:func:`run_swing_down`) and the ROS node.
+
+Errors are lag in the direction of motion, in ticks (see :mod:`hexapod_model.swing_model`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hexapod_model.bus import ServoBus
+from hexapod_model.description import Robot, joint_name
+from hexapod_model.kinematics import forward
+from hexapod_model.servo import theta_to_tick, tick_to_theta
+from hexapod_model.swing_model import LegModel, SwingDownPrediction, interpolated_goals, predict_swing_down
+
+STOP_NONE, STOP_CONTACT, STOP_THETA_FIN = 0, 1, 2     # as in hexapod_msgs/LegGroundDetection
+
+
+class DetectorError(ValueError):
+    """Bad detector configuration or input."""
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    kind: str = 'adaptive'           # 'adaptive' (Eq. 17) or 'fixed'
+    epsilon_tick: float = 3.0        # Eq. 17 margin (paper: 3 ticks)
+    fixed_threshold_tick: float = 21.0   # baseline threshold of the earlier work
+    min_descent_m: float = 0.004     # a detection before the foot has descended this much is suspect
+    confirm_reads: int = 3           # ...and must then persist for this many consecutive reads
+
+    def __post_init__(self):
+        if self.kind not in ('adaptive', 'fixed'):
+            raise DetectorError(f"detector kind must be 'adaptive' or 'fixed', got {self.kind!r}")
+        for name in ('epsilon_tick', 'fixed_threshold_tick', 'min_descent_m'):
+            v = getattr(self, name)
+            if not math.isfinite(v) or v < 0:
+                raise DetectorError(f'{name} must be a finite non-negative number, got {v!r}')
+        if self.confirm_reads < 1:
+            raise DetectorError(f'confirm_reads must be >= 1, got {self.confirm_reads}')
+
+
+@dataclass
+class ReadResult:
+    """Telemetry of one femur read (fields of hexapod_msgs/LegGroundDetection)."""
+
+    leg: int
+    detector: str
+    step: int
+    t_swing_s: float
+    stamp_s: float
+    theta_des_tick: float
+    theta_real_tick: float
+    theta_est_tick: float
+    err_tick: float
+    err_est_tick: float
+    threshold_tick: float
+    stopped: bool
+    stop_reason: int
+    premature_suspect: bool = False
+
+
+@dataclass
+class LegState:
+    leg: int
+    theta_init: np.ndarray          # (femur, tibia) [rad]
+    theta_fin: np.ndarray
+    direction: float                # sign of the femur motion
+    coxa_rad: float
+    goal_tick: np.ndarray           # current continuous goal (femur, tibia) [tick]
+    stopped: bool = False
+    stop_reason: int = STOP_NONE
+    stop_step: int = -1
+    stop_time_s: float = math.nan
+    stop_theta_real_rad: float = math.nan
+    suspect_count: int = 0
+    premature_suspects: int = 0
+    peak_err_tick: float = -math.inf
+    history: list = field(default_factory=list)
+
+
+class SwingDownPhase:
+    """Algorithm 1 for the legs of one group swinging down together, read in the given order."""
+
+    def __init__(self, robot: Robot, legs, coxa_rad, theta_init_rad, theta_fin_rad, t_des_s: float,
+                 t_com_s: float, config: DetectorConfig, t_start_s: float = 0.0,
+                 models: dict[int, LegModel] | None = None):
+        self.robot = robot
+        self.legs = tuple(int(x) for x in legs)
+        self.config = config
+        L = len(self.legs)
+        init = np.asarray(theta_init_rad, dtype=float).reshape(L, 2)
+        fin = np.asarray(theta_fin_rad, dtype=float).reshape(L, 2)
+        if not (np.all(np.isfinite(init)) and np.all(np.isfinite(fin))):
+            raise DetectorError('swing-down start or final angles contain NaN')
+        self.t_des_s = float(t_des_s)
+        self.t_com_s = float(t_com_s)
+        self.t_con_s = L * self.t_com_s                                   # line 1
+        self.n_interp = int(math.ceil(self.t_des_s / self.t_con_s - 1e-9))
+        self.t_start_s = float(t_start_s)
+        servo = robot.servo
+        self._init_tick = theta_to_tick(init, servo)
+        self._fin_tick = theta_to_tick(fin, servo)
+        # Eq. 15: the whole interpolated goal table, (n_interp, L, 2) continuous ticks
+        self._goal_table = interpolated_goals(self._init_tick, self._fin_tick, self.t_des_s, self.t_con_s,
+                                              self.n_interp)
+        self.state = {}
+        for slot, leg in enumerate(self.legs):
+            d = 1.0 if self._fin_tick[slot, 0] >= self._init_tick[slot, 0] else -1.0
+            self.state[leg] = LegState(leg, init[slot], fin[slot], d, float(np.asarray(coxa_rad)[slot]),
+                                       self._init_tick[slot].copy())
+        # The model prediction of the whole phase (CalcModel); also used at the actual read stamps.
+        self.prediction: SwingDownPrediction | None = None
+        if config.kind == 'adaptive':
+            self.prediction = predict_swing_down(robot, self.legs, init, fin, t_des_s, t_com_s,
+                                                 epsilon_tick=config.epsilon_tick,
+                                                 n_steps=self.n_interp + 1, models=models)
+        self._start_foot_z = {leg: forward(robot, leg, [self.state[leg].coxa_rad, *init[i]])[2]
+                              for i, leg in enumerate(self.legs)}
+
+    # ---------------------------------------------------------------- Algorithm 1
+    @property
+    def done(self) -> bool:
+        return all(s.stopped for s in self.state.values())
+
+    def goals(self, k: int) -> dict[str, float]:
+        """Goals written at step ``k`` (lines 5-7): interpolated toward theta_fin, frozen once stopped."""
+        out = {}
+        for slot, leg in enumerate(self.legs):
+            s = self.state[leg]
+            if not s.stopped:
+                s.goal_tick = self._goal_table[min(k, self.n_interp - 1), slot].copy()
+            th = tick_to_theta(np.rint(s.goal_tick), self.robot.servo)
+            out[joint_name(leg, 'coxa')] = s.coxa_rad
+            out[joint_name(leg, 'femur')] = float(th[0])
+            out[joint_name(leg, 'tibia')] = float(th[1])
+        return out
+
+    def reached_fin(self, k: int) -> bool:
+        return k + 1 >= self.n_interp
+
+    def on_read(self, k: int, leg: int, theta_real_rad: float, stamp_s: float) -> ReadResult:
+        """Lines 9-14 for one femur read of ``leg`` at step ``k``, sampled at ``stamp_s``."""
+        s = self.state[leg]
+        if not math.isfinite(theta_real_rad) or not math.isfinite(stamp_s):
+            raise DetectorError(f'leg {leg}: femur read is not finite ({theta_real_rad!r} at {stamp_s!r})')
+        servo = self.robot.servo
+        slot = self.legs.index(leg)
+        t_swing = stamp_s - self.t_start_s
+        des = float(np.rint(s.goal_tick[0]))
+        real = float(theta_to_tick(theta_real_rad, servo))
+        err = s.direction * (des - real)                                   # Eq. 16
+        if self.prediction is not None:
+            ro = self.prediction.rollouts[slot]
+            est = float(theta_to_tick(np.interp(t_swing, np.arange(len(ro.q_rad)) * ro.dt_s, ro.q_rad[:, 0]), servo))
+            err_est = s.direction * (des - est)
+            thld = err_est + self.config.epsilon_tick                      # Eq. 17
+        else:
+            est, err_est = math.nan, math.nan
+            thld = self.config.fixed_threshold_tick
+        suspect = False
+        if not s.stopped:
+            s.peak_err_tick = max(s.peak_err_tick, err)
+            if err > thld:
+                foot_z = forward(self.robot, leg, [s.coxa_rad, theta_real_rad, tick_to_theta(s.goal_tick[1], servo)])[2]
+                descended = self._start_foot_z[leg] - foot_z
+                if descended < self.config.min_descent_m:
+                    # The foot has hardly moved: the error cannot come from ground it has not reached.
+                    suspect = True
+                    s.suspect_count += 1
+                    s.premature_suspects += 1
+                    if s.suspect_count >= self.config.confirm_reads:
+                        self._stop(s, STOP_CONTACT, k, stamp_s, theta_real_rad)
+                else:
+                    self._stop(s, STOP_CONTACT, k, stamp_s, theta_real_rad)
+            else:
+                s.suspect_count = 0
+                if self.reached_fin(k):
+                    self._stop(s, STOP_THETA_FIN, k, stamp_s, theta_real_rad)
+        res = ReadResult(leg=leg, detector=self.config.kind, step=k, t_swing_s=t_swing, stamp_s=stamp_s,
+                         theta_des_tick=des, theta_real_tick=real, theta_est_tick=est, err_tick=err,
+                         err_est_tick=err_est, threshold_tick=thld, stopped=s.stopped,
+                         stop_reason=s.stop_reason, premature_suspect=suspect)
+        s.history.append(res)
+        return res
+
+    @staticmethod
+    def _stop(s: LegState, reason: int, k: int, stamp_s: float, theta_real_rad: float) -> None:
+        s.stopped, s.stop_reason, s.stop_step, s.stop_time_s = True, reason, k, stamp_s
+        s.stop_theta_real_rad = theta_real_rad
+
+
+def run_swing_down(bus: ServoBus, phase: SwingDownPhase, on_read=None, max_steps: int | None = None) -> SwingDownPhase:
+    """Execute Algorithm 1 on a bus: write goals every t_con, read each femur in order.
+
+    Every leg of the group is read in every step (stopped ones too), so the read instants stay on
+    the schedule the model predicted (k t_con + l T_com).
+    """
+    t0 = phase.t_start_s
+    limit = max_steps if max_steps is not None else phase.n_interp + 5
+    k = 0
+    while not phase.done:
+        if k >= limit:
+            raise DetectorError(f'swing-down did not finish within {limit} steps')
+        bus.wait_until(t0 + k * phase.t_con_s)
+        bus.sync_write(phase.goals(k))                                  # line 7
+        for leg in phase.legs:                                          # lines 8-15
+            theta, stamp = bus.read_position(joint_name(leg, 'femur'))
+            res = phase.on_read(k, leg, theta, stamp)
+            if on_read is not None:
+                on_read(res)
+        k += 1
+    return phase

@@ -1,0 +1,85 @@
+"""Gaits as data (paper Sec. 3): which legs swing together, in which order. Pure Python.
+
+A gait is a cyclic sequence of *groups*; the legs of one group swing simultaneously (Algorithm 1
+with L = group size) while all other legs support the body. The schedule is a pure function of an
+integer phase index, so "three feet down at every tick" is a one-line check.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Mapping
+
+import yaml
+
+LEGS = (1, 2, 3, 4, 5, 6)
+
+
+class GaitError(ValueError):
+    """A gait definition is malformed (the message names the gait and the problem)."""
+
+
+@dataclass(frozen=True)
+class Gait:
+    name: str
+    groups: tuple[tuple[int, ...], ...]
+
+    def __post_init__(self):
+        flat = [leg for g in self.groups for leg in g]
+        if not self.groups or any(not g for g in self.groups):
+            raise GaitError(f'gait {self.name!r}: needs at least one non-empty group')
+        if sorted(flat) != list(LEGS):
+            raise GaitError(f'gait {self.name!r}: every leg 1..6 must appear exactly once, got {flat}')
+
+    @property
+    def n_phases(self) -> int:
+        return len(self.groups)
+
+    def swing_legs(self, phase: int) -> tuple[int, ...]:
+        """Legs swinging during phase ``phase`` (any integer; the gait is cyclic)."""
+        return self.groups[phase % self.n_phases]
+
+    def stance_legs(self, phase: int) -> tuple[int, ...]:
+        swing = set(self.swing_legs(phase))
+        return tuple(leg for leg in LEGS if leg not in swing)
+
+    def phase_offsets(self) -> dict[int, float]:
+        """Phase offset of each leg in [0, 1): the start of its swing within the cycle."""
+        return {leg: i / self.n_phases for i, g in enumerate(self.groups) for leg in g}
+
+    @property
+    def min_support(self) -> int:
+        return 6 - max(len(g) for g in self.groups)
+
+
+def gaits_from_mapping(data: Mapping) -> dict[str, Gait]:
+    if not isinstance(data, Mapping):
+        raise GaitError('gait file: expected a mapping name -> {groups: [[legs...], ...]}')
+    out = {}
+    for name, spec in data.items():
+        if not isinstance(spec, Mapping) or 'groups' not in spec:
+            raise GaitError(f'gait {name!r}: expected a mapping with key "groups"')
+        try:
+            groups = tuple(tuple(int(x) for x in g) for g in spec['groups'])
+        except (TypeError, ValueError):
+            raise GaitError(f'gait {name!r}: groups must be lists of leg numbers, got {spec["groups"]!r}') from None
+        out[str(name)] = Gait(str(name), groups)
+    return out
+
+
+def load_gaits(path: str | Path | None = None) -> dict[str, Gait]:
+    """Gaits from a YAML file (default: the packaged ``gaits.yaml``)."""
+    p = Path(path) if path else Path(str(resources.files('hexapod_locomotion').joinpath('data/gaits.yaml')))
+    try:
+        data = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise GaitError(f'cannot load gaits from {p}: {exc}') from exc
+    return gaits_from_mapping(data)
+
+
+def get_gait(name: str, path: str | Path | None = None) -> Gait:
+    gaits = load_gaits(path)
+    if name not in gaits:
+        raise GaitError(f'unknown gait {name!r}; known: {sorted(gaits)}')
+    return gaits[name]
