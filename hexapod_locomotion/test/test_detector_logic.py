@@ -1,0 +1,105 @@
+"""Algorithm 1 logic on a kinematic bus with a flat virtual ground (no physics; the MuJoCo
+contact tests live in test_sim_detection.py)."""
+import numpy as np
+import pytest
+
+from fakes import KinematicGroundBus
+from hexapod_locomotion.controller import GaitController, LocomotionParams, VelocityCommand
+from hexapod_locomotion.detector import (STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, DetectorError,
+                                         SwingDownPhase, run_swing_down)
+from hexapod_locomotion.gait import get_gait
+from hexapod_model.description import load_robot
+from hexapod_model.kinematics import forward
+
+RAISED = [0.9, -0.9]
+FIN = [0.05, -0.75]
+
+
+@pytest.fixture(scope='module')
+def robot():
+    return load_robot()
+
+
+def _phase(robot, kind, legs=(1, 6, 3), t_des=0.5, t0=0.0):
+    L = len(legs)
+    return SwingDownPhase(robot, legs, [0.0] * L, [RAISED] * L, [FIN] * L, t_des, 0.001,
+                          DetectorConfig(kind=kind), t_start_s=t0)
+
+
+def test_reads_follow_the_algorithm1_schedule(robot):
+    bus = KinematicGroundBus(robot, ground_z_m=None)
+    ph = run_swing_down(bus, _phase(robot, 'adaptive'))
+    femur_reads = [(t, j) for t, j in bus.reads]
+    assert [j for _, j in femur_reads[:6]] == ['leg1_femur', 'leg6_femur', 'leg3_femur'] * 2
+    assert [t for t, _ in femur_reads[:6]] == pytest.approx([0.0, 0.001, 0.002, 0.003, 0.004, 0.005])
+    # without ground every leg runs to theta_fin and says so
+    assert all(s.stop_reason == STOP_THETA_FIN for s in ph.state.values())
+    assert len(bus.writes) == ph.n_interp
+
+
+@pytest.mark.parametrize('kind', ['adaptive', 'fixed'])
+def test_stops_at_contact_not_before(robot, kind):
+    ground = -0.10
+    bus = KinematicGroundBus(robot, ground_z_m=ground)
+    ph = run_swing_down(bus, _phase(robot, kind))
+    for leg, s in ph.state.items():
+        assert s.stop_reason == STOP_CONTACT
+        # the first read after which the goal foot went below the ground
+        first_contact = next(r.stamp_s for r in s.history
+                             if forward(robot, leg, [0.0, (r.theta_des_tick - 512) * robot.servo.rad_per_tick,
+                                                      -0.9 + 0.15 * r.t_swing_s / 0.5])[2] < ground - 1e-4)
+        assert s.stop_time_s >= first_contact
+
+
+def test_fixed_threshold_stops_later_with_more_error(robot):
+    res = {}
+    for kind in ('adaptive', 'fixed'):
+        bus = KinematicGroundBus(robot, ground_z_m=-0.10)
+        ph = run_swing_down(bus, _phase(robot, kind))
+        res[kind] = (np.mean([s.stop_time_s for s in ph.state.values()]),
+                     np.mean([s.history[-1].err_tick for s in ph.state.values()]))
+    assert res['fixed'][0] > res['adaptive'][0]
+    assert res['fixed'][1] > 20 and res['fixed'][1] > 1.5 * res['adaptive'][1]
+
+
+def test_premature_error_spike_needs_confirmation(robot):
+    ph = _phase(robot, 'adaptive', legs=(1,))
+    ph.goals(0)
+    # a spike on the very first read, while the foot has not descended: suspect, not a stop
+    r = ph.on_read(0, 1, RAISED[0] + 0.2, 0.0)
+    assert r.premature_suspect and not r.stopped
+    ph.goals(1)
+    r = ph.on_read(1, 1, RAISED[0] - 0.001, 0.001)
+    assert not r.stopped and ph.state[1].suspect_count == 0
+    for k in range(2, 2 + ph.config.confirm_reads):
+        ph.goals(k)
+        r = ph.on_read(k, 1, RAISED[0] + 0.2, k * 0.001)
+    assert r.stopped and r.stop_reason == STOP_CONTACT
+    assert ph.state[1].premature_suspects == 1 + ph.config.confirm_reads
+
+
+def test_bad_detector_input(robot):
+    with pytest.raises(DetectorError, match="'adaptive' or 'fixed'"):
+        DetectorConfig(kind='psychic')
+    ph = _phase(robot, 'fixed', legs=(2,))
+    ph.goals(0)
+    with pytest.raises(DetectorError, match='not finite'):
+        ph.on_read(0, 2, float('nan'), 0.0)
+
+
+def test_gait_cycle_on_kinematic_ground(robot):
+    """Three feet stay down in tripod; missing ground is reported and the body stays level."""
+    bus = KinematicGroundBus(robot, ground_z_m=-0.11)
+    reports = []
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), on_phase=reports.append)
+    c.startup(bus)
+    for _ in range(4):
+        c.step_phase(bus, VelocityCommand(0.05, 0.0, 0.0))
+    assert all(o.stop_reason == STOP_CONTACT for r in reports for o in r.outcomes)
+    assert all(abs(r.body_roll_pitch_rad[0]) < 0.02 and abs(r.body_roll_pitch_rad[1]) < 0.02 for r in reports)
+    bus = KinematicGroundBus(robot, ground_z_m=-0.5)     # a hole: nothing to find
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5))
+    c.startup(bus)
+    rep = c.step_phase(bus)
+    assert all(o.stop_reason == STOP_THETA_FIN for o in rep.outcomes)
+    assert any('no ground found' in w for w in rep.warnings)

@@ -1,0 +1,51 @@
+"""Gaits as data: support counts at every phase, phase offsets, validation."""
+import pytest
+
+from hexapod_locomotion.gait import Gait, GaitError, get_gait, load_gaits
+
+
+@pytest.mark.parametrize('name, down', [('tripod', 3), ('tetrapod', 4), ('pentapod', 5)])
+def test_feet_down_at_every_tick(name, down):
+    gait = get_gait(name)
+    for tick in range(-12, 60):
+        assert len(gait.stance_legs(tick)) == down
+        assert set(gait.stance_legs(tick)) | set(gait.swing_legs(tick)) == {1, 2, 3, 4, 5, 6}
+    assert gait.min_support == down
+
+
+def test_tripod_alternates_the_paper_triangles():
+    g = get_gait('tripod')
+    assert set(g.swing_legs(0)) == {1, 6, 3} and set(g.swing_legs(1)) == {2, 5, 4}
+    # each tripod is a triangle: front and rear on one side, middle on the other
+    left = {1, 3, 5}
+    for phase in (0, 1):
+        sw = set(g.swing_legs(phase))
+        assert len(sw & left) in (1, 2) and len(sw - left) in (1, 2)
+
+
+def test_support_polygon_never_one_sided():
+    left, right = {1, 3, 5}, {2, 4, 6}
+    for name in ('tripod', 'tetrapod', 'pentapod'):
+        g = get_gait(name)
+        for phase in range(g.n_phases):
+            st = set(g.stance_legs(phase))
+            assert st & left and st & right, (name, phase)
+
+
+def test_phase_offsets():
+    off = get_gait('pentapod').phase_offsets()
+    assert sorted(off.values()) == pytest.approx([0, 1 / 6, 2 / 6, 3 / 6, 4 / 6, 5 / 6])
+
+
+def test_bad_gaits_are_named(tmp_path):
+    with pytest.raises(GaitError, match='exactly once'):
+        Gait('broken', ((1, 2, 3), (3, 4, 5)))
+    with pytest.raises(GaitError, match="unknown gait 'hopping'"):
+        get_gait('hopping')
+    p = tmp_path / 'g.yaml'
+    p.write_text('wobble:\n  groups: [[1, 2], [x]]\n')
+    with pytest.raises(GaitError, match='wobble'):
+        load_gaits(p)
+    p.write_text('wobble: [1, 2')
+    with pytest.raises(GaitError, match='cannot load'):
+        load_gaits(p)
