@@ -20,7 +20,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-
+            'locomotion_node = hexapod_locomotion.locomotion_node:main',
         ],
     },
 )

@@ -1,0 +1,164 @@
+"""locomotion_node: the adaptive gait cycle behind ROS topics.
+
+Subscribes the servo interface (``/joint_states`` from the driver or the sim node, they are
+indistinguishable) and ``/cmd_vel``; publishes ``/joint_commands``, ``/read_schedule`` and per-read
+ground-detection telemetry on ``/ground_detection``. The controller (library code) runs in a worker
+thread and talks to the bus through :class:`RosBus`.
+"""
+from __future__ import annotations
+
+import threading
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+
+from hexapod_model.bus import BusError
+from hexapod_model.contract import CMD_VEL, GROUND_DETECTION
+from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name, load_robot
+
+from .controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
+from .detector import DetectorConfig, DetectorError
+from .gait import GaitError, get_gait
+from .ros_bus import RosBus
+
+PARAMS = {
+    'gait': ('tripod', 'tripod | tetrapod | pentapod (gaits.yaml); an unknown name is refused'),
+    'detector': ('adaptive', "'adaptive' (model threshold, Eq. 17) or 'fixed' (constant baseline threshold)"),
+    'epsilon_tick': (3.0, 'Eq. 17 margin [ticks]; too small stops legs early, too large stops late'),
+    'fixed_threshold_tick': (21.0, 'baseline threshold [ticks] of the fixed detector'),
+    't_des_s': (1.0, 'swing-down duration [s]; shorter is faster but hits the ground harder'),
+    't_com_s': (0.0, 'duration of one bus read [s]; 0 = from the robot description'),
+    'lift_m': (0.05, 'swing-up height [m]'),
+    'max_stride_m': (0.06, 'largest foothold displacement per cycle [m]; beyond reach is clamped'),
+    'cmd_vel_timeout_s': (1.0, 'stop walking (finish the phase, then stand) when /cmd_vel is older than this'),
+    'default_vx': (0.0, 'forward speed [m/s] used when no /cmd_vel has been received'),
+    'robot_description': ('', 'robot YAML path; empty = the packaged description'),
+    'robot_overlays': ([''], 'overlay YAML files merged over the description (e.g. identified effects)'),
+}
+
+
+class LocomotionNode(Node):
+    def __init__(self):
+        super().__init__('locomotion_node')
+        for name, (default, desc) in PARAMS.items():
+            self.declare_parameter(name, default, ParameterDescriptor(description=desc))
+        self.add_on_set_parameters_callback(self._validate)
+        g = lambda n: self.get_parameter(n).value  # noqa: E731
+        overlays = [o for o in g('robot_overlays') if o]
+        self.robot = load_robot(g('robot_description') or None, overlays)
+        t_com = g('t_com_s') or self.robot.bus.t_com_s
+        self.bus = RosBus(self, t_com)
+        from hexapod_msgs.msg import LegGroundDetection
+        from geometry_msgs.msg import Twist
+        self._LGD = LegGroundDetection
+        self.det_pub = self.create_publisher(LegGroundDetection, GROUND_DETECTION, 50)
+        self.create_subscription(Twist, CMD_VEL, self._on_cmd, 10)
+        self._cmd = VelocityCommand(g('default_vx'), 0.0, 0.0)
+        self._cmd_time = None
+        self.controller = GaitController(
+            self.robot, get_gait(g('gait')),
+            LocomotionParams(t_des_s=g('t_des_s'), lift_m=g('lift_m'), max_stride_m=g('max_stride_m'),
+                             background_reads=False),
+            DetectorConfig(kind=g('detector'), epsilon_tick=g('epsilon_tick'),
+                           fixed_threshold_tick=g('fixed_threshold_tick')),
+            t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase)
+        self._swing_start = {}
+        self._worker = threading.Thread(target=self._run, daemon=True)
+        self._worker.start()
+
+    def _validate(self, params):
+        for p in params:
+            if p.name == 'gait':
+                try:
+                    get_gait(p.value)
+                except GaitError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
+            if p.name == 'detector' and p.value not in ('adaptive', 'fixed'):
+                return SetParametersResult(successful=False, reason="detector must be 'adaptive' or 'fixed'")
+            if p.name in ('t_des_s', 'epsilon_tick', 'fixed_threshold_tick', 'lift_m', 'max_stride_m') and \
+                    not (isinstance(p.value, float) and p.value >= 0):
+                return SetParametersResult(successful=False, reason=f'{p.name} must be a non-negative float')
+        return SetParametersResult(successful=True)
+
+    def _on_cmd(self, msg) -> None:
+        try:
+            self._cmd = VelocityCommand(msg.linear.x, msg.linear.y, msg.angular.z)
+            self._cmd_time = self.bus.now()
+        except LocomotionError as exc:
+            self.get_logger().error(f'/cmd_vel rejected: {exc}')
+
+    def _current_cmd(self) -> VelocityCommand | None:
+        timeout = self.get_parameter('cmd_vel_timeout_s').value
+        if self._cmd_time is None:
+            return self._cmd if self._cmd.vx or self._cmd.vy or self._cmd.wz else None
+        if self.bus.now() - self._cmd_time > timeout:
+            return None
+        return self._cmd
+
+    def _publish_read(self, r) -> None:
+        m = self._LGD()
+        sec = int(r.stamp_s)
+        m.header.stamp.sec, m.header.stamp.nanosec = sec, int(round((r.stamp_s - sec) * 1e9)) % 1_000_000_000
+        m.header.frame_id = joint_name(r.leg, 'femur')
+        start = r.stamp_s - r.t_swing_s
+        m.swing_start.sec, m.swing_start.nanosec = int(start), int(round((start - int(start)) * 1e9)) % 1_000_000_000
+        m.leg, m.detector, m.t_swing_s = r.leg, r.detector, r.t_swing_s
+        m.theta_des_tick, m.theta_real_tick = r.theta_des_tick, r.theta_real_tick
+        m.theta_est_tick, m.err_tick, m.err_est_tick = r.theta_est_tick, r.err_tick, r.err_est_tick
+        m.threshold_tick, m.stopped, m.stop_reason = r.threshold_tick, r.stopped, r.stop_reason
+        self.det_pub.publish(m)
+
+    def _log_phase(self, rep) -> None:
+        legs = ', '.join(f'leg {o.leg}: {"ground" if o.stop_reason == 1 else "NO GROUND"} after {o.stop_time_s:.3f} s'
+                         for o in rep.outcomes)
+        self.get_logger().info(f'phase {rep.phase}: {legs}')
+        for w in rep.warnings:
+            self.get_logger().warning(w)
+
+    def _run(self) -> None:
+        try:
+            self.bus.set_schedule(ALL_JOINTS)
+            self.bus.wait_until(self.bus.now() + 0.5)
+            self.controller.startup(self.bus)
+            while not self.bus.stopped.is_set():
+                cmd = self._current_cmd()
+                if cmd is None:
+                    self.bus.wait_until(self.bus.now() + 0.05)
+                    continue
+                femurs = [joint_name(leg, 'femur') for leg in self.controller.gait.swing_legs(self.controller.phase_index)]
+                self.bus.set_schedule(femurs)
+                self.controller.step_phase(self.bus, cmd)
+                self.bus.set_schedule(ALL_JOINTS)
+        except (BusError, LocomotionError, DetectorError) as exc:
+            if not self.bus.stopped.is_set():
+                self.get_logger().error(f'locomotion stopped: {exc}')
+
+    def destroy_node(self):
+        self.bus.stopped.set()
+        self._worker.join(timeout=2.0)
+        return super().destroy_node()
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = LocomotionNode()
+        ex = MultiThreadedExecutor(num_threads=2)
+        ex.add_node(node)
+        ex.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (DescriptionError, GaitError, DetectorError, LocomotionError) as exc:
+        print(f'locomotion_node: {exc}')
+        raise SystemExit(2)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,79 @@
+"""model_node: serves swing-down predictions (paper CalcModel, Eq. 11-17) on a ROS service.
+
+Service ``/predict_swing_down`` (hexapod_msgs/srv/PredictSwingDown): for L legs swinging down
+together, read sequentially in the given order, returns per control step and leg the read instant,
+the femur goal, the predicted femur position, the predicted error and the Eq. 17 threshold.
+The node keeps one compiled :class:`LegModel` per leg, so a request costs about a millisecond.
+"""
+from __future__ import annotations
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+from .contract import PREDICT_SWING_DOWN
+from .description import DescriptionError, load_robot
+from .swing_model import LegModel, SwingDownError, predict_swing_down
+
+
+class ModelNode(Node):
+    def __init__(self):
+        super().__init__('model_node')
+        self.declare_parameter('robot_description', '', ParameterDescriptor(
+            description='robot YAML path; empty = the packaged description'))
+        self.declare_parameter('robot_overlays', [''], ParameterDescriptor(
+            description='overlay YAML files merged over the description (e.g. identified effects)'))
+        overlays = [o for o in self.get_parameter('robot_overlays').value if o]
+        self.robot = load_robot(self.get_parameter('robot_description').value or None, overlays)
+        self.models = {leg: LegModel(self.robot, leg) for leg in range(1, 7)}
+        from hexapod_msgs.srv import PredictSwingDown
+        self.srv = self.create_service(PredictSwingDown, PREDICT_SWING_DOWN, self.on_request)
+        self.get_logger().info(f'serving {PREDICT_SWING_DOWN} for robot {self.robot.name!r}')
+
+    def on_request(self, req, resp):
+        legs = list(req.legs)
+        n = len(legs)
+        arrays = [req.femur_init_rad, req.tibia_init_rad, req.femur_fin_rad, req.tibia_fin_rad]
+        if n == 0 or any(len(a) != n for a in arrays) or any(not 1 <= leg <= 6 for leg in legs):
+            resp.success = False
+            resp.message = (f'legs must be 1..6 and every angle array must have one entry per leg '
+                            f'(legs={legs}, lengths={[len(a) for a in arrays]})')
+            return resp
+        try:
+            pred = predict_swing_down(
+                self.robot, legs, list(zip(req.femur_init_rad, req.tibia_init_rad)),
+                list(zip(req.femur_fin_rad, req.tibia_fin_rad)), req.t_des_s, req.t_com_s,
+                epsilon_tick=req.epsilon_tick, n_steps=req.max_steps or None, models=self.models)
+        except SwingDownError as exc:
+            resp.success, resp.message = False, str(exc)
+            return resp
+        resp.success = True
+        resp.message = f'{pred.t_read_s.shape[0]} steps x {n} legs, t_con = {pred.t_con_s * 1e3:.1f} ms'
+        resp.t_read_s = pred.t_read_s.ravel().tolist()
+        resp.theta_des_tick = pred.theta_des_tick.ravel().astype(float).tolist()
+        resp.theta_est_tick = pred.theta_est_tick.ravel().tolist()
+        resp.err_est_tick = pred.err_est_tick.ravel().tolist()
+        resp.threshold_tick = pred.threshold_tick.ravel().tolist()
+        return resp
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ModelNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except DescriptionError as exc:
+        print(f'model_node: {exc}')
+        raise SystemExit(2)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
