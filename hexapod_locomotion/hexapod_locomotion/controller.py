@@ -42,6 +42,7 @@ class LocomotionParams:
     t_swing_up_s: float = 0.2
     t_swing_forward_s: float = 0.3
     t_level_s: float = 0.4
+    t_settle_s: float = 0.1          # pause after swing-forward so swing-down starts from rest
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
     max_stride_m: float = 0.06       # longest foothold displacement per cycle
@@ -191,13 +192,14 @@ class GaitController:
             fwd.update(self._targets(leg, np.array([xy[0], xy[1], z]), warnings))
         self.move_joints(bus, fwd, p.t_swing_forward_s)
 
-        # 3. swing-down with ground detection (Algorithm 1)
+        # 3. swing-down with ground detection (Algorithm 1), from the measured rest state
+        self.idle_until(bus, bus.now() + p.t_settle_s)
         init, fin, coxa = [], [], []
         for leg in legs:
             th = self.leg_angles(leg)
-            f = self.foot(leg)
-            th_fin = self._fin_angles(leg, f, warnings)
-            init.append(th[1:])
+            th_fin = self._fin_angles(leg, self.foot(leg), warnings)
+            measured = [bus.read_position(joint_name(leg, r))[0] for r in ('femur', 'tibia')]
+            init.append(measured)
             fin.append(th_fin[1:])
             coxa.append(th[0])
         t_sd = bus.now()
