@@ -39,16 +39,16 @@ class LocomotionParams:
     """Gait-cycle parameters. Lengths in metres, times in seconds."""
 
     t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
-    t_swing_up_s: float = 0.2
-    t_swing_forward_s: float = 0.3
-    t_level_s: float = 0.4
+    t_swing_up_s: float = 0.15
+    t_swing_forward_s: float = 0.25
+    t_level_s: float = 0.3
     t_settle_s: float = 0.1          # pause after swing-forward so swing-down starts from rest
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
-    max_stride_m: float = 0.06       # longest foothold displacement per cycle
+    max_stride_m: float = 0.07       # longest foothold displacement per cycle
     max_turn_rad: float = 0.25       # largest yaw per cycle
     ground_depth_m: float = 0.06     # theta_fin: this far below the nominal ground
-    explicit_forward: float = 0.5    # extra body shift per phase, fraction of stride * L / 6
+    explicit_forward: float = 0.8    # extra body shift per phase, fraction of stride * L / 6
     background_reads: bool = True    # read joints round-robin whenever the bus would idle
 
     def __post_init__(self):
