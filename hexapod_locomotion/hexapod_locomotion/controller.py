@@ -104,7 +104,8 @@ class GaitController:
     def __init__(self, robot: Robot, gait: Gait, params: LocomotionParams = LocomotionParams(),
                  detector: DetectorConfig = DetectorConfig(), t_com_s: float | None = None,
                  on_read: Callable[[ReadResult], None] | None = None,
-                 on_phase: Callable[[PhaseReport], None] | None = None):
+                 on_phase: Callable[[PhaseReport], None] | None = None,
+                 on_swing_start: Callable[[SwingDownPhase], None] | None = None):
         self.robot = robot
         self.gait = gait
         self.params = params
@@ -112,6 +113,7 @@ class GaitController:
         self.t_com_s = robot.bus.t_com_s if t_com_s is None else float(t_com_s)
         self.on_read = on_read
         self.on_phase = on_phase
+        self.on_swing_start = on_swing_start
         self.models = {leg: LegModel(robot, leg) for leg in range(1, 7)}
         self.neutral = stance_feet(robot)                   # (6, 3) body frame
         self.body_height_m = -float(self.neutral[0, 2])
@@ -205,6 +207,8 @@ class GaitController:
         t_sd = bus.now()
         phase = SwingDownPhase(self.robot, legs, coxa, init, fin, p.t_des_s, self.t_com_s, self.detector,
                                t_start_s=t_sd, models=self.models)
+        if self.on_swing_start is not None:
+            self.on_swing_start(phase)
         run_swing_down(bus, phase, on_read=self.on_read)
         t_sd_end = bus.now()
         outcomes = []

@@ -224,3 +224,57 @@ def run_swing_down(bus: ServoBus, phase: SwingDownPhase, on_read=None, max_steps
                 on_read(res)
         k += 1
     return phase
+
+
+def replay_swing_down(phase: SwingDownPhase, reads, on_read=None) -> SwingDownPhase:
+    """Re-run Algorithm 1 offline on recorded femur reads ``(leg, theta_rad, stamp_s)`` in bus order.
+
+    The reads of step ``k`` are the k-th run of one read per leg in ``phase.legs`` order (every leg
+    is read in every step, stopped ones included, see :func:`run_swing_down`). Decisions are only
+    meaningful while the recording's own controller kept moving the leg: once it froze a leg's goal,
+    later reads of that leg no longer show what the replayed detector would have commanded.
+    """
+    L = len(phase.legs)
+    k, slot = 0, 0
+    for leg, theta, stamp in reads:
+        if phase.done:
+            break
+        if leg != phase.legs[slot]:
+            raise DetectorError(f'recorded reads out of Algorithm 1 order: expected leg {phase.legs[slot]} '
+                                f'at step {k}, got leg {leg} at t={stamp:.4f} s')
+        if slot == 0:
+            phase.goals(k)
+        res = phase.on_read(k, leg, theta, stamp)
+        if on_read is not None:
+            on_read(res)
+        slot += 1
+        if slot == L:
+            slot, k = 0, k + 1
+    return phase
+
+
+def swing_start_fields(phase: SwingDownPhase) -> dict:
+    """The fields of hexapod_msgs/msg/SwingDownStart (minus the header) for a phase."""
+    st = [phase.state[leg] for leg in phase.legs]
+    c = phase.config
+    return {'legs': list(phase.legs), 'coxa_rad': [s.coxa_rad for s in st],
+            'femur_init_rad': [float(s.theta_init[0]) for s in st], 'tibia_init_rad': [float(s.theta_init[1]) for s in st],
+            'femur_fin_rad': [float(s.theta_fin[0]) for s in st], 'tibia_fin_rad': [float(s.theta_fin[1]) for s in st],
+            't_des_s': phase.t_des_s, 't_com_s': phase.t_com_s, 'detector': c.kind, 'epsilon_tick': c.epsilon_tick,
+            'fixed_threshold_tick': c.fixed_threshold_tick, 'min_descent_m': c.min_descent_m,
+            'confirm_reads': c.confirm_reads}
+
+
+def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None,
+                      models: dict[int, LegModel] | None = None) -> SwingDownPhase:
+    """Rebuild a :class:`SwingDownPhase` from SwingDownStart fields (dict or message), optionally
+    with the other detector ``kind``."""
+    get = (lambda n: f[n]) if isinstance(f, dict) else (lambda n: getattr(f, n))
+    cfg = DetectorConfig(kind=kind or get('detector'), epsilon_tick=float(get('epsilon_tick')),
+                         fixed_threshold_tick=float(get('fixed_threshold_tick')),
+                         min_descent_m=float(get('min_descent_m')), confirm_reads=int(get('confirm_reads')))
+    legs = [int(x) for x in get('legs')]
+    init = np.column_stack([get('femur_init_rad'), get('tibia_init_rad')])
+    fin = np.column_stack([get('femur_fin_rad'), get('tibia_fin_rad')])
+    return SwingDownPhase(robot, legs, list(get('coxa_rad')), init, fin, float(get('t_des_s')), float(get('t_com_s')),
+                          cfg, t_start_s=t_start_s, models=models)

@@ -15,11 +15,11 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 from hexapod_model.bus import BusError
-from hexapod_model.contract import CMD_VEL, GROUND_DETECTION
+from hexapod_model.contract import CMD_VEL, GROUND_DETECTION, SWING_DOWN
 from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name, load_robot
 
 from .controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
-from .detector import DetectorConfig, DetectorError
+from .detector import DetectorConfig, DetectorError, swing_start_fields
 from .gait import GaitError, get_gait
 from .ros_bus import RosBus
 
@@ -50,10 +50,12 @@ class LocomotionNode(Node):
         self.robot = load_robot(g('robot_description') or None, overlays)
         t_com = g('t_com_s') or self.robot.bus.t_com_s
         self.bus = RosBus(self, t_com)
-        from hexapod_msgs.msg import LegGroundDetection
+        from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from geometry_msgs.msg import Twist
         self._LGD = LegGroundDetection
+        self._SDS = SwingDownStart
         self.det_pub = self.create_publisher(LegGroundDetection, GROUND_DETECTION, 50)
+        self.swing_pub = self.create_publisher(SwingDownStart, SWING_DOWN, 10)
         self.create_subscription(Twist, CMD_VEL, self._on_cmd, 10)
         self._cmd = VelocityCommand(g('default_vx'), 0.0, 0.0)
         self._cmd_time = None
@@ -63,7 +65,8 @@ class LocomotionNode(Node):
                              background_reads=False),
             DetectorConfig(kind=g('detector'), epsilon_tick=g('epsilon_tick'),
                            fixed_threshold_tick=g('fixed_threshold_tick')),
-            t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase)
+            t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
+            on_swing_start=self._publish_swing_start)
         self._swing_start = {}
         self._worker = threading.Thread(target=self._run, daemon=True)
         self._worker.start()
@@ -109,6 +112,14 @@ class LocomotionNode(Node):
         m.theta_est_tick, m.err_tick, m.err_est_tick = r.theta_est_tick, r.err_tick, r.err_est_tick
         m.threshold_tick, m.stopped, m.stop_reason = r.threshold_tick, r.stopped, r.stop_reason
         self.det_pub.publish(m)
+
+    def _publish_swing_start(self, phase) -> None:
+        m = self._SDS()
+        sec = int(phase.t_start_s)
+        m.header.stamp.sec, m.header.stamp.nanosec = sec, int(round((phase.t_start_s - sec) * 1e9)) % 1_000_000_000
+        for k, v in swing_start_fields(phase).items():
+            setattr(m, k, v)
+        self.swing_pub.publish(m)
 
     def _log_phase(self, rep) -> None:
         legs = ', '.join(f'leg {o.leg}: {"ground" if o.stop_reason == 1 else "NO GROUND"} after {o.stop_time_s:.3f} s'

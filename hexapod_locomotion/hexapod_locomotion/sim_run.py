@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
-                                    SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE)
+                                    SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN)
 from hexapod_model.description import ALL_JOINTS, Robot, joint_name, load_robot, parse_joint_name
 from hexapod_model.kinematics import forward
 
 from .controller import GaitController, LocomotionError, LocomotionParams, PhaseReport, VelocityCommand
-from .detector import DetectorConfig, ReadResult
+from .detector import DetectorConfig, ReadResult, SwingDownPhase, swing_start_fields
 from .gait import get_gait
 from .metrics import DetectionEvent, MetricsError, cost_of_transport, detection_quality, swing_down_variances
 
@@ -166,6 +166,12 @@ class ProbeBus:
                             'error_bits': int(st.error_bits[i]), 'responding': True,
                             'torque_enabled': bool(st.torque_enabled[i])} for i, j in enumerate(ALL_JOINTS)]}, t)
 
+    def record_swing_start(self, phase: SwingDownPhase) -> None:
+        if self.recorder is None:
+            return
+        self.recorder.write(SWING_DOWN, MSG_TYPES[SWING_DOWN],
+                            {'header': {'stamp': _stamp(phase.t_start_s)}, **swing_start_fields(phase)}, phase.t_start_s)
+
     def record_detection(self, r: ReadResult) -> None:
         if self.recorder is None:
             return
@@ -231,7 +237,8 @@ def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
     reports: list[PhaseReport] = []
     det = DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
     controller = GaitController(robot, get_gait(cfg.gait), LocomotionParams(t_des_s=cfg.t_des_s), det,
-                                t_com_s=sim.t_com_s, on_read=probe.record_detection, on_phase=reports.append)
+                                t_com_s=sim.t_com_s, on_read=probe.record_detection, on_phase=reports.append,
+                                on_swing_start=probe.record_swing_start)
     events: list[DetectionEvent] = []
     warnings: list[str] = []
     fell = reached = False

@@ -23,6 +23,7 @@ POWER = '/power'                            # sensor_msgs/msg/BatteryState (sim:
 IMU = '/imu'                                # sensor_msgs/msg/Imu (sim only; the method needs none)
 CLOCK = '/clock'                            # rosgraph_msgs/msg/Clock (sim, replay)
 GROUND_DETECTION = '/ground_detection'      # hexapod_msgs/msg/LegGroundDetection (controller)
+SWING_DOWN = '/swing_down'                  # hexapod_msgs/msg/SwingDownStart (controller)
 CMD_VEL = '/cmd_vel'                        # geometry_msgs/msg/Twist (controller input)
 PREDICT_SWING_DOWN = '/predict_swing_down'  # hexapod_msgs/srv/PredictSwingDown (model node)
 # Evaluation-only ground truth published by the sim; never consumed by any estimator/controller.
@@ -39,6 +40,7 @@ MSG_TYPES = {
     IMU: 'sensor_msgs/msg/Imu',
     CLOCK: 'rosgraph_msgs/msg/Clock',
     GROUND_DETECTION: 'hexapod_msgs/msg/LegGroundDetection',
+    SWING_DOWN: 'hexapod_msgs/msg/SwingDownStart',
     CMD_VEL: 'geometry_msgs/msg/Twist',
     SIM_TRUTH_CONTACTS: 'std_msgs/msg/Float64MultiArray',
     SIM_TRUTH_POSE: 'geometry_msgs/msg/PoseStamped',
