@@ -21,6 +21,7 @@ setup(
     entry_points={
         'console_scripts': [
             'locomotion_node = hexapod_locomotion.locomotion_node:main',
+            'demo = hexapod_locomotion.demo:main',
         ],
     },
 )
