@@ -22,6 +22,7 @@ setup(
         'console_scripts': [
             'locomotion_node = hexapod_locomotion.locomotion_node:main',
             'demo = hexapod_locomotion.demo:main',
+            'experiment = hexapod_locomotion.experiments:main',
         ],
     },
 )

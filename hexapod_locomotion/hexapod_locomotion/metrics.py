@@ -78,7 +78,7 @@ class DetectionEvent:
     t_true_contact_s: float        # first true foot contact during the swing-down (nan: none)
     t_con_s: float
     femur_torque_at_stop_nm: float
-    peak_femur_torque_nm: float    # largest |femur torque| from swing-down start to stop + 0.1 s
+    peak_femur_torque_nm: float    # largest |femur torque| from true contact to stop + 0.1 s
     overshoot_m: float             # commanded foot below the true foot at the stop
 
 
@@ -93,7 +93,7 @@ def detection_quality(events: list[DetectionEvent]) -> dict:
     delays = np.array([e.t_stop_s - e.t_true_contact_s for e in valid])
     periods = np.array([(e.t_stop_s - e.t_true_contact_s) / e.t_con_s for e in valid])
     tq = np.array([abs(e.femur_torque_at_stop_nm) for e in valid])
-    peak = np.array([e.peak_femur_torque_nm for e in valid])
+    peak = np.array([e.peak_femur_torque_nm for e in valid if np.isfinite(e.peak_femur_torque_nm)])
     over = np.array([e.overshoot_m for e in valid])
 
     def stats(a):

@@ -214,7 +214,9 @@ def _detection_events(robot: Robot, probe: ProbeBus, rep: PhaseReport, controlle
         in_swing = [r for r in reads if r[0] <= t_stop + 1e-9]
         t_contact = next((r[0] for r in in_swing if r[1]), math.nan)
         at_stop = in_swing[-1] if in_swing else None
-        peak = max((abs(r[2]) for r in reads), default=math.nan)
+        # torque from the first true contact until shortly after the stop (the swing's own start-up
+        # acceleration is not a contact load)
+        peak = max((abs(r[2]) for r in reads if math.isfinite(t_contact) and r[0] >= t_contact), default=math.nan)
         overshoot = math.nan
         if at_stop is not None:
             goal = controller.leg_angles(o.leg)

@@ -1,0 +1,287 @@
+"""./hexapod experiment - the paper's evaluation (Sec. 8) reproduced in simulation.
+
+Sub-commands (each deterministic for its seeds, lock-stepped, trials in parallel processes):
+
+* ``table4``  cost of transport and speed for {tripod, tetrapod, pentapod} x t_des {0.5, 1} s x
+  {fixed, adaptive}, several trials each on the mockup, printed beside the paper's Table 4;
+* ``fig11``   per-leg variance of pitch, roll and vertical acceleration during swing-down (box plots);
+* ``fig12``   servo temperature over a long tripod walk, fixed vs adaptive;
+* ``quality`` ground-detection quality: free swing on a stand at t_des {0.5, 1, 2} s (premature
+  stops) and, on the mockup, delay from true contact, torque at detection, premature/missed stops;
+* ``all``     everything above into one JSON and the PNGs.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+
+from .sim_run import TrialConfig, run_trial
+
+GAITS = ('tripod', 'tetrapod', 'pentapod')
+DETECTORS = ('fixed', 'adaptive')
+PAPER_TABLE4 = {  # (gait, t_des, detector): (CoT, speed m/s), paper Table 4
+    ('tripod', 0.5, 'fixed'): (25.9, 0.044), ('tripod', 0.5, 'adaptive'): (22.0, 0.046),
+    ('tripod', 1.0, 'fixed'): (35.4, 0.041), ('tripod', 1.0, 'adaptive'): (16.1, 0.035),
+    ('tetrapod', 0.5, 'fixed'): (29.4, 0.034), ('tetrapod', 0.5, 'adaptive'): (32.4, 0.035),
+    ('tetrapod', 1.0, 'fixed'): (19.6, 0.029), ('tetrapod', 1.0, 'adaptive'): (19.3, 0.030),
+    ('pentapod', 0.5, 'fixed'): (28.5, 0.021), ('pentapod', 0.5, 'adaptive'): (27.4, 0.028),
+    ('pentapod', 1.0, 'fixed'): (28.5, 0.019), ('pentapod', 1.0, 'adaptive'): (28.4, 0.017),
+}
+GAIT_DIGIT = {'tripod': 3, 'tetrapod': 4, 'pentapod': 5}
+
+
+def _trial_job(cfg: TrialConfig) -> dict:
+    return run_trial(cfg).to_dict()
+
+
+def run_many(configs: list[TrialConfig], jobs: int, desc: str) -> list[dict]:
+    """Run trials in parallel processes with a progress bar; results in the order of ``configs``."""
+    from tqdm import tqdm
+    out: list[dict | None] = [None] * len(configs)
+    if jobs <= 1:
+        for i, c in enumerate(tqdm(configs, desc=desc, unit='trial', file=sys.stdout)):
+            out[i] = _trial_job(c)
+        return out  # type: ignore[return-value]
+    with ProcessPoolExecutor(max_workers=jobs) as ex:
+        futs = {ex.submit(_trial_job, c): i for i, c in enumerate(configs)}
+        for f in tqdm(as_completed(futs), total=len(futs), desc=desc, unit='trial', file=sys.stdout):
+            out[futs[f]] = f.result()
+    return out  # type: ignore[return-value]
+
+
+# ----------------------------------------------------------------------------- Table 4
+def table4_configs(trials: int, duration_s: float, terrain: str, t_des=(0.5, 1.0)) -> list[TrialConfig]:
+    return [TrialConfig(gait=g, detector=d, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s,
+                        course_end_m=2.6)
+            for g in GAITS for t in t_des for d in DETECTORS for s in range(trials)]
+
+
+def summarize_table4(results: list[dict]) -> list[dict]:
+    rows = []
+    for g in GAITS:
+        for t in (0.5, 1.0):
+            for d in DETECTORS:
+                rs = [r for r in results if r['config']['gait'] == g and r['config']['t_des_s'] == t
+                      and r['config']['detector'] == d]
+                if not rs:
+                    continue
+                cots = [r['cot']['cot'] for r in rs if r['cot'] and math.isfinite(r['cot']['cot'])]
+                speeds = [r['cot']['speed_mps'] for r in rs if r['cot']]
+                peak = [r['detection']['peak_femur_torque_nm']['median'] for r in rs
+                        if r['detection'] and r['detection']['peak_femur_torque_nm']]
+                paper = PAPER_TABLE4[(g, t, d)]
+                rows.append({'gait': g, 't_des_s': t, 'detector': d, 'trials': len(rs),
+                             'cot': float(np.mean(cots)) if cots else None,
+                             'speed_mps': float(np.mean(speeds)) if speeds else None,
+                             'falls': sum(r['fell'] for r in rs),
+                             'premature_stops': sum(r['detection']['premature_stops'] for r in rs if r['detection']),
+                             'missed_contacts': sum(r['detection']['missed_contacts'] for r in rs if r['detection']),
+                             'peak_femur_torque_nm': float(np.mean(peak)) if peak else None,
+                             'paper_cot': paper[0], 'paper_speed_mps': paper[1]})
+    return rows
+
+
+def format_table4(rows: list[dict]) -> str:
+    def f(v, fmt):
+        return format(v, fmt) if v is not None else '   -'
+    lines = ['Table 4 (simulation vs paper): cost of transport and speed',
+             f'{"gait":9} {"t_des":>5} {"detection":9} | {"CoT":>6} {"paper":>6} | {"speed":>6} {"paper":>6} | '
+             f'{"falls":>5} {"prem.":>5} {"missed":>6} {"torque":>6}']
+    for r in rows:
+        lines.append(f'{r["gait"]:9} {r["t_des_s"]:5.1f} {r["detector"]:9} | {f(r["cot"], "6.1f")} {r["paper_cot"]:6.1f} | '
+                     f'{f(r["speed_mps"], "6.3f")} {r["paper_speed_mps"]:6.3f} | {r["falls"]:5d} {r["premature_stops"]:5d} '
+                     f'{r["missed_contacts"]:6d} {f(r["peak_femur_torque_nm"], "6.2f")}')
+    wins = 0
+    cells = 0
+    for g in GAITS:
+        for t in (0.5, 1.0):
+            a = next((r for r in rows if (r['gait'], r['t_des_s'], r['detector']) == (g, t, 'adaptive')), None)
+            b = next((r for r in rows if (r['gait'], r['t_des_s'], r['detector']) == (g, t, 'fixed')), None)
+            if a and b and a['cot'] is not None and b['cot'] is not None:
+                cells += 1
+                wins += a['cot'] < b['cot']
+    lines.append(f'adaptive has the lower CoT in {wins} of {cells} gait x t_des cells (paper: 5 of 6); '
+                 f'torque = median peak femur torque during contact [N m]')
+    return '\n'.join(lines)
+
+
+# ----------------------------------------------------------------------------- Fig. 11
+def plot_fig11(results: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    labels, data = [], {'var_pitch': [], 'var_roll': [], 'var_acc_z': []}
+    for g in GAITS:
+        for d in DETECTORS:
+            rs = [r for r in results if r['config']['gait'] == g and r['config']['detector'] == d
+                  and r['config']['t_des_s'] == 1.0]
+            labels.append(f'{GAIT_DIGIT[g]}_{"adapt" if d == "adaptive" else "fixed"}')
+            for k in data:
+                data[k].append([s[k] for r in rs for s in r['stability']] or [np.nan])
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    for ax, (k, title) in zip(axes, (('var_pitch', 'pitch variance [rad$^2$]'), ('var_roll', 'roll variance [rad$^2$]'),
+                                     ('var_acc_z', 'Acc$_z$ variance [(m/s$^2$)$^2$]'))):
+        ax.boxplot(data[k], showfliers=False)
+        ax.set_xticks(range(1, len(labels) + 1), labels, rotation=45)
+        ax.set_yscale('log')
+        ax.set_title(title)
+    fig.suptitle('Fig. 11 (simulation): body motion during swing-down, t_des = 1 s, per leg')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def summarize_fig11(results: list[dict]) -> list[dict]:
+    out = []
+    for g in GAITS:
+        for d in DETECTORS:
+            st = [s for r in results if r['config']['gait'] == g and r['config']['detector'] == d
+                  and r['config']['t_des_s'] == 1.0 for s in r['stability']]
+            if st:
+                out.append({'gait': g, 'detector': d, 'samples': len(st),
+                            **{f'median_{k}': float(np.median([s[k] for s in st])) for k in ('var_pitch', 'var_roll', 'var_acc_z')}})
+    return out
+
+
+# ----------------------------------------------------------------------------- Fig. 12
+def plot_fig12(results: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for r in results:
+        d = r['config']['detector']
+        t = np.array(r['temperature_t_s']) / 60.0
+        ax.plot(t, r['temperature_femur_c'], label=f'{d} femur', ls='-' if d == 'fixed' else '--')
+        ax.plot(t, r['temperature_tibia_c'], label=f'{d} tibia', ls='-' if d == 'fixed' else '--', alpha=0.7)
+    ax.set_xlabel('time [min]')
+    ax.set_ylabel('mean servo temperature [C]')
+    ax.set_title('Fig. 12 (simulation): tripod, t_des = 1 s')
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- free swing on a stand
+def free_swing_quality(t_des_values=(0.5, 1.0, 2.0), phases_per_gait: int = 6) -> list[dict]:
+    """Robot on a stand (no ground): every swing-down must run to theta_fin; a contact stop is premature."""
+    from hexapod_model.description import load_robot
+    from hexapod_sim.sim import HexapodSim
+
+    from .controller import GaitController, LocomotionParams, VelocityCommand
+    from .detector import STOP_CONTACT, DetectorConfig
+    from .gait import get_gait
+    robot = load_robot()
+    out = []
+    for g in GAITS:
+        for t in t_des_values:
+            for d in DETECTORS:
+                sim = HexapodSim(robot, terrain='flat', fixed_base=True)
+                c = GaitController(robot, get_gait(g), LocomotionParams(t_des_s=t), DetectorConfig(kind=d),
+                                   t_com_s=sim.t_com_s)
+                c.startup(sim)
+                stops = []
+                for _ in range(phases_per_gait):
+                    rep = c.step_phase(sim, VelocityCommand(0.05, 0.0, 0.0))
+                    stops += [o for o in rep.outcomes]
+                premature = sum(o.stop_reason == STOP_CONTACT for o in stops)
+                out.append({'gait': g, 't_des_s': t, 'detector': d, 'swing_downs': len(stops),
+                            'premature_stops': premature,
+                            'median_stop_time_s': float(np.median([o.stop_time_s for o in stops]))})
+    return out
+
+
+def format_free_swing(rows: list[dict]) -> str:
+    lines = ['Free swing on a stand (no ground): stops before theta_fin are premature',
+             f'{"gait":9} {"t_des":>5} {"detection":9} {"swings":>6} {"premature":>9}']
+    for r in rows:
+        lines.append(f'{r["gait"]:9} {r["t_des_s"]:5.1f} {r["detector"]:9} {r["swing_downs"]:6d} {r["premature_stops"]:9d}')
+    return '\n'.join(lines)
+
+
+def format_quality(results: list[dict]) -> str:
+    lines = ['Ground-detection quality on the mockup (simulation truth)',
+             f'{"gait":9} {"t_des":>5} {"detection":9} | {"delay ms":>8} {"periods":>7} | {"torque@stop":>11} '
+             f'{"peak torque":>11} | {"overshoot mm":>12} | {"prem.":>5} {"missed":>6}']
+    for g in GAITS:
+        for t in sorted({r['config']['t_des_s'] for r in results}):
+            for d in DETECTORS:
+                rs = [r['detection'] for r in results if r['detection'] and (r['config']['gait'], r['config']['t_des_s'],
+                                                                             r['config']['detector']) == (g, t, d)]
+                rs = [x for x in rs if x['delay_s']]
+                if not rs:
+                    continue
+                m = lambda k, s='median': float(np.mean([x[k][s] for x in rs]))  # noqa: E731
+                lines.append(f'{g:9} {t:5.1f} {d:9} | {m("delay_s") * 1e3:8.1f} {m("delay_control_periods"):7.1f} | '
+                             f'{m("femur_torque_at_stop_nm"):11.2f} {m("peak_femur_torque_nm"):11.2f} | '
+                             f'{m("command_overshoot_m") * 1e3:12.1f} | {sum(x["premature_stops"] for x in rs):5d} '
+                             f'{sum(x["missed_contacts"] for x in rs):6d}')
+    return '\n'.join(lines)
+
+
+# ----------------------------------------------------------------------------- CLI
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog='experiment', description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap.add_argument('which', choices=['table4', 'fig11', 'fig12', 'quality', 'all'])
+    ap.add_argument('--trials', type=int, default=3, help='trials per cell (seeds 0..N-1)')
+    ap.add_argument('--duration', type=float, default=60.0, help='simulated walking time per trial [s]')
+    ap.add_argument('--fig12-duration', type=float, default=600.0, help='simulated time of the Fig. 12 walk [s]')
+    ap.add_argument('--terrain', default='mockup')
+    ap.add_argument('--jobs', type=int, default=max(1, os.cpu_count() or 1), help='parallel processes')
+    ap.add_argument('--out', default='out/experiments', help='folder for PNGs and the JSON')
+    ap.add_argument('--json', metavar='FILE', help='JSON results (default: OUT/<which>.json)')
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    report: dict = {'which': args.which, 'trials': args.trials, 'duration_s': args.duration, 'terrain': args.terrain}
+    if args.which in ('table4', 'fig11', 'quality', 'all'):
+        t_des = (1.0,) if args.which == 'fig11' else (0.5, 1.0)
+        cfgs = table4_configs(args.trials, args.duration, args.terrain, t_des)
+        results = run_many(cfgs, args.jobs, 'mockup trials')
+        report['trials_results'] = [{k: v for k, v in r.items() if k != 'events'} for r in results]
+        if args.which in ('table4', 'all'):
+            rows = summarize_table4(results)
+            report['table4'] = rows
+            print(format_table4(rows))
+        if args.which in ('fig11', 'all'):
+            plot_fig11(results, out / 'fig11_stability.png')
+            report['fig11'] = summarize_fig11(results)
+            print(f'Fig. 11 box plots: {out / "fig11_stability.png"}')
+        if args.which in ('quality', 'all'):
+            print(format_quality(results))
+    if args.which in ('quality', 'all'):
+        rows = free_swing_quality()
+        report['free_swing'] = rows
+        print(format_free_swing(rows))
+    if args.which in ('fig12', 'all'):
+        cfgs = [TrialConfig(gait='tripod', detector=d, t_des_s=1.0, terrain='rough', duration_s=args.fig12_duration,
+                            wz_rad_s=0.04, probe_period_s=0.5) for d in DETECTORS]
+        res12 = run_many(cfgs, args.jobs, 'fig12 walks')
+        plot_fig12(res12, out / 'fig12_temperature.png')
+        report['fig12'] = [{'detector': r['config']['detector'], 'distance_m': r['distance_m'], 'fell': r['fell'],
+                            'femur_c_start': r['temperature_femur_c'][0], 'femur_c_end': r['temperature_femur_c'][-1],
+                            'tibia_c_end': r['temperature_tibia_c'][-1],
+                            'temperature_t_s': r['temperature_t_s'], 'femur_c': r['temperature_femur_c'],
+                            'tibia_c': r['temperature_tibia_c']} for r in res12]
+        for r in report['fig12']:
+            print(f'Fig. 12 {r["detector"]:8}: femur {r["femur_c_start"]:.1f} -> {r["femur_c_end"]:.1f} C, '
+                  f'tibia -> {r["tibia_c_end"]:.1f} C over {args.fig12_duration / 60:.0f} min, walked {r["distance_m"]:.2f} m')
+        print(f'Fig. 12 plot: {out / "fig12_temperature.png"}')
+    path = Path(args.json) if args.json else out / f'{args.which}.json'
+    path.write_text(json.dumps(report, indent=1))
+    print(f'JSON: {path}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
