@@ -1,0 +1,915 @@
+"""The driver core: one AX-12A bus through dynamixel-sdk, without any ROS import.
+
+:class:`DynamixelBus` owns the dynamixel-sdk ``PortHandler``/``PacketHandler`` (Protocol 1.0) and
+one lock that every bus transaction takes. It
+
+* verifies at start-up that every joint's servo answers a PING and reports model number 12
+  (:class:`ServoVerificationError` names each missing or wrong servo), then configures return
+  delay time, angle limits (from the joint limits), alarm shutdown, compliance and torque limit,
+  sets each goal to the present position and enables torque (no jump at start-up);
+* implements the :class:`hexapod_model.bus.ServoBus` protocol (``now``, ``sync_write``,
+  ``read_position``, ``wait_until``), so the locomotion library can run on it directly;
+* runs the bus loop one :meth:`DynamixelBus.step` at a time for the ROS node: pending goals are
+  sync-written, then the next joint of the read schedule is read, and diagnostics are read
+  interleaved (one servo per step) so they never block the position reads for long;
+* validates commands (unknown joint, NaN/inf, outside the joint limits: clamped or rejected by
+  policy; stale stamps rejected; no fresh command for ``command_timeout_s``: hold position);
+* survives a flaky or vanished port: each read is retried within a budget, a servo that stops
+  answering is reported and only re-probed periodically, a lost port is reopened, re-verified
+  and re-configured; a position is only ever reported when a servo returned it.
+
+Stamps: the sample time of a read is the time its instruction packet was written to the port
+(the start of the transaction), taken from the injected ``clock``; T_com is the time from that
+write to the complete status packet.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import select
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field, replace
+from typing import Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+import serial
+from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
+
+from hexapod_model.bus import BusError
+from hexapod_model.description import ALL_JOINTS, BusJoint, DescriptionError, Robot, parse_joint_name
+from hexapod_model.servo import servo_theta, servo_tick
+
+from . import protocol as p
+
+FAULT_POLICIES = ('hold', 'limp', 'recover')
+LIMIT_POLICIES = ('clamp', 'reject')
+ALARM_BITS = p.ERR_OVERHEATING | p.ERR_OVERLOAD
+DIAG_START = 24                       # torque_enable .. moving in one READ
+DIAG_LEN = 46 - DIAG_START + 1
+
+
+class ServoVerificationError(BusError):
+    """Start-up found servos that do not answer or are not AX-12As; ``missing``/``wrong`` list them."""
+
+    def __init__(self, message: str, missing: Sequence[tuple[str, int]] = (),
+                 wrong: Sequence[tuple[str, int, int]] = ()):
+        super().__init__(message)
+        self.missing = list(missing)
+        self.wrong = list(wrong)
+
+
+class CommandError(ValueError):
+    """A command or read schedule was rejected; the message names the joint and the reason."""
+
+
+class PortLostError(BusError):
+    """The serial port vanished or failed (unplugged adapter, I/O error)."""
+
+
+# ----------------------------------------------------------------------------- port handler
+class LowLatencyPortHandler(PortHandler):
+    """dynamixel-sdk's port handler without its 16 ms latency assumption and without busy polling.
+
+    * The stock handler sizes every reply timeout as ``2 * 16 ms + 2 ms``, the FTDI default latency
+      timer. With the adapter's latency_timer at 1 ms (udev rule) the timeout is
+      ``bytes * 10 bits / baud + 2 * latency_timer_ms + margin_ms``, so a lost reply costs ~4 ms.
+    * The stock ``readPort`` returns at once with whatever is buffered (``timeout=0``) and the
+      packet handler spins on it: a 100 % CPU loop. Here it waits in ``select`` until a byte
+      arrives or the packet deadline passes.
+    * ``writePort`` records ``clock()`` just before the instruction goes out: the sample stamp.
+    """
+
+    def __init__(self, port_name: str, latency_timer_ms: float = 1.0, margin_ms: float = 2.0,
+                 clock: Callable[[], float] = time.time):
+        super().__init__(port_name)
+        self.latency_timer_ms = float(latency_timer_ms)
+        self.margin_ms = float(margin_ms)
+        self.clock = clock
+        self.last_tx_time = math.nan
+
+    def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK API)
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = (self.tx_time_per_byte * packet_length) + 2.0 * self.latency_timer_ms + self.margin_ms
+
+    def writePort(self, packet):  # noqa: N802
+        self.last_tx_time = self.clock()
+        return self.ser.write(packet)
+
+    def readPort(self, length):  # noqa: N802
+        if not self.ser.in_waiting:
+            left_ms = self.packet_start_time + self.packet_timeout - self.getCurrentTime()
+            if left_ms > 0:
+                select.select([self.ser.fd], [], [], left_ms / 1000.0)
+        return self.ser.read(length)
+
+
+# ----------------------------------------------------------------------------- data types
+@dataclass(frozen=True)
+class DriverConfig:
+    """Driver settings (the node's parameters). ``None`` = take it from the robot description."""
+
+    device: str = '/dev/ttyUSB0'
+    baud_rate: int | None = None                 # None: robot.bus.baud_rate
+    joints: tuple[BusJoint, ...] | None = None   # None: robot.bus.joints (servo id, direction, offset)
+    latency_timer_ms: float = 1.0                # USB adapter latency timer (udev rule sets 1 ms)
+    timeout_margin_ms: float = 5.0               # added to every reply timeout (host scheduling jitter)
+    startup_timeout_margin_ms: float = 50.0      # the same during verification/configuration (robustness first)
+    return_delay_time: int = 0                   # register 5 [x 2 us]
+    compliance_margin: int | None = None         # None: robot.servo.compliance_margin_ticks
+    compliance_slope: int | None = None          # None: robot.servo.compliance_slope_ticks
+    torque_limit: int = 1023                     # register 34 written at start-up and on recovery
+    write_angle_limits: bool = True              # EEPROM angle limits from joint_limits_rad
+    read_retries: int = 2                        # extra attempts per read before it counts as failed
+    missing_after_failures: int = 3              # consecutive failed reads before a servo is skipped
+    reprobe_period_s: float = 1.0                # how often a skipped servo is tried again
+    reconnect_period_s: float = 0.5              # how often a lost port is reopened
+    command_timeout_s: float = 1.0               # stale-command timeout (0 disables)
+    limit_policy: str = 'clamp'                  # goals outside the joint limits: clamp or reject
+    fault_policy: str = 'hold'                   # overheating/overload: hold, limp or recover
+    diagnostics_period_s: float = 1.0            # one diagnostics round (all servos) per period
+    read_period_s: float = 0.0                   # minimum spacing of position reads (0: back to back)
+
+    def validate(self) -> None:
+        def bad(name, why):
+            raise ValueError(f'driver parameter {name}: {why}')
+        if not self.device:
+            bad('device', 'empty device path')
+        if self.baud_rate is not None and self.baud_rate <= 0:
+            bad('baud_rate', f'must be > 0, got {self.baud_rate}')
+        if self.latency_timer_ms < 0:
+            bad('latency_timer_ms', f'must be >= 0, got {self.latency_timer_ms}')
+        if self.timeout_margin_ms < 0:
+            bad('timeout_margin_ms', f'must be >= 0, got {self.timeout_margin_ms}')
+        if self.startup_timeout_margin_ms < 0:
+            bad('startup_timeout_margin_ms', f'must be >= 0, got {self.startup_timeout_margin_ms}')
+        if not 0 <= self.return_delay_time <= 254:
+            bad('return_delay_time', f'register 5 holds 0..254 (x 2 us), got {self.return_delay_time}')
+        if self.compliance_margin is not None and not 0 <= self.compliance_margin <= 255:
+            bad('compliance_margin', f'must be 0..255 ticks, got {self.compliance_margin}')
+        if self.compliance_slope is not None and not 1 <= self.compliance_slope <= 254:
+            bad('compliance_slope', f'must be 1..254, got {self.compliance_slope}')
+        if not 1 <= self.torque_limit <= 1023:
+            bad('torque_limit', f'must be 1..1023 (0 would leave the servos limp), got {self.torque_limit}')
+        if self.read_retries < 0:
+            bad('read_retries', f'must be >= 0, got {self.read_retries}')
+        if self.missing_after_failures < 1:
+            bad('missing_after_failures', f'must be >= 1, got {self.missing_after_failures}')
+        for name in ('reprobe_period_s', 'reconnect_period_s', 'diagnostics_period_s'):
+            if not getattr(self, name) > 0:
+                bad(name, f'must be > 0, got {getattr(self, name)}')
+        for name in ('command_timeout_s', 'read_period_s'):
+            if not getattr(self, name) >= 0:
+                bad(name, f'must be >= 0, got {getattr(self, name)}')
+        if self.limit_policy not in LIMIT_POLICIES:
+            bad('limit_policy', f'must be one of {LIMIT_POLICIES}, got {self.limit_policy!r}')
+        if self.fault_policy not in FAULT_POLICIES:
+            bad('fault_policy', f'must be one of {FAULT_POLICIES}, got {self.fault_policy!r}')
+        if self.joints is not None:
+            names = [j.joint for j in self.joints]
+            if sorted(names) != sorted(ALL_JOINTS):
+                bad('joints', f'need exactly one entry per joint {list(ALL_JOINTS)}, got {names}')
+            ids = [j.servo_id for j in self.joints]
+            if len(set(ids)) != len(ids) or not all(0 <= i <= p.MAX_ID for i in ids):
+                bad('servo_ids', f'must be unique ids 0..{p.MAX_ID}, got {ids}')
+            if any(j.direction not in (-1, 1) for j in self.joints):
+                bad('directions', f'must be +1 or -1, got {[j.direction for j in self.joints]}')
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One position read: what the servo returned, stamped at the start of the transaction."""
+
+    joint: str
+    theta_rad: float
+    tick: int
+    stamp: float          # time the READ instruction was written [s, driver clock]
+    t_com_s: float        # duration of the transaction (write to complete status packet)
+    error_bits: int
+
+
+@dataclass
+class ServoState:
+    """What the driver knows about one servo (the ServoStatus message)."""
+
+    joint: str
+    servo_id: int
+    responding: bool = True
+    missing: bool = False
+    consecutive_failures: int = 0
+    last_probe: float = -math.inf
+    error_bits: int = 0
+    torque_enabled: bool = False
+    torque_limit: int = 0
+    temperature_c: float = math.nan
+    voltage_v: float = math.nan
+    load_fraction: float = math.nan
+    present_tick: int | None = None
+    faulted: int = 0                # alarm bits that triggered the fault policy (0 = no fault)
+    message: str = ''
+
+
+@dataclass
+class StepResult:
+    """What one bus-loop step produced, for the node to publish."""
+
+    samples: list[Sample] = field(default_factory=list)
+    diagnostics: list[ServoState] | None = None
+    events: list[tuple[str, str]] = field(default_factory=list)    # (level, text): 'info'|'warn'|'error'
+    wrote: bool = False
+
+
+@dataclass(frozen=True)
+class TimingSnapshot:
+    reads: int
+    failed_reads: int
+    t_com_mean_s: float
+    t_com_p99_s: float
+    t_com_max_s: float
+    write_mean_s: float
+
+
+class TimingStats:
+    """Windowed T_com statistics (thread-safe)."""
+
+    def __init__(self, maxlen: int = 100_000):
+        self._lock = threading.Lock()
+        self._reads: deque[float] = deque(maxlen=maxlen)
+        self._writes: deque[float] = deque(maxlen=maxlen)
+        self._failed = 0
+
+    def read(self, duration: float) -> None:
+        with self._lock:
+            self._reads.append(duration)
+
+    def failed(self) -> None:
+        with self._lock:
+            self._failed += 1
+
+    def write(self, duration: float) -> None:
+        with self._lock:
+            self._writes.append(duration)
+
+    def snapshot(self, reset: bool = True) -> TimingSnapshot:
+        with self._lock:
+            r = np.asarray(self._reads, dtype=float)
+            w = np.asarray(self._writes, dtype=float)
+            failed = self._failed
+            if reset:
+                self._reads.clear()
+                self._writes.clear()
+                self._failed = 0
+        return TimingSnapshot(
+            reads=int(r.size), failed_reads=failed,
+            t_com_mean_s=float(r.mean()) if r.size else math.nan,
+            t_com_p99_s=float(np.percentile(r, 99)) if r.size else math.nan,
+            t_com_max_s=float(r.max()) if r.size else math.nan,
+            write_mean_s=float(w.mean()) if w.size else math.nan)
+
+
+# ----------------------------------------------------------------------------- the driver core
+class DynamixelBus:
+    """The AX-12A bus. Thread-safe: every transaction holds :attr:`lock`."""
+
+    def __init__(self, robot: Robot, config: DriverConfig = DriverConfig(), *,
+                 clock: Callable[[], float] = time.time, sleep: Callable[[float], None] = time.sleep,
+                 t_com_s: float | None = None):
+        config.validate()
+        self.robot = robot
+        self.config = config
+        self.clock = clock
+        self._sleep = sleep
+        self.t_com_s = robot.bus.t_com_s if t_com_s is None else float(t_com_s)
+        self.baud_rate = int(config.baud_rate or robot.bus.baud_rate)
+        joints = config.joints if config.joints is not None else robot.bus.joints
+        self.mount: dict[str, BusJoint] = {j.joint: j for j in joints}
+        self.joints = tuple(ALL_JOINTS)
+        self.margin = robot.servo.compliance_margin_ticks if config.compliance_margin is None \
+            else config.compliance_margin
+        self.slope = robot.servo.compliance_slope_ticks if config.compliance_slope is None \
+            else config.compliance_slope
+        self.lock = threading.RLock()
+        self.packet = PacketHandler(1.0)
+        self.port: LowLatencyPortHandler | None = None
+        self.port_ok = False
+        self.states = {j: ServoState(j, self.mount[j].servo_id) for j in self.joints}
+        self.goals_tick: dict[str, int] = {}
+        self.timing = TimingStats()
+        self.estopped = False
+        self._cmd_lock = threading.Lock()
+        self._cmd_event = threading.Event()        # set when goals are pending
+        self._pending: dict[str, int] = {}
+        self._last_command_t: float | None = None
+        self._holding = False
+        self._schedule: tuple[str, ...] = self.joints
+        self._cursor = 0
+        self._next_read_t = -math.inf
+        self._diag_queue: list[str] = []
+        self._next_diag_t = -math.inf
+        self._next_reconnect_t = -math.inf
+        self._events: deque[tuple[str, str]] = deque(maxlen=1000)
+        self._last_read: tuple[float, float, int] = (math.nan, math.nan, 0)
+
+    # ------------------------------------------------------------------ conversions
+    def to_tick(self, joint: str, theta_rad: float) -> int:
+        t = servo_tick(theta_rad, self.robot.servo, self.mount[joint])
+        return int(min(self.robot.servo.max_tick, max(0, round(t))))
+
+    def to_theta(self, joint: str, tick: float) -> float:
+        return float(servo_theta(tick, self.robot.servo, self.mount[joint]))
+
+    def angle_limits_tick(self, joint: str) -> tuple[int, int]:
+        """(CW, CCW) angle limits in raw ticks of the joint limits (mounting direction applied)."""
+        lo, hi = self.robot.joint_limits(joint)
+        a, b = self.to_tick(joint, lo), self.to_tick(joint, hi)
+        return min(a, b), max(a, b)
+
+    # ------------------------------------------------------------------ ServoBus protocol
+    def now(self) -> float:
+        return self.clock()
+
+    def wait_until(self, t: float) -> None:
+        while True:
+            left = t - self.clock()
+            if left <= 0:
+                return
+            self._sleep(min(left, 0.05))
+
+    def sync_write(self, goals_rad: Mapping[str, float]) -> float:
+        """Validate and write goals at once (one SYNC_WRITE); returns the write time."""
+        if self.estopped:
+            raise CommandError('emergency stop is active: torque is off; restart the driver to re-enable')
+        goals = self.validate_goals(goals_rad).goals_tick
+        with self.lock:
+            return self._sync_write_ticks(goals)
+
+    def read_position(self, joint: str) -> tuple[float, float]:
+        """Read one joint: (theta [rad], sample time). Raises BusError after the retry budget."""
+        self._check_joint(joint)
+        with self.lock:
+            s = self._read_joint(joint, retries=self.config.read_retries)
+        if s is None:
+            raise BusError(f'{joint} (id {self.mount[joint].servo_id}): no valid reply after '
+                           f'{1 + self.config.read_retries} attempts ({self.states[joint].message})')
+        return s.theta_rad, s.stamp
+
+    # ------------------------------------------------------------------ start-up
+    def start(self) -> None:
+        """Open the port, verify all servos, configure them and enable torque."""
+        with self.lock:
+            self._open()
+            with self._startup_timeouts():
+                self.verify()
+                self.configure()
+
+    @contextlib.contextmanager
+    def _startup_timeouts(self):
+        port = self.port
+        port.margin_ms = max(self.config.timeout_margin_ms, self.config.startup_timeout_margin_ms)
+        try:
+            yield
+        finally:
+            port.margin_ms = self.config.timeout_margin_ms
+
+    def _open(self) -> None:
+        self._close_port()
+        port = LowLatencyPortHandler(self.config.device, self.config.latency_timer_ms,
+                                     self.config.timeout_margin_ms, clock=self.clock)
+        try:
+            if not port.setBaudRate(self.baud_rate):
+                raise PortLostError(f'{self.config.device}: baud rate {self.baud_rate} is not supported '
+                                    f'by the port handler')
+        except (serial.SerialException, OSError) as exc:
+            raise PortLostError(f'cannot open {self.config.device}: {exc}') from None
+        self.port = port
+        self.port_ok = True
+
+    def _close_port(self) -> None:
+        if self.port is not None and self.port.ser is not None:
+            try:
+                self.port.closePort()
+            except (serial.SerialException, OSError):
+                pass
+        self.port = None
+        self.port_ok = False
+
+    def verify(self) -> None:
+        """PING every joint's servo and check its model number; raise naming every bad one."""
+        missing, wrong = [], []
+        for j in self.joints:
+            sid = self.mount[j].servo_id
+            model, result = None, None
+            for _ in range(1 + self.config.read_retries):
+                model, result = self._ping(sid)
+                if result == COMM_SUCCESS:
+                    break
+            if result != COMM_SUCCESS:
+                missing.append((j, sid))
+            elif model != p.AX12A_MODEL_NUMBER:
+                wrong.append((j, sid, model))
+        if missing or wrong:
+            parts = []
+            if missing:
+                parts.append('no answer from ' + ', '.join(f'{j} (id {i})' for j, i in missing))
+            if wrong:
+                parts.append('wrong model: ' + ', '.join(
+                    f'{j} (id {i}) reports model number {m}, expected {p.AX12A_MODEL_NUMBER} (AX-12A)'
+                    for j, i, m in wrong))
+            raise ServoVerificationError(f'servo verification on {self.config.device} failed: ' + '; '.join(parts),
+                                         missing, wrong)
+
+    def _ping(self, sid: int) -> tuple[int | None, int]:
+        """PING, then READ the model number (the SDK's ping() indexes a short reply blindly)."""
+        _data, result, _err = self._transact(sid, p.PING, [], 0)
+        if result != COMM_SUCCESS:
+            return None, result
+        data, result, _err = self._transact(sid, p.READ, [0, 2], 2)
+        if result != COMM_SUCCESS:
+            return None, result
+        return _u16(data), COMM_SUCCESS
+
+    def configure(self, enable_torque: bool = True) -> None:
+        """Configure every servo, hold it at its present position and enable torque."""
+        shutdown = ALARM_BITS
+        for j in self.joints:
+            sid = self.mount[j].servo_id
+            self._ensure_eeprom(j, 'return_delay_time', self.config.return_delay_time)
+            self._ensure_eeprom(j, 'alarm_shutdown', shutdown)
+            if self.config.write_angle_limits:
+                cw, ccw = self.angle_limits_tick(j)
+                old = self._read_raw(j, 6, 4)
+                if old is None:
+                    raise BusError(f'{j} (id {sid}): cannot read the angle limits (address 6)')
+                if (_u16(old[:2]), _u16(old[2:])) != (cw, ccw):       # both in one write: never cw > ccw
+                    self._write(j, 6, _word(cw) + _word(ccw))
+            self._write(j, 26, [self.margin, self.margin, self.slope, self.slope])
+            self._write(j, 34, _word(self.config.torque_limit))
+            data = self._read_raw(j, 36, 2)
+            if data is None:
+                raise BusError(f'{j} (id {sid}): cannot read the present position during configuration')
+            tick = _u16(data)
+            lo, hi = self.angle_limits_tick(j) if self.config.write_angle_limits else (0, self.robot.servo.max_tick)
+            goal = min(hi, max(lo, tick))
+            if goal != tick:
+                self._event('warn', f'{j} (id {sid}) is at tick {tick}, outside its angle limits [{lo}, {hi}]: '
+                                    f'goal set to {goal}, the joint will move there')
+            self._write(j, 30, _word(goal))
+            self._write(j, 24, [int(enable_torque)])
+            self.goals_tick[j] = goal
+            st = self.states[j]
+            st.present_tick, st.torque_enabled, st.torque_limit = tick, enable_torque, self.config.torque_limit
+            st.responding, st.missing, st.consecutive_failures, st.faulted = True, False, 0, 0
+            st.message = 'configured' if enable_torque else 'configured, torque off (emergency stop)'
+
+    def _ensure_eeprom(self, joint: str, name: str, value: int) -> None:
+        r = p.register(name)
+        data = self._read_raw(joint, r.address, r.size)
+        if data is None:
+            raise BusError(f'{joint} (id {self.mount[joint].servo_id}): cannot read {name} (address {r.address})')
+        if int.from_bytes(bytes(data), 'little') != value:      # write EEPROM only when it differs
+            self._write(joint, r.address, list(int(value).to_bytes(r.size, 'little')))
+
+    # ------------------------------------------------------------------ low-level transactions
+    def _transact(self, sid: int, instruction: int, params: list[int], n_reply: int) -> tuple[bytes, int, int]:
+        """One instruction/status exchange through the SDK's txPacket/rxPacket: (data, result, error).
+
+        Unlike the SDK's txRxPacket, which takes the first packet carrying the right ID, a packet of
+        the wrong ID *or length* (a late reply to an earlier, timed-out transaction) is skipped and
+        the wait goes on until the reply timeout.
+        """
+        tx = [0, 0, sid, len(params) + 2, instruction, *params, 0]
+        result = self._sdk(self.packet.txPacket, tx)
+        if result != COMM_SUCCESS:
+            self.port.is_using = False
+            return b'', result, 0
+        self.port.setPacketTimeout(n_reply + 6)
+        while True:
+            rx, result = self._sdk(self.packet.rxPacket)
+            if result != COMM_SUCCESS:
+                return b'', result, 0
+            if rx[2] == sid and len(rx) == n_reply + 6:
+                return bytes(rx[5:5 + n_reply]), COMM_SUCCESS, rx[4]
+            # anything else is a stale or foreign packet: skip it and keep listening
+
+    def _sdk(self, fn, *args):
+        """Call a dynamixel-sdk function; a vanished port raises PortLostError."""
+        if self.port is None or not self.port_ok:
+            raise PortLostError(f'{self.config.device} is not open')
+        self.port.is_using = False
+        try:
+            return fn(self.port, *args)
+        except (serial.SerialException, OSError) as exc:
+            self.port.is_using = False
+            self.port_ok = False
+            raise PortLostError(f'{self.config.device}: {exc}') from None
+
+    def _write(self, joint: str, address: int, data: list[int]) -> None:
+        sid = self.mount[joint].servo_id
+        last = ''
+        for _ in range(1 + self.config.read_retries):
+            _d, result, err = self._transact(sid, p.WRITE, [address, *data], 0)
+            if result == COMM_SUCCESS and err & p.ERR_CHECKSUM:
+                last = 'the servo received a corrupt instruction (checksum error)'
+                continue
+            if result == COMM_SUCCESS:
+                if err & ~ALARM_BITS & ~p.ERR_INPUT_VOLTAGE:
+                    raise BusError(f'{joint} (id {sid}): write of {data} at address {address} refused: '
+                                   f'{p.describe_error(err)}')
+                return
+            last = self.packet.getTxRxResult(result)
+        raise BusError(f'{joint} (id {sid}): write at address {address} failed: {last}')
+
+    def _read_raw(self, joint: str, address: int, n: int, retries: int | None = None):
+        """Bytes read from a servo, or None after the retry budget (failures recorded)."""
+        sid = self.mount[joint].servo_id
+        st = self.states[joint]
+        for _ in range(1 + (self.config.read_retries if retries is None else retries)):
+            data, result, err = self._transact(sid, p.READ, [address, n], n)
+            t_end = self.clock()
+            if result == COMM_SUCCESS:
+                self._last_read = (self.port.last_tx_time, t_end - self.port.last_tx_time, err)
+                return bytes(data)
+            self.timing.failed()
+            st.message = 'no reply (timeout)' if result == COMM_RX_TIMEOUT else 'corrupt reply'
+        return None
+
+    def _read_joint(self, joint: str, retries: int) -> Sample | None:
+        """Read one position; updates the servo state, applies the fault policy."""
+        st = self.states[joint]
+        data = self._read_raw(joint, 36, 2, retries)
+        now = self.clock()
+        if data is None:
+            self._failure(joint, now)
+            return None
+        stamp, dur, err = self._last_read
+        self.timing.read(dur)
+        tick = _u16(data)
+        st.present_tick = tick
+        self._success(joint, err)
+        return Sample(joint, self.to_theta(joint, tick), tick, stamp, dur, err)
+
+    def _success(self, joint: str, err: int) -> None:
+        st = self.states[joint]
+        if st.missing or not st.responding:
+            self._event('info', f'{joint} (id {st.servo_id}) answers again')
+        st.responding, st.missing, st.consecutive_failures = True, False, 0
+        if err != st.error_bits:
+            if err:
+                self._event('warn', f'{joint} (id {st.servo_id}) reports: {p.describe_error(err)}')
+            elif st.error_bits:
+                self._event('info', f'{joint} (id {st.servo_id}): error bits cleared')
+        st.error_bits = err
+        self._apply_fault_policy(joint, err)
+
+    def _failure(self, joint: str, now: float) -> None:
+        st = self.states[joint]
+        st.consecutive_failures += 1
+        st.responding = False
+        if not st.missing and st.consecutive_failures < self.config.missing_after_failures:
+            self._event('warn', f'{joint} (id {st.servo_id}): read failed after {1 + self.config.read_retries} '
+                                f'attempts ({st.message}); no position reported')
+        if not st.missing and st.consecutive_failures >= self.config.missing_after_failures:
+            st.missing = True
+            self._event('error', f'{joint} (id {st.servo_id}) stopped answering ({st.message}); '
+                                 f'skipped, re-probed every {self.config.reprobe_period_s} s')
+        st.last_probe = now
+
+    # ------------------------------------------------------------------ fault policy
+    def _apply_fault_policy(self, joint: str, err: int) -> None:
+        st = self.states[joint]
+        alarm = err & ALARM_BITS
+        policy = self.config.fault_policy
+        if alarm and not st.faulted:
+            st.faulted = alarm
+            what = p.describe_error(alarm)
+            if policy == 'limp':
+                self._write_quiet(joint, 24, [0])
+                st.torque_enabled = False
+                st.message = f'{what}: torque off (policy limp)'
+            else:
+                if st.present_tick is not None:
+                    self._write_quiet(joint, 30, _word(st.present_tick))
+                    self.goals_tick[joint] = st.present_tick
+                st.message = (f'{what}: holding position, commands ignored (policy hold)' if policy == 'hold' else
+                              f'{what}: holding position until the alarm clears (policy recover)')
+            self._event('error', f'{joint} (id {st.servo_id}) {st.message}')
+        elif st.faulted and not alarm and policy == 'recover':
+            tick = st.present_tick if st.present_tick is not None else self.goals_tick.get(joint)
+            if tick is not None:
+                self._write_quiet(joint, 30, _word(tick))
+                self.goals_tick[joint] = tick
+            if self._write_quiet(joint, 34, _word(self.config.torque_limit)):
+                st.faulted = 0
+                st.torque_limit = self.config.torque_limit
+                st.message = 'recovered: torque limit restored'
+                self._event('info', f'{joint} (id {st.servo_id}) {st.message}')
+
+    def _write_quiet(self, joint: str, address: int, data: list[int]) -> bool:
+        try:
+            self._write(joint, address, data)
+            return True
+        except PortLostError:
+            raise
+        except BusError as exc:
+            self._event('error', str(exc))
+            return False
+
+    # ------------------------------------------------------------------ commands
+    @dataclass(frozen=True)
+    class Validated:
+        goals_tick: dict[str, int]
+        warnings: list[str]
+
+    def _check_joint(self, joint: str) -> None:
+        if joint not in self.mount:
+            try:
+                parse_joint_name(joint)
+            except DescriptionError as exc:
+                raise CommandError(f'unknown joint {joint!r}: {exc}') from None
+            raise CommandError(f'unknown joint {joint!r}')
+
+    def validate_goals(self, goals_rad: Mapping[str, float]) -> 'DynamixelBus.Validated':
+        """Goals -> raw ticks. Unknown names and non-finite values reject the whole command; values
+        outside the joint limits are clamped (with a warning) or rejected, per ``limit_policy``."""
+        if not goals_rad:
+            raise CommandError('empty command: no joint goals')
+        out, warnings = {}, []
+        for joint, theta in goals_rad.items():
+            self._check_joint(joint)
+            try:
+                theta = float(theta)
+            except (TypeError, ValueError):
+                raise CommandError(f'{joint}: goal {theta!r} is not a number') from None
+            if not math.isfinite(theta):
+                raise CommandError(f'{joint}: goal {theta} is not finite; command rejected')
+            lo, hi = self.robot.joint_limits(joint)
+            if not lo <= theta <= hi:
+                if self.config.limit_policy == 'reject':
+                    raise CommandError(f'{joint}: goal {theta:.4f} rad outside the joint limits [{lo}, {hi}]; '
+                                       f'command rejected')
+                clamped = min(hi, max(lo, theta))
+                warnings.append(f'{joint}: goal {theta:.4f} rad outside [{lo}, {hi}], clamped to {clamped}')
+                theta = clamped
+            out[joint] = self.to_tick(joint, theta)
+        return DynamixelBus.Validated(out, warnings)
+
+    def set_command(self, names: Sequence[str], positions: Sequence[float], stamp: float | None = None) -> list[str]:
+        """Queue goals (from /joint_commands) for the next step; returns warnings.
+
+        Raises :class:`CommandError` (nothing queued) for a malformed, stale or rejected command.
+        """
+        if len(names) != len(positions):
+            raise CommandError(f'{len(names)} joint names but {len(positions)} positions')
+        if len(set(names)) != len(names):
+            raise CommandError(f'duplicate joint names in command: {list(names)}')
+        if self.estopped:
+            raise CommandError('emergency stop is active: torque is off; restart the driver to re-enable')
+        now = self.clock()
+        timeout = self.config.command_timeout_s
+        if stamp and timeout > 0 and now - stamp > timeout:
+            raise CommandError(f'stale command: stamped {now - stamp:.3f} s ago (command_timeout_s={timeout})')
+        v = self.validate_goals(dict(zip(names, positions)))
+        warnings = list(v.warnings)
+        goals = {}
+        for j, tick in v.goals_tick.items():
+            st = self.states[j]
+            if st.faulted:
+                warnings.append(f'{j}: ignored, servo in fault ({st.message})')
+                continue
+            goals[j] = tick
+        with self._cmd_lock:
+            self._pending.update(goals)
+            self._last_command_t = now
+        self._cmd_event.set()
+        return warnings
+
+    def set_schedule(self, names: Iterable[str]) -> tuple[str, ...]:
+        """Set the read order (empty = all 18 joints). Unknown names reject the whole schedule."""
+        names = tuple(names)
+        for n in names:
+            self._check_joint(n)
+        with self._cmd_lock:
+            self._schedule = names or self.joints
+            self._cursor = 0
+        return self._schedule
+
+    @property
+    def schedule(self) -> tuple[str, ...]:
+        return self._schedule
+
+    def _sync_write_ticks(self, goals: Mapping[str, int]) -> float:
+        goals = {j: t for j, t in goals.items() if not self.states[j].faulted}
+        if not goals:
+            return self.clock()
+        params = []
+        for j, tick in goals.items():
+            params += [self.mount[j].servo_id, tick & 0xFF, tick >> 8]
+        t0 = self.clock()
+        result = self._sdk(self.packet.syncWriteTxOnly, 30, 2, params, len(params))
+        t = self.port.last_tx_time
+        if result != COMM_SUCCESS:
+            raise BusError(f'sync write failed: {self.packet.getTxRxResult(result)}')
+        self.timing.write(self.clock() - t0)
+        self.goals_tick.update(goals)
+        return t
+
+    # ------------------------------------------------------------------ emergency stop / shutdown
+    def torque_off(self) -> list[str]:
+        """Torque off on every servo: a broadcast write, then each servo checked. Returns joints
+        whose torque could not be confirmed off."""
+        unconfirmed = []
+        with self.lock:
+            if not self.port_ok:
+                return list(self.joints)
+            self._sdk(self.packet.write1ByteTxOnly, p.BROADCAST_ID, 24, 0)
+            for j in self.joints:
+                data = self._read_raw(j, 24, 1, retries=self.config.read_retries)
+                if data is not None and data[0] == 0:
+                    self.states[j].torque_enabled = False
+                    continue
+                try:
+                    self._write(j, 24, [0])
+                    self.states[j].torque_enabled = False
+                except BusError:
+                    unconfirmed.append(j)
+        return unconfirmed
+
+    def emergency_stop(self) -> tuple[bool, str]:
+        """Torque off everywhere and refuse further commands."""
+        self.estopped = True
+        with self._cmd_lock:
+            self._pending.clear()
+        try:
+            bad = self.torque_off()
+        except PortLostError as exc:
+            return False, f'emergency stop: port lost ({exc}); torque state unknown'
+        if bad:
+            return False, f'emergency stop: torque off not confirmed for {", ".join(bad)}'
+        return True, 'torque off on all servos; commands are refused until the driver restarts'
+
+    def close(self) -> list[str]:
+        """Torque off and close the port (safe to call twice). Returns unconfirmed joints."""
+        bad: list[str] = []
+        with self.lock:
+            if self.port is not None and self.port_ok:
+                try:
+                    bad = self.torque_off()
+                except PortLostError:
+                    bad = list(self.joints)
+            self._close_port()
+        return bad
+
+    # ------------------------------------------------------------------ the bus loop
+    def step(self) -> StepResult:
+        """One iteration of the bus loop: reconnect if needed, write pending goals, hold on stale
+        commands, read the next scheduled joint, one diagnostics read when a round is due."""
+        res = StepResult()
+        # read pacing: wait for the next read slot, but write goals the moment they arrive
+        while self.config.read_period_s > 0 and self.port_ok:
+            left = self._next_read_t - self.clock()
+            if left <= 0:
+                break
+            if self._cmd_event.wait(min(left, 0.05)):
+                self._cmd_event.clear()
+                with self.lock:
+                    self._guarded(lambda: self._write_pending(res))
+        now = self.clock()
+        with self.lock:
+            if not self.port_ok:
+                if now >= self._next_reconnect_t:
+                    self._next_reconnect_t = now + self.config.reconnect_period_s
+                    self._reconnect()
+                if not self.port_ok:
+                    res.events = self._drain_events()
+                    self._sleep(0.005)
+                    return res
+            self._guarded(lambda: (self._write_pending(res), self._check_stale(now), self._read_next(res, now),
+                                   self._diagnostics_step(res, now)))
+        res.events = self._drain_events()
+        return res
+
+    def _guarded(self, fn) -> None:
+        """Run bus work; a lost port or a failed transaction becomes an event, never an exception."""
+        try:
+            fn()
+        except PortLostError as exc:
+            self.port_ok = False
+            for st in self.states.values():
+                st.responding = False
+            self._event('error', f'port lost: {exc}; reopening every {self.config.reconnect_period_s} s')
+            self._next_reconnect_t = self.clock() + self.config.reconnect_period_s
+        except BusError as exc:
+            self._event('error', str(exc))
+
+    def _reconnect(self) -> None:
+        try:
+            self._open()
+            with self._startup_timeouts():
+                self.verify()
+                self.configure(enable_torque=not self.estopped)   # goals = present positions: no jump
+            with self._cmd_lock:
+                self._pending.clear()
+            self._event('info', f'{self.config.device} reopened, servos verified and holding position')
+        except BusError as exc:
+            self._close_port()
+            self._event('error', f'reconnect failed: {exc}')
+
+    def _write_pending(self, res: StepResult) -> None:
+        with self._cmd_lock:
+            goals, self._pending = self._pending, {}
+            if goals:
+                self._holding = False
+        if goals and not self.estopped:
+            self._sync_write_ticks(goals)
+            res.wrote = True
+
+    def _check_stale(self, now: float) -> None:
+        timeout = self.config.command_timeout_s
+        last = self._last_command_t
+        if timeout <= 0 or last is None or self._holding or now - last <= timeout or self.estopped:
+            return
+        self._holding = True
+        hold = {}
+        for j in self.joints:
+            st = self.states[j]
+            if st.missing or st.faulted:
+                continue
+            data = self._read_raw(j, 36, 2, retries=0)
+            if data is not None:
+                hold[j] = _u16(data)
+        if hold:
+            self._sync_write_ticks(hold)
+        self._event('warn', f'no command for {now - last:.2f} s (command_timeout_s={timeout}): holding '
+                            f'{len(hold)} joints at their present positions')
+
+    def _read_next(self, res: StepResult, now: float) -> None:
+        with self._cmd_lock:
+            sched, start = self._schedule, self._cursor
+            self._cursor = (start + 1) % len(sched)
+        for k in range(len(sched)):
+            joint = sched[(start + k) % len(sched)]
+            st = self.states[joint]
+            if st.missing and now - st.last_probe < self.config.reprobe_period_s:
+                continue
+            if k:
+                with self._cmd_lock:
+                    if self._schedule is sched:
+                        self._cursor = (start + k + 1) % len(sched)
+            s = self._read_joint(joint, retries=0 if st.missing else self.config.read_retries)
+            if s is not None:
+                res.samples.append(s)
+                self._next_read_t = s.stamp + self.config.read_period_s
+            return
+        self._sleep(0.001)               # every scheduled servo is missing: do not spin
+
+    def _diagnostics_step(self, res: StepResult, now: float) -> None:
+        if not self._diag_queue:
+            if now < self._next_diag_t:
+                return
+            self._next_diag_t = now + self.config.diagnostics_period_s
+            self._diag_queue = list(self.joints)
+        joint = self._diag_queue.pop(0)
+        st = self.states[joint]
+        if not st.missing or now - st.last_probe >= self.config.reprobe_period_s:
+            data = self._read_raw(joint, DIAG_START, DIAG_LEN, retries=0 if st.missing else self.config.read_retries)
+            if data is None:
+                self._failure(joint, self.clock())
+            else:
+                _stamp, _dur, err = self._last_read
+                d = {a: data[a - DIAG_START] for a in range(DIAG_START, DIAG_START + DIAG_LEN)}
+                st.torque_enabled = bool(d[24])
+                st.torque_limit = d[34] | d[35] << 8
+                st.present_tick = d[36] | d[37] << 8
+                st.load_fraction = p.decode_load(d[40] | d[41] << 8)
+                st.voltage_v = d[42] * p.VOLTAGE_UNIT_V
+                st.temperature_c = float(d[43])
+                self._success(joint, err)
+                if not st.faulted:
+                    st.message = (p.describe_error(err) if err else
+                                  'ok' if st.torque_enabled and st.torque_limit else
+                                  'torque off' if not st.torque_enabled else 'torque limit 0 (shut down)')
+        if not self._diag_queue:
+            res.diagnostics = [replace(self.states[j]) for j in self.joints]
+
+    # ------------------------------------------------------------------ events
+    def _event(self, level: str, text: str) -> None:
+        self._events.append((level, text))
+
+    def _drain_events(self) -> list[tuple[str, str]]:
+        ev = list(self._events)
+        self._events.clear()
+        return ev
+
+    def take_events(self) -> list[tuple[str, str]]:
+        """Events (level, text) not yet returned by :meth:`step` (for direct library use)."""
+        with self.lock:
+            return self._drain_events()
+
+
+def _word(v: int) -> list[int]:
+    return [int(v) & 0xFF, (int(v) >> 8) & 0xFF]
+
+
+def _u16(data: bytes) -> int:
+    return data[0] | data[1] << 8

@@ -1,0 +1,234 @@
+"""ROS 2 node: the AX-12A bus as topics (recording contract of hexapod_model.contract).
+
+Thin: declared parameters, message conversion, one library call per callback. The bus itself is
+:class:`hexapod_driver.bus.DynamixelBus`; its loop runs in a dedicated thread (one
+``DynamixelBus.step()`` per iteration), while the executor serves commands, the read schedule,
+the emergency stop and the timing publisher. One lock inside DynamixelBus owns the bus.
+
+In:  /joint_commands (sensor_msgs/JointState), /read_schedule (hexapod_msgs/ReadSchedule),
+     /emergency_stop (std_srvs/Trigger).
+Out: /joint_states (one message per read, stamped at the start of the read transaction),
+     /servo_diagnostics (hexapod_msgs/ServoDiagnostics), /bus_timing (hexapod_msgs/BusTiming).
+"""
+from __future__ import annotations
+
+import sys
+import threading
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.qos import QoSProfile
+from rclpy.time import Time
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from hexapod_model import contract
+from hexapod_model.bus import BusError
+from hexapod_model.description import ALL_JOINTS, BusJoint, load_robot
+from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoStatus
+
+from .bus import FAULT_POLICIES, LIMIT_POLICIES, CommandError, DriverConfig, DynamixelBus
+
+
+def _stamp(t: float):
+    return Time(nanoseconds=int(round(t * 1e9))).to_msg()
+
+
+class DriverNode(Node):
+    def __init__(self):
+        super().__init__('hexapod_driver')
+        robot_path = self._param('robot_description', '', 'robot description YAML; empty = the packaged robot.yaml')
+        robot = load_robot(robot_path or None)
+        d = DriverConfig()
+        bus = robot.bus
+        cfg = DriverConfig(
+            device=self._param('device', '/dev/hexapod_dynamixel',
+                               'serial device of the Dynamixel adapter (udev symlink, or the bus emulator pty)'),
+            baud_rate=self._param('baud_rate', bus.baud_rate,
+                                  'bus baud rate; must match every servo (register 4) or nothing answers'),
+            joints=self._joints(robot),
+            latency_timer_ms=self._param('latency_timer_ms', d.latency_timer_ms,
+                                         "USB adapter latency timer [ms] (udev sets 1); sizes the reply timeout. "
+                                         "Too small: replies are declared lost; too large: a lost reply blocks the bus longer"),
+            timeout_margin_ms=self._param('timeout_margin_ms', d.timeout_margin_ms,
+                                          'extra reply timeout [ms] for host scheduling jitter; too small: '
+                                          'replies delayed by the host count as lost'),
+            startup_timeout_margin_ms=self._param('startup_timeout_margin_ms', d.startup_timeout_margin_ms,
+                                                  'the same during start-up verification/configuration [ms]'),
+            return_delay_time=self._param('return_delay_time', d.return_delay_time,
+                                          'servo return delay (register 5, x 2 us) written at start-up; '
+                                          'the factory 250 adds 0.5 ms to every read'),
+            compliance_margin=self._param('compliance_margin', robot.servo.compliance_margin_ticks,
+                                          'compliance margin [ticks] (registers 26/27); must match the model'),
+            compliance_slope=self._param('compliance_slope', robot.servo.compliance_slope_ticks,
+                                         'compliance slope (registers 28/29); changes the P gain the model assumes'),
+            torque_limit=self._param('torque_limit', d.torque_limit,
+                                     'torque limit (register 34, 1..1023) written at start-up and on recovery'),
+            write_angle_limits=self._param('write_angle_limits', d.write_angle_limits,
+                                           'write the joint limits as EEPROM angle limits (the servo then refuses '
+                                           'goals outside them itself)'),
+            read_retries=self._param('read_retries', d.read_retries,
+                                     'extra attempts per failed read before it counts as failed'),
+            missing_after_failures=self._param('missing_after_failures', d.missing_after_failures,
+                                               'consecutive failed reads before a servo is skipped'),
+            reprobe_period_s=self._param('reprobe_period_s', d.reprobe_period_s,
+                                         'how often a skipped (silent) servo is tried again [s]'),
+            reconnect_period_s=self._param('reconnect_period_s', d.reconnect_period_s,
+                                           'how often a lost serial port is reopened [s]'),
+            command_timeout_s=self._param('command_timeout_s', d.command_timeout_s,
+                                          'commands stamped older than this are rejected, and with no command for '
+                                          'this long the driver holds position [s]; 0 disables'),
+            limit_policy=self._param('limit_policy', d.limit_policy,
+                                     f'goals outside the joint limits: one of {LIMIT_POLICIES}'),
+            fault_policy=self._param('fault_policy', d.fault_policy,
+                                     f'on overheating/overload: one of {FAULT_POLICIES} (hold: freeze the joint; '
+                                     'limp: torque off; recover: freeze, restore the torque limit once the alarm clears)'),
+            diagnostics_period_s=self._param('diagnostics_period_s', d.diagnostics_period_s,
+                                             'period of a diagnostics round over all servos [s]'),
+            read_period_s=self._param('read_period_s', bus.t_com_s,
+                                      'minimum spacing of position reads [s]; default: the description\'s t_com_s, '
+                                      'the read period the swing-down model assumes; 0 = back to back (bus-limited)'),
+        )
+        timing_period = self._param('timing_period_s', 1.0, 'period of /bus_timing messages [s]')
+        if not timing_period > 0:
+            raise ValueError(f'driver parameter timing_period_s: must be > 0, got {timing_period}')
+        self.core = DynamixelBus(robot, cfg, clock=lambda: self.get_clock().now().nanoseconds * 1e-9)
+        try:
+            self.core.start()
+        except BaseException:
+            self.core.close()            # torque off whatever was already enabled
+            raise
+        self.get_logger().info(f'{cfg.device}: {len(ALL_JOINTS)} AX-12A servos verified and configured; torque on')
+
+        self.pub_states = self.create_publisher(JointState, contract.JOINT_STATES, QoSProfile(depth=200))
+        self.pub_diag = self.create_publisher(ServoDiagnostics, contract.SERVO_DIAGNOSTICS, 10)
+        self.pub_timing = self.create_publisher(BusTiming, contract.BUS_TIMING, 10)
+        self.create_subscription(JointState, contract.JOINT_COMMANDS, self.on_command, 10)
+        self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self.on_schedule, 10)
+        self.create_service(Trigger, contract.EMERGENCY_STOP, self.on_emergency_stop)
+        self.create_timer(timing_period, self.on_timing)
+        self._running = threading.Event()
+        self._running.set()
+        self._thread = threading.Thread(target=self._bus_loop, name='bus-loop', daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ parameters
+    def _param(self, name, default, description):
+        self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True))
+        return self.get_parameter(name).value
+
+    def _joints(self, robot) -> tuple[BusJoint, ...]:
+        by = {j.joint: j for j in robot.bus.joints}
+        order = 'in the order ' + ', '.join(ALL_JOINTS)
+        ids = self._param('servo_ids', [by[j].servo_id for j in ALL_JOINTS], f'Dynamixel ID of each joint {order}')
+        dirs = self._param('directions', [by[j].direction for j in ALL_JOINTS],
+                           f'mounting direction (+1/-1) of each joint {order}; a wrong sign mirrors the joint')
+        offs = self._param('offsets_ticks', [by[j].offset_ticks for j in ALL_JOINTS],
+                           f'mounting offset [ticks] of each joint {order}')
+        for name, v in (('servo_ids', ids), ('directions', dirs), ('offsets_ticks', offs)):
+            if len(v) != len(ALL_JOINTS):
+                raise ValueError(f'driver parameter {name}: needs {len(ALL_JOINTS)} entries ({order}), got {len(v)}')
+        return tuple(BusJoint(j, int(i), int(d), int(o)) for j, i, d, o in zip(ALL_JOINTS, ids, dirs, offs))
+
+    # ------------------------------------------------------------------ callbacks
+    def on_command(self, msg: JointState) -> None:
+        stamp = Time.from_msg(msg.header.stamp).nanoseconds * 1e-9
+        try:
+            warnings = self.core.set_command(list(msg.name), list(msg.position), stamp or None)
+        except CommandError as exc:
+            self.get_logger().warn(f'command rejected: {exc}', throttle_duration_sec=1.0)
+            return
+        for w in warnings:
+            self.get_logger().warn(w, throttle_duration_sec=1.0)
+
+    def on_schedule(self, msg: ReadSchedule) -> None:
+        try:
+            self.core.set_schedule(msg.joint_names)
+        except CommandError as exc:
+            self.get_logger().warn(f'read schedule rejected: {exc}')
+
+    def on_emergency_stop(self, request, response):
+        response.success, response.message = self.core.emergency_stop()
+        (self.get_logger().warn if response.success else self.get_logger().error)(response.message)
+        return response
+
+    def on_timing(self) -> None:
+        snap = self.core.timing.snapshot(reset=True)
+        msg = BusTiming()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.reads, msg.failed_reads = snap.reads, snap.failed_reads
+        msg.t_com_mean_s, msg.t_com_p99_s, msg.t_com_max_s = snap.t_com_mean_s, snap.t_com_p99_s, snap.t_com_max_s
+        msg.write_mean_s = snap.write_mean_s
+        self.pub_timing.publish(msg)
+
+    def _bus_loop(self) -> None:
+        while self._running.is_set() and self.context.ok():
+            res = self.core.step()
+            try:
+                self._publish(res)
+            except Exception:            # noqa: BLE001 - Ctrl-C shuts the context down under this thread
+                if self.context.ok():
+                    raise
+                return
+
+    def _publish(self, res) -> None:
+        for s in res.samples:
+            js = JointState()
+            js.header.stamp = _stamp(s.stamp)
+            js.name = [s.joint]
+            js.position = [s.theta_rad]
+            self.pub_states.publish(js)
+        if res.diagnostics is not None:
+            self.pub_diag.publish(self._diagnostics(res.diagnostics))
+        for level, text in res.events:
+            getattr(self.get_logger(), level)(text)
+
+    def _diagnostics(self, states) -> ServoDiagnostics:
+        msg = ServoDiagnostics()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        for st in states:
+            s = ServoStatus()
+            s.joint_name, s.id = st.joint, st.servo_id
+            s.temperature_c, s.voltage_v, s.load_fraction = st.temperature_c, st.voltage_v, st.load_fraction
+            s.error_bits, s.responding, s.torque_enabled = st.error_bits, st.responding, st.torque_enabled
+            s.message = st.message
+            msg.servos.append(s)
+        return msg
+
+    def shutdown_bus(self) -> None:
+        """Stop the loop thread, torque off, close the port."""
+        self._running.clear()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        bad = self.core.close()
+        text = f'torque off not confirmed for {", ".join(bad)}' if bad else 'torque off on all servos; port closed'
+        if self.context.ok():
+            (self.get_logger().error if bad else self.get_logger().info)(text)
+        else:                            # after Ctrl-C the logger can no longer reach /rosout
+            print(f'[hexapod_driver] {text}', file=sys.stderr, flush=True)
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node = None
+    rc = 0
+    try:
+        node = DriverNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (BusError, ValueError) as exc:
+        print(f'[hexapod_driver] start-up failed: {exc}', file=sys.stderr, flush=True)
+        rc = 1
+    finally:
+        if node is not None:
+            node.shutdown_bus()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return rc
+
+
+if __name__ == '__main__':
+    sys.exit(main())
