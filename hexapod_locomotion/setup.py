@@ -23,6 +23,7 @@ setup(
             'locomotion_node = hexapod_locomotion.locomotion_node:main',
             'demo = hexapod_locomotion.demo:main',
             'experiment = hexapod_locomotion.experiments:main',
+            'analyse = hexapod_locomotion.analyse:main',
         ],
     },
 )

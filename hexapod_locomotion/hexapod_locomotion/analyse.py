@@ -1,0 +1,287 @@
+"""./hexapod analyse BAG - offline re-evaluation of a recorded walk, without ROS running.
+
+For every swing-down in the bag (``/swing_down`` holds the inputs of Algorithm 1), the recorded
+femur reads (``/joint_states``) are fed through both detectors, adaptive (Eq. 17) and fixed, and
+each leg's stop is compared with what the recorded controller did (``/ground_detection``). The
+detector the recording ran with must reproduce the recorded decisions exactly. The other detector
+can only be judged up to the moment the recorded controller froze the leg (its later reads no
+longer show the motion that detector would have commanded); a stop it would have made after that
+is reported as "later". Cost of transport, speed and stability are added when the bag carries
+power, body pose and IMU. Plots go to a PNG.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections import defaultdict
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hexapod_model.bagio import BagError, BagReader
+from hexapod_model.contract import GROUND_DETECTION, IMU, JOINT_STATES, POWER, SIM_TRUTH_POSE, SWING_DOWN
+from hexapod_model.description import DescriptionError, load_robot, parse_joint_name
+from hexapod_model.swing_model import LegModel
+
+from .detector import DetectorError, phase_from_fields, replay_swing_down
+from .metrics import MetricsError, cost_of_transport, swing_down_variances
+
+
+class AnalysisError(RuntimeError):
+    """The bag cannot be analysed (the message says what is missing)."""
+
+
+def _t(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+@dataclass
+class LegVerdict:
+    swing_index: int
+    leg: int
+    t_start_s: float
+    recorded_detector: str
+    recorded_stop_s: float | None       # relative to the swing-down start
+    recorded_reason: int | None
+    replay_same_stop_s: float | None
+    replay_same_reason: int | None
+    reproduced: bool
+    other_detector: str
+    other_stop_s: float | None
+    other_reason: int | None
+    other_verdict: str                  # 'same', 'earlier', 'later', 'undecided'
+
+
+@dataclass
+class SwingTrace:
+    legs: tuple
+    t_start_s: float
+    traces: dict                        # detector -> leg -> list of (t_swing, err, threshold)
+
+
+def load_bag(path: str):
+    reader = BagReader(path)
+    topics = reader.topics()
+    if SWING_DOWN not in topics:
+        raise AnalysisError(f'{path}: no {SWING_DOWN} topic - the swing-down inputs of Algorithm 1 were not '
+                            f'recorded (record with ./hexapod demo or a locomotion_node of this version)')
+    if JOINT_STATES not in topics:
+        raise AnalysisError(f'{path}: no {JOINT_STATES} topic - there are no servo reads to analyse')
+    swings, femur_reads, recorded = [], [], defaultdict(dict)
+    power, pose, imu = [], [], []
+    wanted = [t for t in (SWING_DOWN, JOINT_STATES, GROUND_DETECTION, POWER, SIM_TRUTH_POSE, IMU) if t in topics]
+    for topic, _type, t_ns, msg in reader.messages(topics=wanted):
+        if topic == SWING_DOWN:
+            swings.append((_t(msg.header.stamp), msg))
+        elif topic == JOINT_STATES:
+            for name, pos in zip(msg.name, msg.position):
+                try:
+                    leg, role = parse_joint_name(name)
+                except DescriptionError:
+                    continue
+                if role == 'femur':
+                    femur_reads.append((_t(msg.header.stamp), leg, float(pos)))
+        elif topic == GROUND_DETECTION:
+            start = round(_t(msg.swing_start), 6)
+            if msg.stopped and msg.leg not in recorded[start]:
+                recorded[start][msg.leg] = (_t(msg.header.stamp) - _t(msg.swing_start), int(msg.stop_reason))
+        elif topic == POWER:
+            power.append((_t(msg.header.stamp), abs(msg.voltage * msg.current)))
+        elif topic == SIM_TRUTH_POSE:
+            p = msg.pose.position
+            pose.append((_t(msg.header.stamp), p.x, p.y, p.z))
+        elif topic == IMU:
+            q = msg.orientation
+            w, x, y, z = q.w, q.x, q.y, q.z
+            roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+            pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+            imu.append((_t(msg.header.stamp), roll, pitch, msg.linear_acceleration.z))
+    if not swings:
+        raise AnalysisError(f'{path}: {SWING_DOWN} has no messages - the recording contains no swing-down')
+    femur_reads.sort(key=lambda r: r[0])
+    return swings, femur_reads, recorded, power, pose, imu, reader.warnings if hasattr(reader, 'warnings') else []
+
+
+def analyse(path: str, robot=None, keep_traces: int = 6) -> dict:
+    robot = robot or load_robot()
+    swings, femur_reads, recorded, power, pose, imu, bag_warnings = load_bag(path)
+    models = {leg: LegModel(robot, leg) for leg in range(1, 7)}
+    times = np.array([r[0] for r in femur_reads])
+    verdicts: list[LegVerdict] = []
+    traces: list[SwingTrace] = []
+    intervals = []
+    problems: list[str] = []
+    for i, (t0, msg) in enumerate(swings):
+        t_end = swings[i + 1][0] if i + 1 < len(swings) else math.inf
+        legs = tuple(int(x) for x in msg.legs)
+        lo, hi = np.searchsorted(times, t0 - 1e-9), np.searchsorted(times, t_end - 1e-9)
+        reads = [(leg, th, t) for t, leg, th in femur_reads[lo:hi] if leg in legs]
+        kind = msg.detector
+        other = 'fixed' if kind == 'adaptive' else 'adaptive'
+        res, tr = {}, {}
+        for det in (kind, other):
+            ph = phase_from_fields(robot, msg, t0, kind=det, models=models)
+            rows = defaultdict(list)
+            try:
+                replay_swing_down(ph, reads, on_read=lambda r, rows=rows: rows[r.leg].append(
+                    (r.t_swing_s, r.err_tick, r.threshold_tick, r.stopped)))
+            except DetectorError as exc:
+                problems.append(f'swing-down {i} at t={t0:.3f} s, {det} detector: {exc}')
+            res[det] = ph
+            tr[det] = dict(rows)
+            if det == kind:
+                # the recorded swing-down ended with the step in which its last leg stopped: the
+                # reads after it belong to the next phase (background reads), not to this one
+                done = [ph.state[leg].stop_time_s for leg in legs if ph.state[leg].stopped]
+                if done:
+                    end = max(done) + (len(legs) - 1) * ph.t_com_s + 1e-9
+                    reads = [r for r in reads if r[2] <= end]
+        if len(traces) < keep_traces:
+            traces.append(SwingTrace(legs, t0, tr))
+        rec = recorded.get(round(t0, 6), {})
+        for leg in legs:
+            same = res[kind].state[leg]
+            oth = res[other].state[leg]
+            r_stop, r_reason = rec.get(leg, (None, None))
+            s_stop = same.stop_time_s - t0 if same.stopped else None
+            o_stop = oth.stop_time_s - t0 if oth.stopped else None
+            reproduced = (r_stop is not None and s_stop is not None and abs(r_stop - s_stop) < 1e-6
+                          and r_reason == same.stop_reason)
+            if r_stop is None:
+                verdict = 'undecided'                    # the recording has no decision to compare with
+            elif o_stop is None:
+                verdict = 'later'                        # no stop before the recorded swing-down ended
+            elif abs(o_stop - r_stop) < 1e-6:
+                verdict = 'same'
+            elif o_stop < r_stop:
+                verdict = 'earlier'
+            else:
+                verdict = 'later'
+            verdicts.append(LegVerdict(i, leg, t0, kind, r_stop, r_reason, s_stop, same.stop_reason if same.stopped else None,
+                                       reproduced, other, o_stop if verdict != 'later' else None,
+                                       oth.stop_reason if verdict in ('same', 'earlier') else None, verdict))
+            if r_stop is not None:
+                intervals.append((t0, t0 + r_stop, leg))
+    out: dict = {'bag': str(path), 'swing_downs': len(swings), 'legs_evaluated': len(verdicts),
+                 'recorded_detector': sorted({v.recorded_detector for v in verdicts}),
+                 'reproduced': sum(v.reproduced for v in verdicts),
+                 'not_reproduced': [asdict(v) for v in verdicts if not v.reproduced],
+                 'other_detector': {k: sum(v.other_verdict == k for v in verdicts)
+                                    for k in ('same', 'earlier', 'later', 'undecided')},
+                 'other_earlier_by_s': _stats([v.recorded_stop_s - v.other_stop_s for v in verdicts
+                                               if v.other_verdict == 'earlier']),
+                 'verdicts': [asdict(v) for v in verdicts], 'problems': problems,
+                 'bag_warnings': list(bag_warnings)}
+    if power and pose:
+        tp, pw = np.array(power).T
+        ps = np.array(pose)
+        try:
+            out['cot'] = cost_of_transport(ps[:, 0], ps[:, 1:3], tp, pw, robot.total_mass_kg, robot.gravity_mps2)
+        except MetricsError as exc:
+            out['cot'] = None
+            out['cot_note'] = str(exc)
+    else:
+        out['cot'] = None
+        out['cot_note'] = ('no body pose in the bag (a real robot has no external localisation here): speed and CoT '
+                           'need /sim/body_pose' if power else 'no /power in the bag')
+    if imu:
+        a = np.array(imu)
+        st = swing_down_variances(a[:, 0], a[:, 1], a[:, 2], a[:, 3], intervals)
+        out['stability'] = {k: float(np.median([s[k] for s in st])) for k in ('var_roll', 'var_pitch', 'var_acc_z')} if st else None
+    out['_traces'] = traces
+    return out
+
+
+def _stats(values):
+    if not values:
+        return None
+    a = np.array(values)
+    return {'n': len(a), 'median': float(np.median(a)), 'max': float(a.max())}
+
+
+def plot(result: dict, path: Path) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    traces = result['_traces']
+    if not traces:
+        return
+    fig, axes = plt.subplots(len(traces), 1, figsize=(9, 2.4 * len(traces)), squeeze=False)
+    colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
+    for ax, tr in zip(axes[:, 0], traces):
+        for slot, leg in enumerate(tr.legs):
+            c = colours[slot % len(colours)]
+            for det, style in (('adaptive', '--'), ('fixed', ':')):
+                rows = tr.traces.get(det, {}).get(leg, [])
+                n = next((i + 1 for i, r in enumerate(rows) if r[3]), len(rows))   # up to the stop
+                a = np.array(rows[:n]) if n else np.zeros((0, 4))
+                if not len(a):
+                    continue
+                if det == 'adaptive':
+                    ax.plot(a[:, 0], a[:, 1], '-', color=c, lw=1, label=f'leg {leg}: measured error')
+                    ax.plot(a[:, 0], a[:, 2], style, color=c, lw=1, label=f'leg {leg}: adaptive threshold (Eq. 17)')
+                    ax.plot(a[-1, 0], a[-1, 1], 'o', color=c, ms=4)
+                else:
+                    ax.plot(a[:, 0], a[:, 2], style, color='0.5', lw=1,
+                            label='fixed threshold' if slot == 0 else None)
+        ax.set_title(f'swing-down at t={tr.t_start_s:.2f} s, legs {tr.legs} (dot: stop)', fontsize=9)
+        ax.set_ylabel('lag [ticks]')
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel('time since swing-down start [s]')
+    axes[0, 0].legend(fontsize=6, ncol=4, loc='upper right')
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def report_lines(r: dict) -> list[str]:
+    lines = [f'{r["bag"]}: {r["swing_downs"]} swing-downs, {r["legs_evaluated"]} leg decisions, recorded with the '
+             f'{"/".join(r["recorded_detector"])} detector']
+    lines.append(f'  re-running the recorded detector reproduces {r["reproduced"]} of {r["legs_evaluated"]} decisions'
+                 + ('' if r['reproduced'] == r['legs_evaluated'] else f' ({len(r["not_reproduced"])} differ; see JSON)'))
+    o = r['other_detector']
+    other = 'fixed' if r['recorded_detector'] == ['adaptive'] else 'adaptive'
+    lines.append(f'  the {other} detector would have stopped: same read {o["same"]}, earlier {o["earlier"]}, '
+                 f'later than the recorded stop {o["later"]}, undecided {o["undecided"]}')
+    if r['other_earlier_by_s']:
+        lines.append(f'    earlier by median {r["other_earlier_by_s"]["median"] * 1e3:.0f} ms '
+                     f'(max {r["other_earlier_by_s"]["max"] * 1e3:.0f} ms)')
+    if r.get('cot'):
+        c = r['cot']
+        lines.append(f'  speed {c["speed_mps"]:.3f} m/s, power {c["power_w"]:.1f} W, CoT {c["cot"]:.1f}')
+    elif r.get('cot_note'):
+        lines.append(f'  CoT: {r["cot_note"]}')
+    if r.get('stability'):
+        s = r['stability']
+        lines.append(f'  swing-down stability (median per-leg variance): roll {s["var_roll"]:.2e}, '
+                     f'pitch {s["var_pitch"]:.2e}, acc_z {s["var_acc_z"]:.2e}')
+    return lines
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog='analyse', description=__doc__.splitlines()[0])
+    ap.add_argument('bag', help='rosbag2 directory or .mcap file')
+    ap.add_argument('--json', metavar='FILE', help='write the full analysis as JSON')
+    ap.add_argument('--plot', metavar='PNG', help='plot measured error and both thresholds of the first swing-downs')
+    args = ap.parse_args(argv)
+    try:
+        r = analyse(args.bag)
+    except (BagError, AnalysisError, DetectorError) as exc:
+        print(f'analyse: {exc}', file=sys.stderr)
+        return 2
+    for line in report_lines(r):
+        print(line)
+    if args.plot:
+        plot(r, Path(args.plot))
+        print(f'plot: {args.plot}')
+    if args.json:
+        Path(args.json).write_text(json.dumps({k: v for k, v in r.items() if k != '_traces'}, indent=1))
+        print(f'JSON: {args.json}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,101 @@
+"""Locomotion on the MuJoCo robot: Algorithm 1 against simulation truth, and walking the terrains.
+
+Ground truth (foot contacts, femur torque, body pose) is read from the simulator for evaluation
+only; the controller sees nothing but servo reads.
+"""
+import math
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+import pytest
+
+from hexapod_locomotion.controller import GaitController, LocomotionParams, VelocityCommand
+from hexapod_locomotion.detector import STOP_CONTACT, STOP_THETA_FIN, DetectorConfig
+from hexapod_locomotion.gait import get_gait
+from hexapod_locomotion.sim_run import ProbeBus, TrialConfig, _detection_events, run_trial
+from hexapod_model.description import load_robot
+from hexapod_model.kinematics import stance_feet
+from hexapod_sim.sim import HexapodSim
+from hexapod_sim.terrain import Box, Terrain
+
+BLOCK_TOP_M = 0.035
+
+
+def _block_under_leg1(robot):
+    """A 10 x 10 cm wooden block, 3.5 cm high, where leg 1 will put its foot (stride half ahead)."""
+    foot = stance_feet(robot)[0]
+    x, y = foot[0] + 0.03, foot[1]
+    return Terrain('block_under_leg1', 0, boxes=(Box('block', (x, y, BLOCK_TOP_M - 0.05), (0.05, 0.05, 0.05)),))
+
+
+def _one_phase(robot, kind):
+    sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
+    probe = ProbeBus(sim)
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=1.0), DetectorConfig(kind=kind),
+                       t_com_s=sim.t_com_s)
+    c.startup(probe)
+    rep = c.step_phase(probe, VelocityCommand(0.05, 0.0, 0.0))      # legs 1, 6, 3 swing
+    return {e.leg: e for e in _detection_events(robot, probe, rep, c, kind)}, rep
+
+
+@pytest.fixture(scope='module')
+def robot():
+    return load_robot()
+
+
+@pytest.fixture(scope='module')
+def scripted(robot):
+    return {kind: _one_phase(robot, kind) for kind in ('adaptive', 'fixed')}
+
+
+def test_detector_stops_on_the_block_not_before(scripted):
+    events, rep = scripted['adaptive']
+    assert set(events) == {1, 6, 3}
+    for leg, e in events.items():
+        assert e.stop_reason == STOP_CONTACT, f'leg {leg}'
+        assert math.isfinite(e.t_true_contact_s), f'leg {leg} never touched'
+        assert e.t_stop_s >= e.t_true_contact_s, f'leg {leg} stopped before touching the ground'
+        assert e.t_stop_s - e.t_true_contact_s < 0.06, f'leg {leg} detected {e.t_stop_s - e.t_true_contact_s:.3f} s late'
+    # leg 1 lands on the 3.5 cm block, so it finds ground earlier in its swing than legs on the floor
+    o = {x.leg: x for x in rep.outcomes}
+    assert o[1].stop_time_s < min(o[6].stop_time_s, o[3].stop_time_s) - 0.05
+
+
+def test_fixed_baseline_stops_late_with_higher_torque(scripted):
+    ad, _ = scripted['adaptive']
+    fx, _ = scripted['fixed']
+    for leg in (1, 6, 3):
+        assert fx[leg].t_stop_s - fx[leg].t_swing_start_s > ad[leg].t_stop_s - ad[leg].t_swing_start_s
+    contact = [leg for leg in (1, 6, 3) if fx[leg].stop_reason == STOP_CONTACT]
+    tq_fixed = np.mean([fx[leg].peak_femur_torque_nm for leg in (1, 6, 3)])
+    tq_adapt = np.mean([ad[leg].peak_femur_torque_nm for leg in (1, 6, 3)])
+    assert tq_fixed > 1.3 * tq_adapt, (tq_fixed, tq_adapt, contact)
+
+
+@pytest.mark.parametrize('t_des', [0.5, 1.0, 2.0])
+def test_no_premature_stop_in_free_swing(robot, t_des):
+    """On a stand (no ground) every swing-down must run to theta_fin."""
+    sim = HexapodSim(robot, terrain='flat', fixed_base=True)
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=t_des), DetectorConfig(kind='adaptive'),
+                       t_com_s=sim.t_com_s)
+    c.startup(sim)
+    for _ in range(2):
+        rep = c.step_phase(sim, VelocityCommand(0.05, 0.0, 0.0))
+        assert [o.stop_reason for o in rep.outcomes] == [STOP_THETA_FIN] * 3
+        assert all(o.premature_suspects == 0 for o in rep.outcomes)
+
+
+def _walk(gait):
+    r = run_trial(TrialConfig(gait=gait, detector='adaptive', t_des_s=0.5, terrain='blocks', duration_s=150,
+                              course_end_m=1.05, probe_period_s=0.1))
+    return gait, r
+
+
+def test_walks_one_metre_over_blocks_with_every_gait():
+    with ProcessPoolExecutor(max_workers=2) as ex:
+        results = dict(ex.map(_walk, ['pentapod', 'tripod', 'tetrapod']))
+    for gait, r in results.items():
+        assert not r.fell, (gait, r.warnings)
+        assert r.reached_course_end and r.distance_m >= 1.0, (gait, r.distance_m)
+        tilt = [max(abs(s['var_roll']), abs(s['var_pitch'])) for s in r.stability]
+        assert max(tilt) < 0.01, gait          # variance of roll/pitch within a swing-down: bounded
