@@ -18,8 +18,8 @@ from .swing_model import LegModel, SwingDownError, predict_swing_down
 
 
 class ModelNode(Node):
-    def __init__(self):
-        super().__init__('model_node')
+    def __init__(self, **node_kwargs):
+        super().__init__('model_node', **node_kwargs)
         self.declare_parameter('robot_description', '', ParameterDescriptor(
             description='robot YAML path; empty = the packaged description'))
         self.declare_parameter('robot_overlays', [''], ParameterDescriptor(

@@ -1,0 +1,64 @@
+"""model_node serves the same predictions as the library, and names bad requests."""
+import os
+import threading
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from hexapod_model.contract import PREDICT_SWING_DOWN  # noqa: E402
+from hexapod_model.description import load_robot  # noqa: E402
+from hexapod_model.swing_model import predict_swing_down  # noqa: E402
+
+
+@pytest.fixture(scope='module')
+def client():
+    from hexapod_msgs.srv import PredictSwingDown
+    from rclpy.executors import MultiThreadedExecutor
+
+    from hexapod_model.model_node import ModelNode
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)     # ROS_DOMAIN_ID: the test run's own (./hexapod test sets it)
+    server = ModelNode(context=ctx)
+    caller = rclpy.create_node('model_node_test_client', context=ctx)
+    cli = caller.create_client(PredictSwingDown, PREDICT_SWING_DOWN)
+    ex = MultiThreadedExecutor(context=ctx)
+    ex.add_node(server)
+    ex.add_node(caller)
+    th = threading.Thread(target=ex.spin, daemon=True)
+    th.start()
+    assert cli.wait_for_service(timeout_sec=10.0)
+
+    def call(**fields):
+        req = PredictSwingDown.Request()
+        for k, v in fields.items():
+            setattr(req, k, v)
+        return cli.call(req, timeout_sec=10.0)
+
+    yield call
+    ex.shutdown()
+    server.destroy_node()
+    caller.destroy_node()
+    rclpy.shutdown(context=ctx)
+
+
+def test_service_matches_library(client):
+    robot = load_robot()
+    resp = client(legs=[1, 6, 3], femur_init_rad=[0.45] * 3, tibia_init_rad=[0.1] * 3, femur_fin_rad=[-0.15] * 3,
+                  tibia_fin_rad=[-0.05] * 3, t_des_s=1.0, t_com_s=0.001, epsilon_tick=3.0, max_steps=100)
+    assert resp.success, resp.message
+    lib = predict_swing_down(robot, [1, 6, 3], [[0.45, 0.1]] * 3, [[-0.15, -0.05]] * 3, 1.0, 0.001, n_steps=100)
+    assert np.asarray(resp.threshold_tick) == pytest.approx(lib.threshold_tick.ravel())
+    assert np.asarray(resp.t_read_s) == pytest.approx(lib.t_read_s.ravel())
+    assert len(resp.theta_est_tick) == 300
+
+
+def test_bad_request_is_named(client):
+    resp = client(legs=[1, 9], femur_init_rad=[0.4], tibia_init_rad=[0.1], femur_fin_rad=[0.0], tibia_fin_rad=[0.0],
+                  t_des_s=1.0, t_com_s=0.001, epsilon_tick=3.0)
+    assert not resp.success and 'legs must be 1..6' in resp.message
+    resp = client(legs=[2], femur_init_rad=[0.4], tibia_init_rad=[0.1], femur_fin_rad=[0.0], tibia_fin_rad=[0.0],
+                  t_des_s=-1.0, t_com_s=0.001, epsilon_tick=3.0)
+    assert not resp.success and 't_des_s' in resp.message
