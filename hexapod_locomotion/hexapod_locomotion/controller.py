@@ -226,9 +226,7 @@ class GaitController:
                                        st.peak_err_tick, st.premature_suspects))
 
         # 4. body leveling + explicit forward motion + turn
-        swung_feet = {leg: forward(self.robot, leg, [self.goals[joint_name(leg, 'coxa')], phase.state[leg].stop_theta_real_rad,
-                                                     self.goals[joint_name(leg, 'tibia')]]) for leg in legs}
-        roll_pitch = self._level(bus, d * (p.explicit_forward * L / 6.0), swung_feet, missed, warnings)
+        roll_pitch = self._level(bus, d * (p.explicit_forward * L / 6.0), missed, warnings)
         report = PhaseReport(self.phase_index, legs, t_start, t_sd, t_sd_end, bus.now(), outcomes, roll_pitch,
                              warnings)
         self.phase_index += 1
@@ -264,12 +262,17 @@ class GaitController:
         warnings.append(f'leg {leg}: cannot reach below the nominal ground; theta_fin at the nominal ground')
         return self._ik(leg, np.array([foot[0], foot[1], -self.body_height_m]))
 
-    def _level(self, bus: ServoBus, shift_xy, swung_feet: dict[int, np.ndarray], missed: set[int],
-               warnings: list[str]):
+    def _level(self, bus: ServoBus, shift_xy, missed: set[int], warnings: list[str]):
         """Eq. 8-10 on the support feet, then the yaw that best maps the neutral stance onto the feet
-        (so the body follows turning legs) and the explicit forward shift."""
+        (so the body follows turning legs) and the explicit forward shift.
+
+        The feet are taken from the *commanded* joint angles of every leg, the stopped legs' frozen
+        goals included. Loaded servos sag below their goals (about 1 cm of foot height at full
+        load for the AX-12A's compliance), so mixing measured and commanded positions would place
+        some feet systematically high and unload them; with all commanded feet on one plane the
+        compliant servos share the load like equal springs."""
         support = [leg for leg in range(1, 7) if leg not in missed]
-        feet = np.array([swung_feet.get(leg, self.foot(leg)) for leg in range(1, 7)])
+        feet = np.array([self.foot(leg) for leg in range(1, 7)])
         try:
             pose, _ = level_body(feet[[leg - 1 for leg in support]], self.body_height_m)
         except LevelingError as exc:

@@ -41,6 +41,11 @@ class DetectorConfig:
     fixed_threshold_tick: float = 21.0   # baseline threshold of the earlier work
     min_descent_m: float = 0.004     # a detection before the foot has descended this much is suspect
     confirm_reads: int = 3           # ...and must then persist for this many consecutive reads
+    # How a stopped leg is held. 'freeze': theta_des stops where it is (Delta theta = 0, paper Sec. 7);
+    # the free-swing lag frozen into the goal then keeps pushing and can lift the body off the
+    # other feet. 'hold': the femur goal is set to the measured position plus an epsilon preload
+    # toward the ground, so the foot rests where it touched with a small force.
+    stop_mode: str = 'hold'
 
     def __post_init__(self):
         if self.kind not in ('adaptive', 'fixed'):
@@ -51,6 +56,8 @@ class DetectorConfig:
                 raise DetectorError(f'{name} must be a finite non-negative number, got {v!r}')
         if self.confirm_reads < 1:
             raise DetectorError(f'confirm_reads must be >= 1, got {self.confirm_reads}')
+        if self.stop_mode not in ('hold', 'freeze'):
+            raise DetectorError(f"stop_mode must be 'hold' or 'freeze', got {self.stop_mode!r}")
 
 
 @dataclass
@@ -197,10 +204,13 @@ class SwingDownPhase:
         s.history.append(res)
         return res
 
-    @staticmethod
-    def _stop(s: LegState, reason: int, k: int, stamp_s: float, theta_real_rad: float) -> None:
+    def _stop(self, s: LegState, reason: int, k: int, stamp_s: float, theta_real_rad: float) -> None:
         s.stopped, s.stop_reason, s.stop_step, s.stop_time_s = True, reason, k, stamp_s
         s.stop_theta_real_rad = theta_real_rad
+        if reason == STOP_CONTACT and self.config.stop_mode == 'hold':
+            # the foot rests where it touched, pressed epsilon ticks further toward the ground
+            real = float(theta_to_tick(theta_real_rad, self.robot.servo))
+            s.goal_tick = np.array([real + s.direction * self.config.epsilon_tick, s.goal_tick[1]])
 
 
 def run_swing_down(bus: ServoBus, phase: SwingDownPhase, on_read=None, max_steps: int | None = None) -> SwingDownPhase:
