@@ -99,3 +99,21 @@ def test_walks_one_metre_over_blocks_with_every_gait():
         assert r.reached_course_end and r.distance_m >= 1.0, (gait, r.distance_m)
         tilt = [max(abs(s['var_roll']), abs(s['var_pitch'])) for s in r.stability]
         assert max(tilt) < 0.01, gait          # variance of roll/pitch within a swing-down: bounded
+
+
+@pytest.mark.parametrize('vx, wz', [(0.0, 0.15), (0.04, -0.15)])
+def test_turns_in_place_and_on_the_move(robot, vx, wz):
+    sim = HexapodSim(robot, terrain='flat')
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), t_com_s=sim.t_com_s)
+    c.startup(sim)
+    p0, _ = sim.body_pose()
+    for _ in range(6):
+        c.step_phase(sim, VelocityCommand(vx, 0.0, wz))
+    p1, q = sim.body_pose()
+    yaw = 2 * math.atan2(q[3], q[0])
+    assert yaw * np.sign(wz) > 0.1, yaw                     # turned the commanded way
+    moved = np.linalg.norm(p1[:2] - p0[:2])
+    if vx == 0.0:
+        assert moved < 0.05, moved                          # in place
+    else:
+        assert moved > 0.05, moved
