@@ -11,6 +11,7 @@ import threading
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
@@ -34,6 +35,8 @@ PARAMS = {
     'max_stride_m': (0.06, 'largest foothold displacement per cycle [m]; beyond reach is clamped'),
     'cmd_vel_timeout_s': (1.0, 'stop walking (finish the phase, then stand) when /cmd_vel is older than this'),
     'default_vx': (0.0, 'forward speed [m/s] used when no /cmd_vel has been received'),
+    'lockstep': (False, 'drive a lock-stepped bus master (sim_node lockstep:=true): advance it by publishing '
+                        'commands instead of waiting for wall time; use with use_sim_time:=true'),
     'robot_description': ('', 'robot YAML path; empty = the packaged description'),
     'robot_overlays': ([''], 'overlay YAML files merged over the description (e.g. identified effects)'),
 }
@@ -49,7 +52,7 @@ class LocomotionNode(Node):
         overlays = [o for o in g('robot_overlays') if o]
         self.robot = load_robot(g('robot_description') or None, overlays)
         t_com = g('t_com_s') or self.robot.bus.t_com_s
-        self.bus = RosBus(self, t_com)
+        self.bus = RosBus(self, t_com, lockstep=g('lockstep'))
         from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from geometry_msgs.msg import Twist
         self._LGD = LegGroundDetection
@@ -114,6 +117,8 @@ class LocomotionNode(Node):
         self.det_pub.publish(m)
 
     def _publish_swing_start(self, phase) -> None:
+        # Algorithm 1 reads only the femurs of the swinging legs, in order (t_con = L * T_com)
+        self.bus.set_schedule([joint_name(leg, 'femur') for leg in phase.legs])
         m = self._SDS()
         sec = int(phase.t_start_s)
         m.header.stamp.sec, m.header.stamp.nanosec = sec, int(round((phase.t_start_s - sec) * 1e9)) % 1_000_000_000
@@ -138,8 +143,6 @@ class LocomotionNode(Node):
                 if cmd is None:
                     self.bus.wait_until(self.bus.now() + 0.05)
                     continue
-                femurs = [joint_name(leg, 'femur') for leg in self.controller.gait.swing_legs(self.controller.phase_index)]
-                self.bus.set_schedule(femurs)
                 self.controller.step_phase(self.bus, cmd)
                 self.bus.set_schedule(ALL_JOINTS)
         except (BusError, LocomotionError, DetectorError) as exc:
@@ -162,6 +165,9 @@ def main(args=None):
         ex.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:
+        if rclpy.ok():        # a real middleware error, not the context going away on SIGTERM
+            raise
     except (DescriptionError, GaitError, DetectorError, LocomotionError) as exc:
         print(f'locomotion_node: {exc}')
         raise SystemExit(2)

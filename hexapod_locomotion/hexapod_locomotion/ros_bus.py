@@ -7,18 +7,22 @@ locomotion node.
   schedule changes) and returns the next ``/joint_states`` message for the joint sampled after the
   request, with its sample stamp. Reads arrive in schedule order from the driver.
 * ``wait_until`` waits on the node clock (ROS time, or /clock with use_sim_time).
+* ``lockstep``: the bus master (sim_node with ``lockstep:=true``) advances one read-schedule cycle
+  per ``/joint_commands`` message; waiting and reading then publish empty commands to advance it,
+  so a run does not depend on machine load.
 """
 from __future__ import annotations
 
 import collections
 import threading
+import time
 
 from hexapod_model.bus import BusError
 from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE
 
 
 class RosBus:
-    def __init__(self, node, t_com_s: float, read_timeout_s: float = 0.5):
+    def __init__(self, node, t_com_s: float, read_timeout_s: float = 0.5, lockstep: bool = False):
         from hexapod_msgs.msg import ReadSchedule
         from sensor_msgs.msg import JointState
         self._JointState = JointState
@@ -26,6 +30,9 @@ class RosBus:
         self.node = node
         self.t_com_s = t_com_s
         self.read_timeout_s = read_timeout_s
+        self.lockstep = lockstep
+        self._last_write = -1.0
+        self._consumed: dict[str, float] = {}
         self._cv = threading.Condition()
         self._latest: dict[str, collections.deque] = collections.defaultdict(lambda: collections.deque(maxlen=64))
         self._schedule: tuple[str, ...] = ()
@@ -52,7 +59,14 @@ class RosBus:
         msg.name = list(goals_rad)
         msg.position = [float(v) for v in goals_rad.values()]
         self._cmd_pub.publish(msg)
-        return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        self._last_write = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        return self._last_write
+
+    def _advance(self) -> None:
+        """Lock-step: an empty command makes the bus master run one more read cycle."""
+        msg = self._JointState()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self._cmd_pub.publish(msg)
 
     def set_schedule(self, joints) -> None:
         joints = tuple(joints)
@@ -63,24 +77,42 @@ class RosBus:
             self._sched_pub.publish(m)
             self._schedule = joints
 
+    def _fresh(self, joint: str):
+        """Newest read of ``joint`` sampled after our last write and after the last one consumed."""
+        q = self._latest[joint]
+        floor = max(self._last_write - 1e-9, self._consumed.get(joint, -1.0) + 1e-9)
+        while q and q[0][0] < floor:
+            q.popleft()
+        return q[-1] if q else None
+
     def read_position(self, joint: str) -> tuple[float, float]:
-        if joint not in self._schedule and self._schedule:
+        if self._schedule and joint not in self._schedule:
             self.set_schedule(self._schedule + (joint,))
-        requested = self.now()
+        deadline = time.monotonic() + self.read_timeout_s
         with self._cv:
-            ok = self._cv.wait_for(lambda: self.stopped.is_set() or any(
-                t >= requested - self.t_com_s for t, _ in self._latest[joint]), timeout=self.read_timeout_s)
-            if self.stopped.is_set():
-                raise BusError('locomotion stopped')
-            if not ok:
-                raise BusError(f'no /joint_states reading of {joint} within {self.read_timeout_s} s '
-                               f'(is the driver or sim running and reading it?)')
-            q = self._latest[joint]
-            while q and q[0][0] < requested - self.t_com_s:
-                q.popleft()
-            t, pos = q.popleft()
-        return pos, t
+            while True:
+                if self.stopped.is_set():
+                    raise BusError('locomotion stopped')
+                got = self._fresh(joint)
+                if got is not None:
+                    self._latest[joint].clear()
+                    self._consumed[joint] = got[0]
+                    return got[1], got[0]
+                if time.monotonic() > deadline:
+                    raise BusError(f'no /joint_states reading of {joint} within {self.read_timeout_s} s '
+                                   f'(is the driver or sim running and reading it?)')
+                if self.lockstep:
+                    self._advance()
+                self._cv.wait(timeout=0.02 if self.lockstep else 0.005)
 
     def wait_until(self, t: float) -> None:
+        deadline = time.monotonic() + max(10.0, 100 * self.read_timeout_s)
         while not self.stopped.is_set() and self.now() < t:
-            self.stopped.wait(min(0.0005, max(t - self.now(), 0.0)))
+            if time.monotonic() > deadline:
+                raise BusError(f'bus time did not reach {t:.3f} s (clock at {self.now():.3f} s): is /clock published?')
+            if self.lockstep:
+                self._advance()
+                with self._cv:
+                    self._cv.wait(timeout=0.02)
+            else:
+                self.stopped.wait(min(0.0005, max(t - self.now(), 0.0)))
