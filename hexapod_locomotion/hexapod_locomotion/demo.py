@@ -48,6 +48,7 @@ def main(argv=None) -> int:
     ap.add_argument('--t-des', type=float, default=1.0, help='swing-down duration [s]')
     ap.add_argument('--terrain', default='mockup', help='flat | blocks | stairs | rough | mockup')
     ap.add_argument('--seed', type=int, default=0)
+    ap.add_argument('--start-x', type=float, default=0.0, help='start position along the course [m]')
     ap.add_argument('--duration', type=float, default=180.0, help='simulated time limit [s]')
     ap.add_argument('--course-end', type=float, default=2.6, help='stop when the trunk passes this x [m]')
     ap.add_argument('--record', default='auto',
@@ -58,17 +59,19 @@ def main(argv=None) -> int:
     from hexapod_sim.recorder import resolve_bag_dir
     bag = str(resolve_bag_dir(args.record, prefix='demo')) if args.record else None
     cfg = TrialConfig(gait=args.gait, detector=args.detector, t_des_s=args.t_des, terrain=args.terrain,
-                      seed=args.seed, duration_s=args.duration, course_end_m=args.course_end, record=bag)
+                      seed=args.seed, duration_s=args.duration, course_end_m=args.course_end, record=bag,
+                      start_x_m=args.start_x)
     print(f'hexapod demo: {cfg.gait} gait, {cfg.detector} ground detection, t_des={cfg.t_des_s} s, '
           f'terrain "{cfg.terrain}" (seed {cfg.seed}), simulated AX-12A bus with T_com='
           f'{"description default" if cfg.t_com_s is None else cfg.t_com_s}', flush=True)
     from tqdm import tqdm
-    bar = tqdm(total=round(args.course_end, 2), unit='m', desc='walking', file=sys.stdout, mininterval=1.0,
+    total = round(max(args.course_end - args.start_x, 0.01), 2)
+    bar = tqdm(total=total, unit='m', desc='walking', file=sys.stdout, mininterval=1.0,
                bar_format='{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.2f} m [{elapsed}{postfix}]')
     t0 = time.monotonic()
 
     def progress(t_sim, dist):
-        bar.n = round(max(0.0, min(dist, args.course_end)), 2)
+        bar.n = round(max(0.0, min(dist, total)), 2)
         bar.set_postfix_str(f'sim {t_sim:.0f} s')
 
     res = run_trial(cfg, progress=progress)

@@ -45,6 +45,7 @@ class TrialConfig:
     probe_period_s: float = 0.05        # truth sampling period (pose, energy, temperature)
     record: str | None = None           # bag directory, or None
     overlays: tuple[str, ...] = ()
+    start_x_m: float = 0.0              # where the robot stands at the start (along the course)
 
 
 def _stamp(t_s: float) -> dict:
@@ -230,7 +231,7 @@ def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
     """Walk one trial; ``progress(sim_time_s, distance_m)`` is called after every phase."""
     from hexapod_sim.sim import HexapodSim
     robot = load_robot(overlays=cfg.overlays)
-    sim = HexapodSim(robot, terrain=cfg.terrain, seed=cfg.seed, t_com_s=cfg.t_com_s)
+    sim = HexapodSim(robot, terrain=cfg.terrain, seed=cfg.seed, t_com_s=cfg.t_com_s, start_xy_m=(cfg.start_x_m, 0.0))
     recorder = None
     if cfg.record:
         from hexapod_sim.recorder import Recorder
