@@ -20,7 +20,11 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-
+            'replay = hexapod_sim.replay:main',
+            'bench_replay = hexapod_sim.bench_replay:main',
+            'sim = hexapod_sim.cli:main',
+            'sim_node = hexapod_sim.sim_node:main',
+            'bench_sim = hexapod_sim.bench_sim:main',
         ],
     },
 )

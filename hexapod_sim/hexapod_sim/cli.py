@@ -1,0 +1,93 @@
+"""``./hexapod sim``: pictures and clips of the simulated robot, or the sim node.
+
+    ./hexapod sim --render out.png [--terrain blocks] [--start-x 0.8]   PNG after settling
+    ./hexapod sim --video out.gif --duration 4 [--terrain mockup]       GIF of a scripted tripod gait
+    ./hexapod sim [--terrain mockup] [--rtf 1] [--record auto]          run sim_node (ROS) instead
+
+Rendering is offscreen on the CPU (``MUJOCO_GL=osmesa``, Debian package ``libosmesa6``).
+"""
+from __future__ import annotations
+
+import os
+
+# MuJoCo chooses its GL backend at import: headless default before anything imports mujoco.
+os.environ.setdefault('MUJOCO_GL', 'osmesa')
+if os.environ['MUJOCO_GL'] == 'osmesa':
+    os.environ.setdefault('PYOPENGL_PLATFORM', 'osmesa')
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+
+from hexapod_model.description import DescriptionError, load_robot  # noqa: E402
+
+from .terrain import TERRAINS  # noqa: E402
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog='sim', description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap.add_argument('--terrain', default='flat', choices=list(TERRAINS), help='terrain (default flat)')
+    ap.add_argument('--seed', type=int, default=0, help='seed of the random terrains')
+    ap.add_argument('--render', metavar='PNG', help='write a picture of the robot standing on the terrain')
+    ap.add_argument('--video', metavar='GIF', help='write a clip of the robot doing a scripted tripod gait')
+    ap.add_argument('--duration', type=float, default=4.0, help='clip length in simulated seconds (default 4)')
+    ap.add_argument('--settle', type=float, default=1.0,
+                    help='simulated seconds to stand before the picture is taken (default 1)')
+    ap.add_argument('--start-x', type=float, default=0.0, help='start position along x [m]')
+    ap.add_argument('--start-y', type=float, default=0.0, help='start position along y [m]')
+    ap.add_argument('--overlay', action='append', default=[], metavar='YAML',
+                    help='robot description overlay (injected effects); repeatable')
+    ap.add_argument('--width', type=int, default=None, help='image width in pixels')
+    ap.add_argument('--height', type=int, default=None, help='image height in pixels')
+    ap.add_argument('--azimuth', type=float, default=140.0, help='camera azimuth [deg]')
+    ap.add_argument('--elevation', type=float, default=-25.0, help='camera elevation [deg]')
+    ap.add_argument('--distance', type=float, default=0.9, help='camera distance from the trunk [m]')
+    node = ap.add_argument_group('sim node (when neither --render nor --video is given)')
+    node.add_argument('--rtf', type=float, default=1.0, help='real-time factor, 0 = as fast as possible')
+    node.add_argument('--lockstep', action='store_true', help='one read cycle per /joint_commands message')
+    node.add_argument('--record', default='', help="bag: 'auto', a name under bags/, or a path")
+    node.add_argument('--t-com', type=float, default=None, help='duration of one read [s] (0.016 stock USB)')
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.render is None and args.video is None:
+        from . import sim_node
+        ros = ['sim', '--ros-args', '-p', f'terrain:={args.terrain}', '-p', f'seed:={args.seed}',
+               '-p', f'real_time_factor:={float(args.rtf)}', '-p', f'lockstep:={str(args.lockstep).lower()}',
+               '-p', f'start_x_m:={float(args.start_x)}', '-p', f'start_y_m:={float(args.start_y)}']
+        if args.record:
+            ros += ['-p', f'record:={args.record}']
+        if args.t_com is not None:
+            ros += ['-p', f't_com_s:={float(args.t_com)}']
+        if args.overlay:
+            ros += ['-p', 'robot_overlays:=[' + ','.join(f'"{p}"' for p in args.overlay) + ']']
+        sim_node.main(ros)
+        return 0
+
+    from .render import RenderError, record_video, render_png
+    from .sim import HexapodSim, SimError
+    try:
+        robot = load_robot(overlays=args.overlay)
+        camera = dict(distance=args.distance, azimuth=args.azimuth, elevation=args.elevation)
+        if args.render:
+            sim = HexapodSim(robot, terrain=args.terrain, seed=args.seed, start_xy_m=(args.start_x, args.start_y))
+            sim.step(args.settle)
+            out = render_png(sim, args.render, width=args.width or 960, height=args.height or 720, **camera)
+            print(f'wrote {out} (terrain {args.terrain}, t={sim.now():.2f} s)')
+        if args.video:
+            sim = HexapodSim(robot, terrain=args.terrain, seed=args.seed, start_xy_m=(args.start_x, args.start_y))
+            out = record_video(sim, args.video, args.duration, width=args.width or 480,
+                               height=args.height or 360, **camera)
+            pos, _ = sim.body_pose()
+            print(f'wrote {out} ({args.duration:g} s of a scripted tripod gait on {args.terrain}; '
+                  f'trunk moved to x={pos[0]:.3f} m)')
+    except (RenderError, SimError, DescriptionError, ValueError) as exc:
+        print(f'sim: error: {exc}', file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

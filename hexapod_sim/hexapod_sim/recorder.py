@@ -1,0 +1,186 @@
+"""Recording of the sim node's topics into a rosbag2-layout MCAP bag (``bags/`` by default). No rclpy.
+
+A thin layer over :class:`hexapod_model.bagio.BagWriter`: the node hands every message it
+publishes or receives to :meth:`Recorder.write` with the simulated time as the log time. The
+writer closes its chunk, flushes and rewrites ``metadata.yaml`` at least once per second of
+simulated *and* of wall time, so a crash loses at most the last second; :meth:`close` finalises
+the bag (MCAP summary and final metadata).
+
+ROS message instances are converted to plain dicts (:func:`ros_to_plain`) and CDR-encoded by the
+bag writer's own encoder, not by ``rclpy.serialization``: on Jazzy with Fast DDS the latter
+returns ``sensor_msgs/JointState`` followed by 8 uninitialised bytes (and garbage in alignment
+padding), which the ``rosbags`` reader rejects ("CDR message size mismatch"). The high-rate
+types (JointState and Clock at 1 kHz, Imu at 400 Hz, the 100 Hz truth topics) are packed directly
+by the ``cdr_*`` functions below (little-endian CDR, zero padding; a test checks them byte for
+byte against the bag writer's encoder): the generic encoder is pure Python and would cap the
+recording rate.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import struct
+from pathlib import Path
+from typing import Any
+
+from hexapod_model.bagio import BagWriter
+
+FLUSH_PERIOD_S = 1.0          # at most this much is lost on a crash
+
+
+def default_bag_root() -> Path:
+    """``bags/`` of the workspace (``$HEXAPOD_BAGS`` overrides): the folder next to the packages."""
+    env = os.environ.get('HEXAPOD_BAGS')
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve()
+    for parent in here.parents:            # source tree or symlink install: find the workspace root
+        if (parent / 'bags').is_dir() and (parent / 'hexapod_sim').is_dir():
+            return parent / 'bags'
+    return Path.cwd() / 'bags'
+
+
+def resolve_bag_dir(spec: str, prefix: str = 'sim') -> Path:
+    """The bag directory for a ``record`` parameter value.
+
+    ``'auto'``: ``bags/<prefix>_<UTC timestamp>``; a bare name: ``bags/<name>``; a path with a
+    slash: used as given.
+    """
+    if not spec:
+        raise ValueError('empty record path: recording is off')
+    if spec == 'auto':
+        stamp = _dt.datetime.now(_dt.timezone.utc).strftime('%Y%m%dT%H%M%S')
+        return default_bag_root() / f'{prefix}_{stamp}'
+    if '/' not in spec:
+        return default_bag_root() / spec
+    return Path(spec)
+
+
+def ros_to_plain(msg: Any) -> Any:
+    """A ROS message instance (rosidl Python class) as nested dicts/lists of plain values."""
+    fields = getattr(type(msg), 'get_fields_and_field_types', None)
+    if fields is not None:
+        return {name: ros_to_plain(getattr(msg, name)) for name in fields()}
+    if isinstance(msg, (str, bytes, bool, int, float)):
+        return msg
+    if isinstance(msg, (list, tuple)):
+        return [ros_to_plain(v) for v in msg]
+    if hasattr(msg, 'tolist'):             # numpy arrays and array.array of numeric fields
+        return msg.tolist()
+    return msg
+
+
+_CDR_LE = b'\x00\x01\x00\x00'          # encapsulation header: plain CDR, little endian
+_TIME = struct.Struct('<iI')
+
+
+def cdr_clock(msg) -> bytes:
+    """``rosgraph_msgs/msg/Clock`` as CDR."""
+    return _CDR_LE + _TIME.pack(msg.clock.sec, msg.clock.nanosec)
+
+
+def _pad(buf: bytearray, align: int) -> None:
+    buf.extend(b'\x00' * (-(len(buf) - 4) % align))       # alignment counts from the end of the header
+
+
+def _string(buf: bytearray, text: str) -> None:
+    data = text.encode() + b'\x00'
+    _pad(buf, 4)
+    buf.extend(struct.pack('<I', len(data)))
+    buf.extend(data)
+
+
+def _doubles(buf: bytearray, values) -> None:
+    _pad(buf, 4)
+    buf.extend(struct.pack('<I', len(values)))
+    if len(values):
+        _pad(buf, 8)
+        buf.extend(struct.pack(f'<{len(values)}d', *values))
+
+
+def cdr_joint_state(msg) -> bytes:
+    """``sensor_msgs/msg/JointState`` as CDR."""
+    buf = bytearray(_CDR_LE)
+    buf.extend(_TIME.pack(msg.header.stamp.sec, msg.header.stamp.nanosec))
+    _string(buf, msg.header.frame_id)
+    _pad(buf, 4)
+    buf.extend(struct.pack('<I', len(msg.name)))
+    for name in msg.name:
+        _string(buf, name)
+    for seq in (msg.position, msg.velocity, msg.effort):
+        _doubles(buf, seq)
+    return bytes(buf)
+
+
+def _header(buf: bytearray, header) -> None:
+    buf.extend(_TIME.pack(header.stamp.sec, header.stamp.nanosec))
+    _string(buf, header.frame_id)
+
+
+def _fixed_doubles(buf: bytearray, values) -> None:
+    _pad(buf, 8)
+    buf.extend(struct.pack(f'<{len(values)}d', *values))
+
+
+def cdr_imu(msg) -> bytes:
+    """``sensor_msgs/msg/Imu`` as CDR."""
+    buf = bytearray(_CDR_LE)
+    _header(buf, msg.header)
+    o, w, a = msg.orientation, msg.angular_velocity, msg.linear_acceleration
+    _fixed_doubles(buf, (o.x, o.y, o.z, o.w, *msg.orientation_covariance, w.x, w.y, w.z,
+                         *msg.angular_velocity_covariance, a.x, a.y, a.z, *msg.linear_acceleration_covariance))
+    return bytes(buf)
+
+
+def cdr_pose_stamped(msg) -> bytes:
+    """``geometry_msgs/msg/PoseStamped`` as CDR."""
+    buf = bytearray(_CDR_LE)
+    _header(buf, msg.header)
+    p, q = msg.pose.position, msg.pose.orientation
+    _fixed_doubles(buf, (p.x, p.y, p.z, q.x, q.y, q.z, q.w))
+    return bytes(buf)
+
+
+def cdr_float64_multi_array(msg) -> bytes:
+    """``std_msgs/msg/Float64MultiArray`` as CDR."""
+    buf = bytearray(_CDR_LE)
+    buf.extend(struct.pack('<I', len(msg.layout.dim)))
+    for d in msg.layout.dim:
+        _string(buf, d.label)
+        _pad(buf, 4)
+        buf.extend(struct.pack('<II', d.size, d.stride))
+    _pad(buf, 4)
+    buf.extend(struct.pack('<I', msg.layout.data_offset))
+    _doubles(buf, msg.data)
+    return bytes(buf)
+
+
+_FAST = {'sensor_msgs/msg/JointState': cdr_joint_state, 'rosgraph_msgs/msg/Clock': cdr_clock,
+         'sensor_msgs/msg/Imu': cdr_imu, 'geometry_msgs/msg/PoseStamped': cdr_pose_stamped,
+         'std_msgs/msg/Float64MultiArray': cdr_float64_multi_array}
+
+
+class Recorder:
+    """Write messages of several topics to one bag; times are nanoseconds of simulated time."""
+
+    def __init__(self, bag_dir: str | os.PathLike, flush_period_s: float = FLUSH_PERIOD_S, **writer_kw: Any):
+        self.path = Path(bag_dir)
+        self._writer = BagWriter(self.path, flush_period_s=flush_period_s, **writer_kw)
+        self.count = 0
+
+    def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
+        """Record ``msg`` (a ROS message or a nested dict) on ``topic`` at simulated time ``t_s``."""
+        if hasattr(type(msg), 'get_fields_and_field_types'):
+            fast = _FAST.get(msg_type)
+            msg = fast(msg) if fast is not None else ros_to_plain(msg)
+        self._writer.write(topic, msg_type, msg, int(round(t_s * 1e9)))
+        self.count += 1
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def __enter__(self) -> 'Recorder':
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

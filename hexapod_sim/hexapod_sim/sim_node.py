@@ -1,0 +1,332 @@
+"""``sim_node``: the MuJoCo hexapod behind exactly the driver's ROS interface (hexapod_model.contract).
+
+In: ``/joint_commands`` (sensor_msgs/JointState: goals, one sync write per message),
+``/read_schedule`` (hexapod_msgs/ReadSchedule), service ``/emergency_stop`` (std_srvs/Trigger).
+Out: ``/joint_states`` (one message per read, stamped with the sample time), ``/servo_diagnostics``,
+``/bus_timing``, ``/imu``, ``/power``, ``/clock`` and the evaluation-only truth
+``/sim/foot_contacts`` and ``/sim/body_pose``. All stamps are simulated time.
+
+Pacing: ``real_time_factor`` > 0 keeps simulated time at that multiple of wall time; 0 runs as fast
+as possible. ``lockstep``: the simulation only advances by one cycle of the read schedule per
+received ``/joint_commands`` message (a message with no names just advances), so a controller
+that waits for its reads gets a deterministic run independent of machine load.
+
+``record``: '' (off), 'auto' (``bags/sim_<UTC time>``), a name (``bags/<name>``) or a path: every
+topic above plus ``/ground_detection`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import rclpy
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PoseStamped, Twist
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import BatteryState, Imu, JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_srvs.srv import Trigger
+
+from hexapod_model import contract
+from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
+from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus
+
+from .recorder import Recorder, resolve_bag_dir
+from .sim import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoState, SimError
+from .sim_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
+                       TruthSample, truth_vector)
+from .terrain import TERRAINS
+
+TIMER_PERIOD_S = 0.002        # wall period of the stepping timer
+MAX_READS_PER_TICK = 200      # bound one callback so subscriptions/services stay responsive
+MAX_LAG_S = 0.5               # behind the real-time target by more than this: re-anchor, warn
+
+
+def stamp(t_s: float) -> Time:
+    ns = int(round(t_s * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+class SimNode(Node):
+    def __init__(self, **node_kwargs):
+        super().__init__('sim_node', **node_kwargs)
+        ro = dict(read_only=True)
+        P = self.declare_parameter
+        P('robot_description', '', ParameterDescriptor(
+            description="Robot description YAML ('' = the packaged hexapod_model/data/robot.yaml).", **ro))
+        P('robot_overlays', [''], ParameterDescriptor(
+            description='Overlay YAMLs merged over the description (e.g. injected effects); [""] = none.', **ro))
+        overlays = [p for p in self.get_parameter('robot_overlays').value if p]
+        try:
+            robot = load_robot(self.get_parameter('robot_description').value or None, overlays)
+        except DescriptionError as exc:
+            raise SystemExit(f'sim_node: {exc}') from None
+        P('terrain', 'flat', ParameterDescriptor(
+            description=f'Terrain: one of {", ".join(TERRAINS)}.', **ro))
+        P('seed', 0, ParameterDescriptor(description='Seed of the random terrains (blocks, rough, mockup).', **ro))
+        P('t_com_s', robot.bus.t_com_s, ParameterDescriptor(
+            description='Duration of one position read [s]: 0.001 hardware-accelerated, 0.016 stock USB adapter. '
+                        'Must be a multiple of the physics step.', **ro))
+        P('t_write_s', 0.0, ParameterDescriptor(description='Duration of one sync write [s].', **ro))
+        P('fixed_base', False, ParameterDescriptor(
+            description='Weld the trunk in the air with no ground (calibration stand, free swing).', **ro))
+        P('start_x_m', 0.0, ParameterDescriptor(description='Start position of the trunk along x [m].', **ro))
+        P('start_y_m', 0.0, ParameterDescriptor(description='Start position of the trunk along y [m].', **ro))
+        P('real_time_factor', 1.0, ParameterDescriptor(
+            description='Simulated seconds per wall second; 0 = as fast as possible. Ignored in lockstep.'))
+        P('lockstep', False, ParameterDescriptor(
+            description='Advance one read-schedule cycle per /joint_commands message (deterministic runs).', **ro))
+        P('record', '', ParameterDescriptor(
+            description="Bag to record every topic to: '' off, 'auto' bags/sim_<time>, a name (bags/<name>) "
+                        'or a path.', **ro))
+        P('imu_rate_hz', 400.0, ParameterDescriptor(description='IMU rate [Hz] (paper: 400).', **ro))
+        P('power_rate_hz', 100.0, ParameterDescriptor(description='/power rate [Hz] (power averaged).', **ro))
+        P('diagnostics_rate_hz', 10.0, ParameterDescriptor(description='/servo_diagnostics rate [Hz].', **ro))
+        P('bus_timing_rate_hz', 1.0, ParameterDescriptor(description='/bus_timing rate [Hz].', **ro))
+        P('truth_rate_hz', 100.0, ParameterDescriptor(
+            description='Rate of the evaluation-only truth topics /sim/foot_contacts, /sim/body_pose [Hz]; 0 off.',
+            **ro))
+        P('clock_rate_hz', 1000.0, ParameterDescriptor(description='/clock rate in simulated time [Hz].', **ro))
+        P('ambient_temperature_c', 22.0, ParameterDescriptor(description='Ambient temperature [C].', **ro))
+        P('initial_temperature_c', 37.0, ParameterDescriptor(description='Servo temperature at start [C].', **ro))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        g = lambda name: self.get_parameter(name).value  # noqa: E731
+
+        def period(name):
+            rate = float(g(name))
+            if not math.isfinite(rate) or rate < 0:
+                raise SystemExit(f'sim_node: parameter {name} must be >= 0, got {rate}')
+            return 1.0 / rate if rate > 0 else 0.0
+
+        try:
+            self.sim = HexapodSim(robot, terrain=g('terrain'), seed=int(g('seed')), t_com_s=float(g('t_com_s')),
+                                  fixed_base=bool(g('fixed_base')), t_write_s=float(g('t_write_s')),
+                                  imu_rate_hz=float(g('imu_rate_hz')), ambient_c=float(g('ambient_temperature_c')),
+                                  initial_temperature_c=float(g('initial_temperature_c')),
+                                  start_xy_m=(float(g('start_x_m')), float(g('start_y_m'))))
+            self.loop = SimBusLoop(self.sim, power_period_s=period('power_rate_hz'),
+                                   diagnostics_period_s=period('diagnostics_rate_hz'),
+                                   timing_period_s=period('bus_timing_rate_hz'),
+                                   truth_period_s=period('truth_rate_hz'), clock_period_s=period('clock_rate_hz'))
+        except (SimError, ValueError) as exc:
+            raise SystemExit(f'sim_node: {exc}') from None
+        self.rtf = float(g('real_time_factor'))
+        if not math.isfinite(self.rtf) or self.rtf < 0:
+            raise SystemExit(f'sim_node: real_time_factor must be >= 0, got {self.rtf}')
+        self.lockstep = bool(g('lockstep'))
+        self.recorder = None
+        if g('record'):
+            path = resolve_bag_dir(g('record'))
+            self.recorder = Recorder(path)
+            self.get_logger().info(f'recording to {path}')
+
+        qos = QoSProfile(depth=1000)
+        self.pub = {
+            contract.JOINT_STATES: self.create_publisher(JointState, contract.JOINT_STATES, qos),
+            contract.SERVO_DIAGNOSTICS: self.create_publisher(ServoDiagnostics, contract.SERVO_DIAGNOSTICS, 10),
+            contract.BUS_TIMING: self.create_publisher(BusTiming, contract.BUS_TIMING, 10),
+            contract.IMU: self.create_publisher(Imu, contract.IMU, 100),
+            contract.POWER: self.create_publisher(BatteryState, contract.POWER, 100),
+            contract.CLOCK: self.create_publisher(Clock, contract.CLOCK, 100),
+            contract.SIM_TRUTH_CONTACTS: self.create_publisher(Float64MultiArray, contract.SIM_TRUTH_CONTACTS, 100),
+            contract.SIM_TRUTH_POSE: self.create_publisher(PoseStamped, contract.SIM_TRUTH_POSE, 100),
+        }
+        self.create_subscription(JointState, contract.JOINT_COMMANDS, self._on_command, qos)
+        self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self._on_schedule, 10)
+        if self.recorder is not None:     # record the controller's topics too
+            self.create_subscription(LegGroundDetection, contract.GROUND_DETECTION,
+                                     lambda m: self._record(contract.GROUND_DETECTION, m, self.sim.now()), 100)
+            self.create_subscription(Twist, contract.CMD_VEL,
+                                     lambda m: self._record(contract.CMD_VEL, m, self.sim.now()), 10)
+        self.create_service(Trigger, contract.EMERGENCY_STOP, self._on_estop)
+        self._anchor = (time.monotonic(), self.sim.now())
+        self.create_timer(TIMER_PERIOD_S, self._on_timer)
+        self.get_logger().info(
+            f'sim ready: terrain={g("terrain")} seed={g("seed")} t_com={self.sim.t_com_s * 1e3:g} ms '
+            f'{"lockstep" if self.lockstep else f"real_time_factor={self.rtf:g}"} '
+            f'effects={len(robot.effects)}')
+
+    # ------------------------------------------------------------------ parameters
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        for p in params:
+            if p.name == 'real_time_factor':
+                v = p.value
+                if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                    return SetParametersResult(
+                        successful=False, reason=f'real_time_factor must be >= 0 (0 = as fast as possible), got {v!r}')
+                self.rtf = float(v)
+                self._anchor = (time.monotonic(), self.sim.now())
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ inputs
+    def _on_command(self, msg: JointState) -> None:
+        self._record(contract.JOINT_COMMANDS, msg, self.sim.now())
+        if len(msg.name) != len(msg.position):
+            self.get_logger().error(f'/joint_commands ignored: {len(msg.name)} names but {len(msg.position)} positions')
+        else:
+            try:
+                self.loop.command(dict(zip(msg.name, msg.position)))
+            except SimError as exc:
+                self.get_logger().error(f'/joint_commands ignored: {exc}')
+        if self.lockstep:               # one cycle of the read schedule per command, right now
+            for ev in self.loop.run(max_reads=self.loop.cycle_reads):
+                self._publish(ev)
+
+    def _on_schedule(self, msg: ReadSchedule) -> None:
+        self._record(contract.READ_SCHEDULE, msg, self.sim.now())
+        try:
+            self.loop.set_schedule(list(msg.joint_names))
+        except SimError as exc:
+            self.get_logger().error(f'/read_schedule ignored: {exc}')
+
+    def _on_estop(self, request, response):
+        self.sim.emergency_stop()
+        self.get_logger().warn('emergency stop: torque off on every servo')
+        response.success = True
+        response.message = f'torque off on all {len(ALL_JOINTS)} servos at t={self.sim.now():.3f} s (sim time)'
+        return response
+
+    # ------------------------------------------------------------------ stepping
+    def _on_timer(self) -> None:
+        if self.lockstep:
+            return                      # the simulation advances in _on_command only
+        if self.rtf > 0:
+            wall0, sim0 = self._anchor
+            target = sim0 + self.rtf * (time.monotonic() - wall0)
+            if target - self.sim.now() > MAX_LAG_S:
+                self.get_logger().warn(f'cannot keep real_time_factor={self.rtf:g}: running as fast as possible',
+                                       throttle_duration_sec=10.0)
+                self._anchor = (time.monotonic(), self.sim.now())
+            events = self.loop.run(until_s=target, max_reads=MAX_READS_PER_TICK)
+        else:
+            events = self.loop.run(max_reads=MAX_READS_PER_TICK)
+        for ev in events:
+            self._publish(ev)
+
+    # ------------------------------------------------------------------ outputs
+    def _record(self, topic: str, msg, t_s: float) -> None:
+        if self.recorder is not None:
+            self.recorder.write(topic, contract.MSG_TYPES.get(topic) or _type_name(msg), msg, t_s)
+
+    def _send(self, topic: str, msg, t_s: float) -> None:
+        self.pub[topic].publish(msg)
+        self._record(topic, msg, t_s)
+
+    def _publish(self, ev) -> None:
+        if isinstance(ev, JointSample):
+            m = JointState()
+            m.header.stamp = stamp(ev.t_s)
+            m.name = [ev.joint]
+            m.position = [ev.theta_rad]
+            self._send(contract.JOINT_STATES, m, ev.t_s + self.sim.t_com_s)
+        elif isinstance(ev, ClockTick):
+            self._send(contract.CLOCK, Clock(clock=stamp(ev.t_s)), ev.t_s)
+        elif isinstance(ev, ImuSample):
+            m = Imu()
+            m.header.stamp = stamp(ev.t_s)
+            m.header.frame_id = 'trunk'
+            w, x, y, z = (float(v) for v in ev.quat_wxyz)
+            m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z = w, x, y, z
+            m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = (float(v) for v in ev.ang_vel_rad_s)
+            m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = (
+                float(v) for v in ev.lin_acc_mps2)
+            self._send(contract.IMU, m, ev.t_s)
+        elif isinstance(ev, PowerSample):
+            m = BatteryState()
+            m.header.stamp = stamp(ev.t_s)
+            m.voltage = float(ev.voltage_v)
+            m.current = -float(ev.current_a)          # sensor_msgs convention: negative when discharging
+            nan = float('nan')
+            m.charge = m.capacity = m.design_capacity = m.percentage = m.temperature = nan
+            m.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
+            m.present = True
+            self._send(contract.POWER, m, ev.t_s)
+        elif isinstance(ev, ServoState):
+            m = ServoDiagnostics()
+            m.header.stamp = stamp(ev.t_s)
+            ids = self.sim.servo_ids
+            for i, name in enumerate(ALL_JOINTS):
+                s = ServoStatus()
+                s.joint_name = name
+                s.id = int(ids[i])
+                s.temperature_c = float(ev.temperature_c[i])
+                s.voltage_v = float(ev.voltage_v[i])
+                s.load_fraction = float(ev.load_fraction[i])
+                s.error_bits = int(ev.error_bits[i])
+                s.responding = True
+                s.torque_enabled = bool(ev.torque_enabled[i])
+                s.message = _error_text(int(ev.error_bits[i]), bool(ev.torque_enabled[i]))
+                m.servos.append(s)
+            self._send(contract.SERVO_DIAGNOSTICS, m, ev.t_s)
+        elif isinstance(ev, BusTimingSample):
+            m = BusTiming()
+            m.header.stamp = stamp(ev.t_s)
+            m.reads = ev.reads
+            m.failed_reads = 0
+            m.t_com_mean_s = m.t_com_p99_s = m.t_com_max_s = float(ev.t_com_s)
+            m.write_mean_s = float(ev.t_write_s)
+            self._send(contract.BUS_TIMING, m, ev.t_s)
+        elif isinstance(ev, TruthSample):
+            m = Float64MultiArray()
+            m.layout.dim = [MultiArrayDimension(label=lab, size=n, stride=n) for lab, n in TRUTH_LAYOUT]
+            m.data = truth_vector(ev.contacts)
+            self._send(contract.SIM_TRUTH_CONTACTS, m, ev.t_s)
+            p = PoseStamped()
+            p.header.stamp = stamp(ev.t_s)
+            p.header.frame_id = 'world'
+            p.pose.position.x, p.pose.position.y, p.pose.position.z = (float(v) for v in ev.position_m)
+            w, x, y, z = (float(v) for v in ev.quat_wxyz)
+            p.pose.orientation.w, p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z = w, x, y, z
+            self._send(contract.SIM_TRUTH_POSE, p, ev.t_s)
+
+    def close(self) -> None:
+        """Finalise the bag (safe to call twice, also after the ROS context was shut down)."""
+        if self.recorder is not None:
+            self.recorder.close()
+            text = f'bag closed: {self.recorder.path} ({self.recorder.count} messages)'
+            if self.context.ok():
+                self.get_logger().info(text)
+            else:                                   # after Ctrl-C the logger's publisher is gone
+                print(f'[sim_node] {text}', file=sys.stderr)
+            self.recorder = None
+
+
+def _type_name(msg) -> str:
+    mod = type(msg).__module__.split('.')
+    return f'{mod[0]}/msg/{type(msg).__name__}'
+
+
+def _error_text(bits: int, enabled: bool) -> str:
+    parts = []
+    if bits & ERR_OVERHEATING:
+        parts.append('overheating: alarm shutdown')
+    if bits & ERR_ANGLE_LIMIT:
+        parts.append('goal outside the angle limits (clamped)')
+    if not enabled:
+        parts.append('torque off')
+    return '; '.join(parts) or 'ok'
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = SimNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
