@@ -352,14 +352,6 @@ def _ros_message_type(msg: Any) -> str | None:
     return f'{parts[0]}/{parts[1]}/{cls.__name__}'
 
 
-def _rclpy_serialize():
-    try:
-        from rclpy.serialization import serialize_message
-        return serialize_message
-    except Exception:       # rclpy absent or its C extension not loadable here
-        return None
-
-
 class _NoAliasDumper(yaml.SafeDumper):
     """YAML without &anchors/*aliases (rosbag2 metadata never uses them)."""
 
@@ -395,7 +387,7 @@ class BagWriter:
     """Write a rosbag2 directory (``metadata.yaml`` + ``<dir>_0.mcap``), crash safe.
 
     ``write(topic, msg_type, msg, t_ns)``: ``msg`` is a nested dict, a ROS message instance
-    (serialized with rclpy when importable, else converted field by field), any object with the
+    (converted field by field, exactly like the equivalent dict), any object with the
     message's fields as attributes (e.g. a message decoded by :class:`BagReader`), or ``bytes``
     already CDR-serialized. ``t_ns`` is the record (log) time in nanoseconds.
 
@@ -444,7 +436,6 @@ class BagWriter:
         self._last_flush_t_ns: int | None = None
         self._last_flush_wall = time.monotonic()
         self._closed = False
-        self._serialize_ros = _rclpy_serialize()
         self._flush_locked()                        # header on disk + provisional metadata.yaml
         self._stop = threading.Event()
         self._flusher = threading.Thread(target=self._flush_loop, name=f'bagwriter-flush:{self.path.name}',
@@ -515,8 +506,9 @@ class BagWriter:
             if ros_type != t.msg_type:
                 raise MessageEncodeError(f'{t.name or t.msg_type}: got a {ros_type} message for a '
                                          f'topic of type {t.msg_type}')
-            if self._serialize_ros is not None:
-                return self._serialize_ros(msg)
+            # Encoded field by field like a dict, never with rclpy.serialization: on Jazzy/Fast-CDR
+            # its output carries uninitialised padding after the message (e.g. 8 bytes after a
+            # JointState), which readers that check the CDR size (rosbags) reject.
         pkg, _, name = t.msg_type.split('/')
         plain = _normalize(msg, t.specs[f'{pkg}/{name}'], t.specs, t.msg_type)
         try:
