@@ -118,7 +118,6 @@ class GaitController:
         self.neutral = stance_feet(robot)                   # (6, 3) body frame
         self.body_height_m = -float(self.neutral[0, 2])
         self.goals = self._stance_goals()
-        self.measured: dict[str, float] = {}
         self.phase_index = 0
         self._rr = 0                                        # round-robin read pointer
 
@@ -127,21 +126,21 @@ class GaitController:
         th = self.robot.default_stance_rad
         return {joint_name(leg, r): th[i] for leg in range(1, 7) for i, r in enumerate(('coxa', 'femur', 'tibia'))}
 
-    def leg_angles(self, leg: int, measured: bool = False) -> np.ndarray:
-        src = self.measured if measured else {}
-        return np.array([src.get(joint_name(leg, r), self.goals[joint_name(leg, r)]) for r in ('coxa', 'femur', 'tibia')])
+    def leg_angles(self, leg: int) -> np.ndarray:
+        """Commanded (coxa, femur, tibia) angles of ``leg``."""
+        return np.array([self.goals[joint_name(leg, r)] for r in ('coxa', 'femur', 'tibia')])
 
-    def foot(self, leg: int, measured: bool = False) -> np.ndarray:
-        return forward(self.robot, leg, self.leg_angles(leg, measured))
+    def foot(self, leg: int) -> np.ndarray:
+        """Commanded foot-tip position of ``leg`` in the body frame."""
+        return forward(self.robot, leg, self.leg_angles(leg))
 
     def idle_until(self, bus: ServoBus, t: float) -> None:
-        """Let time pass until ``t``; with background reads, read joints round-robin meanwhile."""
+        """Let time pass until ``t``; with background reads, read joints round-robin meanwhile (as a
+        driver's default read schedule does: the recording then holds every joint's motion)."""
         if self.params.background_reads:
             while bus.now() + self.t_com_s <= t + 1e-12:
-                j = ALL_JOINTS[self._rr % len(ALL_JOINTS)]
+                bus.read_position(ALL_JOINTS[self._rr % len(ALL_JOINTS)])
                 self._rr += 1
-                theta, _ = bus.read_position(j)
-                self.measured[j] = theta
         bus.wait_until(t)
 
     def move_joints(self, bus: ServoBus, target: dict[str, float], duration_s: float) -> None:
@@ -155,9 +154,6 @@ class GaitController:
                 self.goals[j] = start[j] + a * (v - start[j])
             bus.sync_write({j: self.goals[j] for j in target})
             self.idle_until(bus, t0 + i * duration_s / n)
-
-    def _ik(self, leg: int, p) -> np.ndarray:
-        return inverse(self.robot, leg, p)
 
     # ------------------------------------------------------------------ the cycle
     def startup(self, bus: ServoBus, duration_s: float = 0.5) -> None:
@@ -218,7 +214,6 @@ class GaitController:
             g = phase.goals(st.stop_step)
             for j in ('femur', 'tibia'):
                 self.goals[joint_name(leg, j)] = g[joint_name(leg, j)]
-            self.measured[joint_name(leg, 'femur')] = st.stop_theta_real_rad
             if st.stop_reason == STOP_THETA_FIN:
                 missed.add(leg)
                 warnings.append(f'leg {leg}: no ground found down to theta_fin; leg excluded from leveling')
@@ -236,13 +231,13 @@ class GaitController:
 
     def _targets(self, leg: int, foot, warnings: list[str]) -> dict[str, float]:
         try:
-            th = self._ik(leg, foot)
+            th = inverse(self.robot, leg, foot)
         except UnreachableTargetError as exc:
             # Pull the target towards the neutral foothold until it is reachable.
             n = self.neutral[leg - 1]
             for a in np.linspace(0.1, 1.0, 10):
                 try:
-                    th = self._ik(leg, (1 - a) * np.asarray(foot) + a * n)
+                    th = inverse(self.robot, leg, (1 - a) * np.asarray(foot) + a * n)
                     break
                 except UnreachableTargetError:
                     continue
@@ -256,11 +251,11 @@ class GaitController:
         depth = self.params.ground_depth_m
         for _ in range(12):
             try:
-                return self._ik(leg, np.array([foot[0], foot[1], -self.body_height_m - depth]))
+                return inverse(self.robot, leg, np.array([foot[0], foot[1], -self.body_height_m - depth]))
             except UnreachableTargetError:
                 depth *= 0.7
         warnings.append(f'leg {leg}: cannot reach below the nominal ground; theta_fin at the nominal ground')
-        return self._ik(leg, np.array([foot[0], foot[1], -self.body_height_m]))
+        return inverse(self.robot, leg, np.array([foot[0], foot[1], -self.body_height_m]))
 
     def _level(self, bus: ServoBus, shift_xy, missed: set[int], warnings: list[str]):
         """Eq. 8-10 on the support feet, then the yaw that best maps the neutral stance onto the feet
@@ -293,7 +288,7 @@ class GaitController:
             try:
                 target = {}
                 for leg in range(1, 7):
-                    th = self._ik(leg, moved[leg - 1])
+                    th = inverse(self.robot, leg, moved[leg - 1])
                     target.update({joint_name(leg, r): float(v) for r, v in zip(('coxa', 'femur', 'tibia'), th)})
                 break
             except UnreachableTargetError as exc:
