@@ -54,13 +54,14 @@ def main(argv=None) -> int:
     ap.add_argument('--record', default='auto',
                     help="bag directory; 'auto' = bags/demo_<UTC time>; '' = do not record")
     ap.add_argument('--json', metavar='FILE', help='also write the full results as JSON')
+    ap.add_argument('--video', metavar='GIF', help='also render an animated GIF of the walk (offscreen, CPU)')
     args = ap.parse_args(argv)
 
     from hexapod_sim.recorder import resolve_bag_dir
     bag = str(resolve_bag_dir(args.record, prefix='demo')) if args.record else None
     cfg = TrialConfig(gait=args.gait, detector=args.detector, t_des_s=args.t_des, terrain=args.terrain,
                       seed=args.seed, duration_s=args.duration, course_end_m=args.course_end, record=bag,
-                      start_x_m=args.start_x)
+                      start_x_m=args.start_x, video=args.video)
     print(f'hexapod demo: {cfg.gait} gait, {cfg.detector} ground detection, t_des={cfg.t_des_s} s, '
           f'terrain "{cfg.terrain}" (seed {cfg.seed}), simulated AX-12A bus with T_com='
           f'{"description default" if cfg.t_com_s is None else cfg.t_com_s}', flush=True)
@@ -85,6 +86,8 @@ def main(argv=None) -> int:
         print(f'  ... {len(res.warnings) - 5} more notes in the JSON output')
     if bag:
         print(f'recorded bag: {bag}  (replay: ./hexapod replay {bag}; analyse: ./hexapod analyse {bag})')
+    if args.video:
+        print(f'video: {args.video}')
     if args.json:
         with open(args.json, 'w') as f:
             json.dump(res.to_dict(), f, indent=1)

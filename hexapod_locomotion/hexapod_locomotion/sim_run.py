@@ -46,6 +46,8 @@ class TrialConfig:
     record: str | None = None           # bag directory, or None
     overlays: tuple[str, ...] = ()
     start_x_m: float = 0.0              # where the robot stands at the start (along the course)
+    video: str | None = None            # animated GIF of the walk (offscreen CPU rendering), or None
+    video_fps: float = 10.0
 
 
 def _stamp(t_s: float) -> dict:
@@ -68,8 +70,9 @@ def _rpy_from_quat(q) -> tuple[float, float, float]:
 class ProbeBus:
     """ServoBus wrapper around a HexapodSim: samples truth and records, transparently."""
 
-    def __init__(self, sim, probe_period_s: float = 0.05, recorder=None):
+    def __init__(self, sim, probe_period_s: float = 0.05, recorder=None, on_probe=None):
         self.sim = sim
+        self.on_probe = on_probe
         self.t_com_s = sim.t_com_s
         self.recorder = recorder
         self.probe_period_s = probe_period_s
@@ -130,6 +133,8 @@ class ProbeBus:
         self.energy.append(bat.energy_j)
         temps = self.sim.temperatures_c()
         self.temps.append(temps)
+        if self.on_probe is not None:
+            self.on_probe(self.sim)
         imu = self.sim.pop_imu_samples()
         for s in imu:
             self.imu_t.append(s.t_s)
@@ -236,7 +241,21 @@ def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
     if cfg.record:
         from hexapod_sim.recorder import Recorder
         recorder = Recorder(Path(cfg.record))
-    probe = ProbeBus(sim, cfg.probe_period_s, recorder)
+    frames, on_probe, renderer = [], None, None
+    if cfg.video:
+        import mujoco
+        from PIL import Image
+
+        from hexapod_sim.render import render_frame
+        renderer = mujoco.Renderer(sim.model, height=300, width=480)
+        every = max(1, int(round(1.0 / (cfg.video_fps * cfg.probe_period_s))))
+        count = [0]
+
+        def on_probe(s):
+            if count[0] % every == 0:
+                frames.append(Image.fromarray(render_frame(s, renderer, distance=0.8, azimuth=120.0)))
+            count[0] += 1
+    probe = ProbeBus(sim, cfg.probe_period_s, recorder, on_probe)
     reports: list[PhaseReport] = []
     det = DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
     controller = GaitController(robot, get_gait(cfg.gait), LocomotionParams(t_des_s=cfg.t_des_s), det,
@@ -271,6 +290,12 @@ def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
     finally:
         if recorder is not None:
             recorder.close()
+        if renderer is not None:
+            renderer.close()
+            if frames:
+                Path(cfg.video).parent.mkdir(parents=True, exist_ok=True)
+                frames[0].save(cfg.video, save_all=True, append_images=frames[1:], loop=0,
+                               duration=int(round(1000 / cfg.video_fps)))
     t = np.array(probe.pose_t)
     xyz = np.array(probe.pose_xyz)
     walk = t >= walk_start - 1e-9
