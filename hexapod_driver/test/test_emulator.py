@@ -141,9 +141,9 @@ def test_status_return_level_1_answers_reads_only(emu, line):
 
 def test_return_delay_time_is_honoured(emu, line):
     # factory return delay 250 x 2 us = 0.5 ms; after writing 0 the reply is immediate
-    t_slow = min(_round_trip(line, 8) for _ in range(5))
+    t_slow = min(_round_trip(line, 8) for _ in range(20))
     assert line.txrx(8, p.WRITE, [5, 0]).code == 0
-    t_fast = min(_round_trip(line, 8) for _ in range(5))
+    t_fast = min(_round_trip(line, 8) for _ in range(20))   # min of many: robust on a loaded machine
     assert t_slow >= 0.5e-3
     assert t_slow - t_fast >= 0.4e-3
 
