@@ -378,22 +378,22 @@ def test_driver_runs_the_mujoco_sim_through_the_emulator(robot):
 
 def test_reads_are_paced_and_goals_do_not_wait_for_the_read_slot(robot, emu):
     import threading
-    b = make_bus(robot, emu, read_period_s=0.02)
+    b = make_bus(robot, emu, read_period_s=0.1)     # long periods: scheduling jitter on a loaded machine is far smaller
     try:
         b.set_schedule(['leg1_coxa'])
         samples = [s for _ in range(5) for s in b.step().samples]
         stamps = [s.stamp for s in samples]
-        assert len(stamps) == 5 and all(t1 - t0 >= 0.02 - 1e-4 for t0, t1 in zip(stamps, stamps[1:]))
+        assert len(stamps) == 5 and all(t1 - t0 >= 0.1 - 1e-4 for t0, t1 in zip(stamps, stamps[1:]))
         sent = []
-        timer = threading.Timer(0.004, lambda: sent.append((time.time(), b.set_command(['leg1_coxa'], [0.1]))))
+        timer = threading.Timer(0.02, lambda: sent.append((time.time(), b.set_command(['leg1_coxa'], [0.1]))))
         emu.log.clear()
         timer.start()
-        r = b.step()                                 # waits for the read slot ~20 ms after the last read
+        r = b.step()                                 # waits for the read slot ~100 ms after the last read
         timer.join()
         assert r.wrote and r.samples
         write = next(e for e in emu.log if e.instruction == p.SYNC_WRITE)
         read = next(e for e in emu.log if e.instruction == p.READ)
-        assert write.wall < read.wall - 0.005        # written when it came, not at the next read slot
+        assert write.wall < read.wall - 0.03         # written when it came, not at the next read slot
         assert write.wall - sent[0][0] < read.wall - sent[0][0]
     finally:
         b.close()

@@ -35,6 +35,8 @@ PARAMS = {
     'max_stride_m': (0.06, 'largest foothold displacement per cycle [m]; beyond reach is clamped'),
     'cmd_vel_timeout_s': (1.0, 'stop walking (finish the phase, then stand) when /cmd_vel is older than this'),
     'default_vx': (0.0, 'forward speed [m/s] used when no /cmd_vel has been received'),
+    'read_timeout_s': (0.0, 'give up on a position read after this wall time [s]; 0 = 0.5 s, or 10 s in lockstep '
+                            '(a lock-stepped sim on a loaded machine answers late but surely)'),
     'lockstep': (False, 'drive a lock-stepped bus master (sim_node lockstep:=true): advance it by publishing '
                         'commands instead of waiting for wall time; use with use_sim_time:=true'),
     'robot_description': ('', 'robot YAML path; empty = the packaged description'),
@@ -52,7 +54,8 @@ class LocomotionNode(Node):
         overlays = [o for o in g('robot_overlays') if o]
         self.robot = load_robot(g('robot_description') or None, overlays)
         t_com = g('t_com_s') or self.robot.bus.t_com_s
-        self.bus = RosBus(self, t_com, lockstep=g('lockstep'))
+        timeout = g('read_timeout_s') or (10.0 if g('lockstep') else 0.5)
+        self.bus = RosBus(self, t_com, read_timeout_s=timeout, lockstep=g('lockstep'))
         from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from geometry_msgs.msg import Twist
         self._LGD = LegGroundDetection
