@@ -57,9 +57,10 @@ def run_many(configs: list[TrialConfig], jobs: int, desc: str) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------- Table 4
-def table4_configs(trials: int, duration_s: float, terrain: str, t_des=(0.5, 1.0)) -> list[TrialConfig]:
+def table4_configs(trials: int, duration_s: float, terrain: str, t_des=(0.5, 1.0),
+                   fixed_threshold_tick: float = 21.0) -> list[TrialConfig]:
     return [TrialConfig(gait=g, detector=d, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s,
-                        course_end_m=2.6)
+                        course_end_m=2.6, fixed_threshold_tick=fixed_threshold_tick)
             for g in GAITS for t in t_des for d in DETECTORS for s in range(trials)]
 
 
@@ -237,16 +238,19 @@ def main(argv=None) -> int:
     ap.add_argument('--duration', type=float, default=60.0, help='simulated walking time per trial [s]')
     ap.add_argument('--fig12-duration', type=float, default=600.0, help='simulated time of the Fig. 12 walk [s]')
     ap.add_argument('--terrain', default='mockup')
+    ap.add_argument('--fixed-threshold', type=float, default=21.0,
+                    help="threshold of the fixed detector [ticks] (paper: 21, found for the authors' robot)")
     ap.add_argument('--jobs', type=int, default=max(1, os.cpu_count() or 1), help='parallel processes')
     ap.add_argument('--out', default='out/experiments', help='folder for PNGs and the JSON')
     ap.add_argument('--json', metavar='FILE', help='JSON results (default: OUT/<which>.json)')
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    report: dict = {'which': args.which, 'trials': args.trials, 'duration_s': args.duration, 'terrain': args.terrain}
+    report: dict = {'which': args.which, 'trials': args.trials, 'duration_s': args.duration, 'terrain': args.terrain,
+                    'fixed_threshold_tick': args.fixed_threshold}
     if args.which in ('table4', 'fig11', 'quality', 'all'):
         t_des = (1.0,) if args.which == 'fig11' else (0.5, 1.0)
-        cfgs = table4_configs(args.trials, args.duration, args.terrain, t_des)
+        cfgs = table4_configs(args.trials, args.duration, args.terrain, t_des, args.fixed_threshold)
         results = run_many(cfgs, args.jobs, 'mockup trials')
         report['trials_results'] = [{k: v for k, v in r.items() if k != 'events'} for r in results]
         if args.which in ('table4', 'all'):
@@ -265,7 +269,8 @@ def main(argv=None) -> int:
         print(format_free_swing(rows))
     if args.which in ('fig12', 'all'):
         cfgs = [TrialConfig(gait='tripod', detector=d, t_des_s=1.0, terrain='rough', duration_s=args.fig12_duration,
-                            wz_rad_s=0.04, probe_period_s=0.5) for d in DETECTORS]
+                            wz_rad_s=0.04, probe_period_s=0.5, fixed_threshold_tick=args.fixed_threshold)
+                for d in DETECTORS]
         res12 = run_many(cfgs, args.jobs, 'fig12 walks')
         plot_fig12(res12, out / 'fig12_temperature.png')
         report['fig12'] = [{'detector': r['config']['detector'], 'distance_m': r['distance_m'], 'fell': r['fell'],
