@@ -21,6 +21,13 @@ the interpolated goal sequence of Eq. 15 (one new goal every ``t_con = L * T_com
 legs and returns the predicted femur position at each sequential read of Algorithm 1 (leg ``l``
 of step ``k`` is sampled at ``k t_con + l T_com``) with the Eq. 17 threshold.
 
+Gear backlash (``backlash`` effect, used by the discrepancy tool): a joint with play splits into
+the motor side (reflected rotor inertia, damping and friction, driven by the firmware torque) and
+the link, coupled by a dead zone of total width ``w``; the potentiometer, and so the firmware,
+sees the link. Without play the kernel runs exactly the rigid path above. :class:`CoxaModel`
+reuses the same kernel for the coxa as a 1-DOF joint about the vertical axis (whole leg's inertia,
+no gravity).
+
 Sign convention for errors: the paper notes the comparison depends on the direction of motion
 and on how the servo is mounted. All errors here are *lag in the direction of motion*,
 ``err = s (theta_des - theta)`` in ticks with ``s = sign(theta_fin - theta_init)`` of the femur,
@@ -47,25 +54,177 @@ except ImportError:  # pragma: no cover - numba is a pinned dependency
 # Indices into the packed parameter vector of the kernel.
 (P_M1, P_LC1, P_I1, P_M2, P_LC2, P_I2, P_A2, P_G, P_OFF2, P_OFF3, P_J2, P_J3, P_B2, P_B3,
  P_FC2, P_FC3, P_FS2, P_FS3, P_KP, P_TMAX2, P_TMAX3, P_MARG2, P_MARG3, P_RPT, P_CENTER, P_MAXTICK,
- P_CONTROL, P_SUBSTEPS, P_DT, N_PARAMS) = range(30)
+ P_CONTROL, P_SUBSTEPS, P_DT, P_BL2, P_BL3, N_PARAMS) = range(32)
 
 V_STICK = 1e-7  # rad/s: below this a joint counts as at rest (break-away friction applies)
+_NO_GAP = np.zeros(2)
 
 
-@njit(cache=True, fastmath=True)
-def _rollout_kernel(p, q0, qd0, goals, out_q, out_qd, out_tau):
-    """Simulate ``len(goals)`` control periods; ``out_q[k]`` is the state at the start of period k."""
+@njit(cache=True, fastmath=True, nogil=True)
+def _backlash_substep(p, h, tau2, tau3, q2, q3, v2, v3, m2s, m3s, w2m, w3m):
+    """One substep of the leg with gear backlash on one or both joints (see :func:`_rollout_kernel`).
+
+    A joint with backlash splits into the motor side (reflected rotor inertia ``J R^2``, damping,
+    Coulomb/break-away friction, driven by the firmware torque) and the link side (the leg, no
+    friction of its own), coupled by a dead zone of total width ``w``: the gap ``delta = q_motor -
+    q_link`` stays within ``[-w/2, w/2]``. Contact is inelastic and enforced at velocity level
+    (speculative: the relative velocity may close the remaining gap within the step, no more).
+    Friction and contact impulses are solved together by projected Gauss-Seidel.
+    Returns the new ``(q2, q3, v2, v3, m2s, m3s, w2m, w3m)`` (motor angle and velocity per joint;
+    for a joint without backlash they mirror the link).
+    """
+    m1, lc1, i1 = p[P_M1], p[P_LC1], p[P_I1]
+    m2, lc2, i2, a2, g = p[P_M2], p[P_LC2], p[P_I2], p[P_A2], p[P_G]
+    bl2, bl3 = p[P_BL2], p[P_BL3]
+    r2 = bl2 <= 0.0          # rigid joint: rotor inertia, damping and friction act on the link
+    r3 = bl3 <= 0.0
+    jl2 = p[P_J2] if r2 else 0.0
+    jl3 = p[P_J3] if r3 else 0.0
+    kc = m2 * a2 * lc2
+    psi2 = q2 + p[P_OFF2]
+    psi3 = q3 + p[P_OFF3]
+    c3 = math.cos(psi3)
+    s3 = math.sin(psi3)
+    d11 = m1 * lc1 * lc1 + i1 + m2 * (a2 * a2 + lc2 * lc2) + i2 + 2.0 * kc * c3 + jl2
+    d12 = m2 * lc2 * lc2 + i2 + kc * c3
+    d22 = m2 * lc2 * lc2 + i2 + jl3
+    hh = -kc * s3
+    cor1 = hh * (2.0 * v2 * v3 + v3 * v3)
+    cor2 = -hh * v2 * v2
+    g2 = g * m2 * lc2 * math.cos(psi2 + psi3)
+    g1 = g * (m1 * lc1 + m2 * a2) * math.cos(psi2) + g2
+    a11 = d11 + (h * p[P_B2] if r2 else 0.0)
+    a22 = d22 + (h * p[P_B3] if r3 else 0.0)
+    det = a11 * a22 - d12 * d12
+    inv11 = a22 / det
+    inv22 = a11 / det
+    inv12 = -d12 / det
+    rr1 = d11 * v2 + d12 * v3 + h * ((tau2 if r2 else 0.0) - cor1 - g1)
+    rr2 = d12 * v2 + d22 * v3 + h * ((tau3 if r3 else 0.0) - cor2 - g2)
+    u2 = inv11 * rr1 + inv12 * rr2          # link velocities before friction/contact impulses
+    u3 = inv12 * rr1 + inv22 * rr2
+    # motor sides (only used for joints with backlash)
+    am2 = p[P_J2] + h * p[P_B2]
+    am3 = p[P_J3] + h * p[P_B3]
+    um2 = (p[P_J2] * w2m + h * tau2) / am2
+    um3 = (p[P_J3] * w3m + h * tau3) / am3
+    lim2 = p[P_FS2] if abs(w2m if not r2 else v2) < V_STICK else p[P_FC2]
+    lim3 = p[P_FS3] if abs(w3m if not r3 else v3) < V_STICK else p[P_FC3]
+    d2 = m2s - q2
+    d3 = m3s - q3
+    lo2 = (-0.5 * bl2 - d2) / h
+    hi2 = (0.5 * bl2 - d2) / h
+    lo3 = (-0.5 * bl3 - d3) / h
+    hi3 = (0.5 * bl3 - d3) / h
+    f2 = 0.0   # friction torque (on the link if rigid, on the motor otherwise)
+    f3 = 0.0
+    ch2 = 0.0  # contact torque motor -> link, upper side (>= 0) and lower side (<= 0)
+    cl2 = 0.0
+    ch3 = 0.0
+    cl3 = 0.0
+    nv2 = u2
+    nv3 = u3
+    nm2 = um2
+    nm3 = um3
+    for _it in range(6):
+        # link-side generalized torques from the impulses
+        t2 = (f2 if r2 else ch2 + cl2)
+        t3 = (f3 if r3 else ch3 + cl3)
+        nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+        nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+        if r2:
+            f2 = min(max(f2 - nv2 / (h * inv11), -lim2), lim2)
+        else:
+            nm2 = um2 + h * (f2 - ch2 - cl2) / am2
+            f2 = min(max(f2 - nm2 * am2 / h, -lim2), lim2)
+        t2 = (f2 if r2 else ch2 + cl2)
+        nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+        nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+        if r3:
+            f3 = min(max(f3 - nv3 / (h * inv22), -lim3), lim3)
+        else:
+            nm3 = um3 + h * (f3 - ch3 - cl3) / am3
+            f3 = min(max(f3 - nm3 * am3 / h, -lim3), lim3)
+        t3 = (f3 if r3 else ch3 + cl3)
+        nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+        nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+        if not r2:
+            keff = h * (1.0 / am2 + inv11)
+            nm2 = um2 + h * (f2 - ch2 - cl2) / am2
+            ch2 = max(ch2 + (nm2 - nv2 - hi2) / keff, 0.0)
+            nm2 = um2 + h * (f2 - ch2 - cl2) / am2
+            t2 = ch2 + cl2
+            nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+            cl2 = min(cl2 + (nm2 - nv2 - lo2) / keff, 0.0)
+            t2 = ch2 + cl2
+            nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+            nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+        if not r3:
+            keff = h * (1.0 / am3 + inv22)
+            nm3 = um3 + h * (f3 - ch3 - cl3) / am3
+            ch3 = max(ch3 + (nm3 - nv3 - hi3) / keff, 0.0)
+            nm3 = um3 + h * (f3 - ch3 - cl3) / am3
+            t3 = ch3 + cl3
+            nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+            cl3 = min(cl3 + (nm3 - nv3 - lo3) / keff, 0.0)
+            t3 = ch3 + cl3
+            nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+            nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+    t2 = (f2 if r2 else ch2 + cl2)
+    t3 = (f3 if r3 else ch3 + cl3)
+    nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+    nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+    if r2:
+        if abs(nv2) < V_STICK:
+            nv2 = 0.0
+        nm2 = nv2
+    else:
+        nm2 = um2 + h * (f2 - ch2 - cl2) / am2
+        if abs(nm2) < V_STICK:
+            nm2 = 0.0
+    if r3:
+        if abs(nv3) < V_STICK:
+            nv3 = 0.0
+        nm3 = nv3
+    else:
+        nm3 = um3 + h * (f3 - ch3 - cl3) / am3
+        if abs(nm3) < V_STICK:
+            nm3 = 0.0
+    q2 += h * nv2
+    q3 += h * nv3
+    m2s = q2 if r2 else m2s + h * nm2
+    m3s = q3 if r3 else m3s + h * nm3
+    # keep the gap inside the play despite round-off
+    if not r2:
+        m2s = min(max(m2s, q2 - 0.5 * bl2), q2 + 0.5 * bl2)
+    if not r3:
+        m3s = min(max(m3s, q3 - 0.5 * bl3), q3 + 0.5 * bl3)
+    return q2, q3, nv2, nv3, m2s, m3s, nm2, nm3
+
+
+@njit(cache=True, fastmath=True, nogil=True)
+def _rollout_kernel(p, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap):
+    """Simulate ``len(goals)`` control periods; ``out_q[k]`` is the state at the start of period k.
+
+    ``gap0``/``out_gap``: backlash gap ``q_motor - q_link`` per joint (zero without backlash).
+    """
     m1, lc1, i1 = p[P_M1], p[P_LC1], p[P_I1]
     m2, lc2, i2, a2, g = p[P_M2], p[P_LC2], p[P_I2], p[P_A2], p[P_G]
     off2, off3 = p[P_OFF2], p[P_OFF3]
     n_sub = int(p[P_SUBSTEPS])
     h = p[P_DT] / n_sub
+    backlash = p[P_BL2] > 0.0 or p[P_BL3] > 0.0
     q2, q3 = q0[0], q0[1]
     v2, v3 = qd0[0], qd0[1]
+    qm2 = q2 + (gap0[0] if p[P_BL2] > 0.0 else 0.0)
+    qm3 = q3 + (gap0[1] if p[P_BL3] > 0.0 else 0.0)
+    vm2, vm3 = v2, v3
     out_q[0, 0] = q2
     out_q[0, 1] = q3
     out_qd[0, 0] = v2
     out_qd[0, 1] = v3
+    out_gap[0, 0] = qm2 - q2
+    out_gap[0, 1] = qm3 - q3
     k11c = m1 * lc1 * lc1 + i1 + m2 * (a2 * a2 + lc2 * lc2) + i2 + p[P_J2]
     k12c = m2 * lc2 * lc2 + i2
     k22 = m2 * lc2 * lc2 + i2 + p[P_J3]
@@ -87,6 +246,10 @@ def _rollout_kernel(p, q0, qd0, goals, out_q, out_qd, out_tau):
         out_tau[k, 0] = tau2
         out_tau[k, 1] = tau3
         for _ in range(n_sub):
+            if backlash:
+                q2, q3, v2, v3, qm2, qm3, vm2, vm3 = _backlash_substep(
+                    p, h, tau2, tau3, q2, q3, v2, v3, qm2, qm3, vm2, vm3)
+                continue
             psi2 = q2 + off2
             psi3 = q3 + off3
             c3 = math.cos(psi3)
@@ -125,10 +288,13 @@ def _rollout_kernel(p, q0, qd0, goals, out_q, out_qd, out_tau):
                 v3 = 0.0
             q2 += h * v2
             q3 += h * v3
+            qm2, qm3 = q2, q3
         out_q[k + 1, 0] = q2
         out_q[k + 1, 1] = q3
         out_qd[k + 1, 0] = v2
         out_qd[k + 1, 1] = v3
+        out_gap[k + 1, 0] = qm2 - q2
+        out_gap[k + 1, 1] = qm3 - q3
 
 
 @dataclass(frozen=True)
@@ -139,6 +305,7 @@ class Rollout:
     q_rad: np.ndarray
     qd_rad_s: np.ndarray
     tau_nm: np.ndarray
+    gap_rad: np.ndarray | None = None   # backlash gap q_motor - q_link per joint (zeros without backlash)
 
     def theta_at(self, t_s) -> np.ndarray:
         """Joint angles at arbitrary times (linear interpolation between control periods)."""
@@ -178,6 +345,7 @@ class LegModel:
             p[P_FS2 + j] = max(fc, e.static_friction_nm) if friction else 0.0
             p[P_TMAX2 + j] = s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
             p[P_MARG2 + j] = s.compliance_margin_ticks + e.deadband_margin_ticks
+            p[P_BL2 + j] = e.backlash_width_rad
         p[P_KP] = s.gain_nm_per_tick
         p[P_RPT], p[P_CENTER], p[P_MAXTICK] = s.rad_per_tick, s.center_tick, s.max_tick
         p[P_CONTROL] = 1.0 if control else 0.0
@@ -186,8 +354,19 @@ class LegModel:
         self.params = p
         self.dt_s = s.control_period_s
 
-    def rollout(self, q0_rad, qd0_rad_s, goal_ticks) -> Rollout:
-        """Simulate from ``q0`` with integer goal ticks per control period (array of shape (n, 2))."""
+    def default_gap_rad(self, q0_rad) -> np.ndarray:
+        """Initial backlash gap: the motor side rests against the link on the side that carries gravity."""
+        widths = self.params[[P_BL2, P_BL3]]
+        if not np.any(widths > 0):
+            return np.zeros(2)
+        return 0.5 * widths * np.sign(self.gravity_torque_nm(np.asarray(q0_rad, dtype=float)))
+
+    def rollout(self, q0_rad, qd0_rad_s, goal_ticks, gap0_rad=None) -> Rollout:
+        """Simulate from ``q0`` with integer goal ticks per control period (array of shape (n, 2)).
+
+        ``gap0_rad``: initial backlash gap ``q_motor - q_link`` per joint (default
+        :meth:`default_gap_rad`); ignored for joints without backlash.
+        """
         goals = np.ascontiguousarray(goal_ticks, dtype=np.float64)
         if goals.ndim != 2 or goals.shape[1] != 2:
             raise ValueError(f'goal_ticks must have shape (n, 2), got {goals.shape}')
@@ -195,12 +374,20 @@ class LegModel:
         qd0 = np.asarray(qd0_rad_s, dtype=np.float64).reshape(2)
         if not (np.all(np.isfinite(goals)) and np.all(np.isfinite(q0)) and np.all(np.isfinite(qd0))):
             raise ValueError('swing-down model inputs contain NaN or infinity')
+        p = self.params
+        if gap0_rad is not None:
+            gap0 = np.ascontiguousarray(gap0_rad, dtype=np.float64).reshape(2)
+        elif p[P_BL2] > 0.0 or p[P_BL3] > 0.0:
+            gap0 = self.default_gap_rad(q0)
+        else:
+            gap0 = _NO_GAP
         n = len(goals)
         q = np.empty((n + 1, 2))
         qd = np.empty((n + 1, 2))
         tau = np.empty((n, 2))
-        _rollout_kernel(self.params, q0, qd0, goals, q, qd, tau)
-        return Rollout(self.dt_s, q, qd, tau)
+        gap = np.empty((n + 1, 2))
+        _rollout_kernel(p, q0, qd0, goals, q, qd, tau, gap0, gap)
+        return Rollout(self.dt_s, q, qd, tau, gap)
 
     # -- analysis helpers used by tests and tools
     def mass_matrix(self, q_rad) -> np.ndarray:
@@ -228,6 +415,75 @@ class LegModel:
         pot = p[P_G] * ((p[P_M1] * p[P_LC1] + p[P_M2] * p[P_A2]) * math.sin(psi2)
                         + p[P_M2] * p[P_LC2] * math.sin(psi23))
         return float(0.5 * qd @ self.mass_matrix(q_rad) @ qd + pot)
+
+
+def coxa_axis_inertia_kgm2(robot: Robot, leg: int, femur_rad: float, tibia_rad: float) -> float:
+    """Inertia of the whole leg (links and the leg's tibia-tip payload) about the vertical coxa axis.
+
+    The coxa link lies horizontally; femur and tibia are slender rods inclined by their link
+    angles ``psi`` above the horizontal, so a rod's own inertia about the vertical through its
+    COM is ``I_com cos^2(psi)``; every COM adds ``m r^2`` with ``r`` its horizontal distance from
+    the axis. Rotor inertia is not included (the kernel adds ``J R^2``).
+    """
+    links, dh = robot.links, robot.dh
+    a1, a2, a3 = dh['coxa'].a_m, dh['femur'].a_m, dh['tibia'].a_m
+    psi2 = femur_rad + dh['femur'].theta_off_rad
+    psi23 = psi2 + tibia_rad + dh['tibia'].theta_off_rad
+    c, f, t = links['coxa'], links['femur'], links['tibia']
+    r_c = c.com_from_joint_m
+    r_f = a1 + f.com_from_joint_m * math.cos(psi2)
+    r_t = a1 + a2 * math.cos(psi2) + t.com_from_joint_m * math.cos(psi23)
+    r_tip = a1 + a2 * math.cos(psi2) + a3 * math.cos(psi23)
+    inertia = (c.inertia_about_com_kgm2 + c.mass_kg * r_c ** 2
+               + f.inertia_about_com_kgm2 * math.cos(psi2) ** 2 + f.mass_kg * r_f ** 2
+               + t.inertia_about_com_kgm2 * math.cos(psi23) ** 2 + t.mass_kg * r_t ** 2)
+    return inertia + robot.leg_payload_kg(leg) * r_tip ** 2
+
+
+class CoxaModel(LegModel):
+    """The coxa joint as a 1-DOF servo-driven rotation about the vertical axis (no gravity).
+
+    The leg is treated as rigid while the coxa turns: its inertia about the axis is taken at the
+    femur/tibia pose ``femur_tibia_rad`` (:func:`coxa_axis_inertia_kgm2`). It reuses the leg
+    kernel with the second joint replaced by a massless, uncommanded dummy that stays at tick
+    ``center`` (zero torque), so every effect (friction, damping, saturation, dead-band,
+    backlash) acts exactly as on femur and tibia.
+    """
+
+    def __init__(self, robot: Robot, leg: int, femur_tibia_rad=(0.0, 0.0), substeps: int = 1):
+        super().__init__(robot, leg, substeps=substeps)
+        s = robot.servo
+        e = robot.joint_effects(joint_name(leg, 'coxa'))
+        p = self.params
+        p[[P_M1, P_LC1, P_M2, P_LC2, P_I2, P_A2, P_G]] = 0.0
+        p[P_I1] = coxa_axis_inertia_kgm2(robot, leg, float(femur_tibia_rad[0]), float(femur_tibia_rad[1]))
+        fc = s.reflected_coulomb_nm + e.extra_coulomb_nm
+        p[P_B2] = s.reflected_damping_nms_per_rad + e.extra_damping_nms_per_rad
+        p[P_FC2] = fc
+        p[P_FS2] = max(fc, e.static_friction_nm)
+        p[P_TMAX2] = s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
+        p[P_MARG2] = s.compliance_margin_ticks + e.deadband_margin_ticks
+        p[P_BL2] = e.backlash_width_rad
+        # dummy second joint: rotor only, no friction, no play, never commanded away from centre
+        p[P_B3] = s.reflected_damping_nms_per_rad
+        p[P_FC3] = p[P_FS3] = 0.0
+        p[P_TMAX3] = s.stall_torque_nm
+        p[P_MARG3] = 0.0
+        p[P_BL3] = 0.0
+        self.center_tick = float(s.center_tick)
+
+    def rollout_coxa(self, q0_rad: float, qd0_rad_s: float, goal_ticks, gap0_rad: float = 0.0) -> Rollout:
+        """Simulate the coxa from ``q0`` with integer goal ticks per control period (shape (n,)).
+
+        Returns a :class:`Rollout` whose column 0 is the coxa (column 1 is the dummy joint).
+        """
+        goals = np.asarray(goal_ticks, dtype=np.float64)
+        if goals.ndim != 1:
+            raise ValueError(f'coxa goal_ticks must have shape (n,), got {goals.shape}')
+        two = np.empty((len(goals), 2))
+        two[:, 0] = goals
+        two[:, 1] = self.center_tick
+        return self.rollout([q0_rad, 0.0], [qd0_rad_s, 0.0], two, gap0_rad=[gap0_rad, 0.0])
 
 
 # ----------------------------------------------------------------------------- CalcModel
