@@ -273,14 +273,14 @@ def main(argv=None) -> int:
                 for d in DETECTORS]
         res12 = run_many(cfgs, args.jobs, 'fig12 walks')
         plot_fig12(res12, out / 'fig12_temperature.png')
-        report['fig12'] = [{'detector': r['config']['detector'], 'distance_m': r['distance_m'], 'fell': r['fell'],
+        report['fig12'] = [{'detector': r['config']['detector'], 'path_length_m': r['path_length_m'], 'fell': r['fell'],
                             'femur_c_start': r['temperature_femur_c'][0], 'femur_c_end': r['temperature_femur_c'][-1],
                             'tibia_c_end': r['temperature_tibia_c'][-1],
                             'temperature_t_s': r['temperature_t_s'], 'femur_c': r['temperature_femur_c'],
                             'tibia_c': r['temperature_tibia_c']} for r in res12]
         for r in report['fig12']:
             print(f'Fig. 12 {r["detector"]:8}: femur {r["femur_c_start"]:.1f} -> {r["femur_c_end"]:.1f} C, '
-                  f'tibia -> {r["tibia_c_end"]:.1f} C over {args.fig12_duration / 60:.0f} min, walked {r["distance_m"]:.2f} m')
+                  f'tibia -> {r["tibia_c_end"]:.1f} C over {args.fig12_duration / 60:.0f} min, walked {r["path_length_m"]:.2f} m')
         print(f'Fig. 12 plot: {out / "fig12_temperature.png"}')
     path = Path(args.json) if args.json else out / f'{args.which}.json'
     path.write_text(json.dumps(report, indent=1))

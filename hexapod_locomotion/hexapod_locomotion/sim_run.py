@@ -193,7 +193,8 @@ class ProbeBus:
 class TrialResult:
     config: dict
     sim_time_s: float
-    distance_m: float
+    distance_m: float                   # net progress along x
+    path_length_m: float                # length of the trunk's path (turning walks)
     fell: bool
     reached_course_end: bool
     phases: int
@@ -320,6 +321,7 @@ def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
     step = max(1, int(round(1.0 / cfg.probe_period_s)))
     return TrialResult(
         config=asdict(cfg), sim_time_s=float(sim.now() - walk_start), distance_m=float(xyz[-1, 0] - x0),
+        path_length_m=float(np.sum(np.linalg.norm(np.diff(xyz[walk, :2], axis=0), axis=1))),
         fell=fell, reached_course_end=reached, phases=len(reports), cot=cot, detection=detection,
         stability=stability, temperature_femur_c=temps[::step, fem].mean(axis=1).tolist(),
         temperature_tibia_c=temps[::step, tib].mean(axis=1).tolist(), temperature_t_s=t[::step].tolist(),
