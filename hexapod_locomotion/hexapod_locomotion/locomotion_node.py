@@ -151,6 +151,10 @@ class LocomotionNode(Node):
         except (BusError, LocomotionError, DetectorError) as exc:
             if not self.bus.stopped.is_set():
                 self.get_logger().error(f'locomotion stopped: {exc}')
+        except RCLError:
+            # SIGINT/SIGTERM shut the context down while this thread was publishing: a normal stop
+            if self.context.ok():
+                raise
 
     def destroy_node(self):
         self.bus.stopped.set()

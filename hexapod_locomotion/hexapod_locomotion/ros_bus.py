@@ -33,12 +33,15 @@ class RosBus:
         self.lockstep = lockstep
         self._last_write = -1.0
         self._consumed: dict[str, float] = {}
+        self._newest = None         # newest read stamp received (lock-step time base)
         self._cv = threading.Condition()
         self._latest: dict[str, collections.deque] = collections.defaultdict(lambda: collections.deque(maxlen=64))
         self._schedule: tuple[str, ...] = ()
-        self._cmd_pub = node.create_publisher(JointState, JOINT_COMMANDS, 10)
+        # deep queues: with a slow bus master (a loaded machine) a reliable writer's shallow history
+        # would drop goals before they are acknowledged
+        self._cmd_pub = node.create_publisher(JointState, JOINT_COMMANDS, 1000)
         self._sched_pub = node.create_publisher(ReadSchedule, READ_SCHEDULE, 10)
-        node.create_subscription(JointState, JOINT_STATES, self._on_state, 100)
+        node.create_subscription(JointState, JOINT_STATES, self._on_state, 1000)
         self.stopped = threading.Event()
 
     # -- subscription callback (executor thread)
@@ -48,9 +51,14 @@ class RosBus:
             for i, name in enumerate(msg.name):
                 if i < len(msg.position):
                     self._latest[name].append((t, float(msg.position[i])))
+            self._newest = t if self._newest is None else max(self._newest, t)
             self._cv.notify_all()
 
     def now(self) -> float:
+        if self.lockstep and self._newest is not None:
+            # the bus master advances only on our commands: its time is what its reads have shown
+            # (/clock can run ahead of the reads still in flight)
+            return self._newest + self.t_com_s
         return self.node.get_clock().now().nanoseconds * 1e-9
 
     def sync_write(self, goals_rad) -> float:
@@ -63,10 +71,14 @@ class RosBus:
         return self._last_write
 
     def _advance(self) -> None:
-        """Lock-step: an empty command makes the bus master run one more read cycle."""
+        """Lock-step: an empty command makes the bus master run one more read cycle. Called with
+        ``_cv`` held; waits until that cycle's reads start arriving, so requests never pile up in
+        the command queue (where they would push out real goals on a slow machine)."""
+        seen = self._newest
         msg = self._JointState()
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self._cmd_pub.publish(msg)
+        self._cv.wait_for(lambda: self._newest != seen or self.stopped.is_set(), timeout=self.read_timeout_s)
 
     def set_schedule(self, joints) -> None:
         joints = tuple(joints)
@@ -103,7 +115,8 @@ class RosBus:
                                    f'(is the driver or sim running and reading it?)')
                 if self.lockstep:
                     self._advance()
-                self._cv.wait(timeout=0.02 if self.lockstep else 0.005)
+                else:
+                    self._cv.wait(timeout=0.005)
 
     def wait_until(self, t: float) -> None:
         deadline = time.monotonic() + max(10.0, 100 * self.read_timeout_s)
@@ -111,8 +124,7 @@ class RosBus:
             if time.monotonic() > deadline:
                 raise BusError(f'bus time did not reach {t:.3f} s (clock at {self.now():.3f} s): is /clock published?')
             if self.lockstep:
-                self._advance()
                 with self._cv:
-                    self._cv.wait(timeout=0.02)
+                    self._advance()
             else:
                 self.stopped.wait(min(0.0005, max(t - self.now(), 0.0)))
