@@ -166,8 +166,16 @@ def test_emergency_stop_service(robot, ros):
         try:
             spin_until(ex, lambda: client.service_is_ready(), 30.0, proc, '/emergency_stop')
             assert all(s.get('torque_enable') == 1 for s in emu.servos)
-            fut = client.call_async(Trigger.Request())
-            spin_until(ex, fut.done, 10.0, proc, 'emergency stop response')
+            # A request sent right after discovery can lose its response (the server has not yet
+            # matched the client's response reader): the stop is idempotent, so ask again.
+            for attempt in range(3):
+                fut = client.call_async(Trigger.Request())
+                try:
+                    spin_until(ex, fut.done, 10.0, proc, 'emergency stop response')
+                    break
+                except AssertionError:
+                    if attempt == 2:
+                        raise
             assert fut.result().success, fut.result().message
             assert all(s.get('torque_enable') == 0 for s in emu.servos)
         finally:
