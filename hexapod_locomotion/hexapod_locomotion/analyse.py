@@ -27,7 +27,7 @@ from hexapod_model.description import DescriptionError, load_robot, parse_joint_
 from hexapod_model.swing_model import LegModel
 
 from .detector import DetectorError, phase_from_fields, replay_swing_down
-from .metrics import MetricsError, cost_of_transport, swing_down_variances
+from .metrics import MetricsError, cost_of_transport, roll_pitch_yaw, swing_down_variances
 
 
 class AnalysisError(RuntimeError):
@@ -95,9 +95,7 @@ def load_bag(path: str):
             pose.append((_t(msg.header.stamp), p.x, p.y, p.z))
         elif topic == IMU:
             q = msg.orientation
-            w, x, y, z = q.w, q.x, q.y, q.z
-            roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-            pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+            roll, pitch, _ = roll_pitch_yaw((q.w, q.x, q.y, q.z))
             imu.append((_t(msg.header.stamp), roll, pitch, msg.linear_acceleration.z))
     if not swings:
         raise AnalysisError(f'{path}: {SWING_DOWN} has no messages - the recording contains no swing-down')

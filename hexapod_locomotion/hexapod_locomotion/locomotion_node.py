@@ -16,7 +16,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 from hexapod_model.bus import BusError
-from hexapod_model.contract import CMD_VEL, GROUND_DETECTION, SWING_DOWN
+from hexapod_model.contract import CMD_VEL, GROUND_DETECTION, SWING_DOWN, stamp_parts
 from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name, load_robot
 
 from .controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
@@ -108,11 +108,9 @@ class LocomotionNode(Node):
 
     def _publish_read(self, r) -> None:
         m = self._LGD()
-        sec = int(r.stamp_s)
-        m.header.stamp.sec, m.header.stamp.nanosec = sec, int(round((r.stamp_s - sec) * 1e9)) % 1_000_000_000
+        m.header.stamp.sec, m.header.stamp.nanosec = stamp_parts(r.stamp_s)
         m.header.frame_id = joint_name(r.leg, 'femur')
-        start = r.stamp_s - r.t_swing_s
-        m.swing_start.sec, m.swing_start.nanosec = int(start), int(round((start - int(start)) * 1e9)) % 1_000_000_000
+        m.swing_start.sec, m.swing_start.nanosec = stamp_parts(r.stamp_s - r.t_swing_s)
         m.leg, m.detector, m.t_swing_s = r.leg, r.detector, r.t_swing_s
         m.theta_des_tick, m.theta_real_tick = r.theta_des_tick, r.theta_real_tick
         m.theta_est_tick, m.err_tick, m.err_est_tick = r.theta_est_tick, r.err_tick, r.err_est_tick
@@ -123,8 +121,7 @@ class LocomotionNode(Node):
         # Algorithm 1 reads only the femurs of the swinging legs, in order (t_con = L * T_com)
         self.bus.set_schedule([joint_name(leg, 'femur') for leg in phase.legs])
         m = self._SDS()
-        sec = int(phase.t_start_s)
-        m.header.stamp.sec, m.header.stamp.nanosec = sec, int(round((phase.t_start_s - sec) * 1e9)) % 1_000_000_000
+        m.header.stamp.sec, m.header.stamp.nanosec = stamp_parts(phase.t_start_s)
         for k, v in swing_start_fields(phase).items():
             setattr(m, k, v)
         self.swing_pub.publish(m)

@@ -10,9 +10,19 @@
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+
+def roll_pitch_yaw(quat_wxyz) -> tuple[float, float, float]:
+    """ZYX Euler angles [rad] of a unit quaternion (w, x, y, z)."""
+    w, x, y, z = (float(v) for v in quat_wxyz)
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
 
 
 class MetricsError(ValueError):

@@ -15,14 +15,15 @@ from pathlib import Path
 import numpy as np
 
 from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
-                                    SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN)
+                                    SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN, stamp_parts)
 from hexapod_model.description import ALL_JOINTS, Robot, joint_name, load_robot, parse_joint_name
 from hexapod_model.kinematics import forward
 
 from .controller import GaitController, LocomotionError, LocomotionParams, PhaseReport, VelocityCommand
 from .detector import DetectorConfig, ReadResult, SwingDownPhase, swing_start_fields
 from .gait import get_gait
-from .metrics import DetectionEvent, MetricsError, cost_of_transport, detection_quality, swing_down_variances
+from .metrics import (DetectionEvent, MetricsError, cost_of_transport, detection_quality, roll_pitch_yaw,
+                      swing_down_variances)
 
 FALL_TILT_RAD = 0.6          # roll or pitch beyond this counts as a fall
 FALL_HEIGHT_M = 0.035        # trunk this close to the ground counts as a fall
@@ -51,20 +52,12 @@ class TrialConfig:
 
 
 def _stamp(t_s: float) -> dict:
-    sec = int(math.floor(t_s))
-    return {'sec': sec, 'nanosec': int(round((t_s - sec) * 1e9)) % 1_000_000_000}
+    sec, nanosec = stamp_parts(t_s)
+    return {'sec': sec, 'nanosec': nanosec}
 
 
 def joint_state_msg(t_s: float, names, positions) -> dict:
     return {'header': {'stamp': _stamp(t_s)}, 'name': list(names), 'position': [float(p) for p in positions]}
-
-
-def _rpy_from_quat(q) -> tuple[float, float, float]:
-    w, x, y, z = q
-    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return roll, pitch, yaw
 
 
 class ProbeBus:
@@ -138,7 +131,7 @@ class ProbeBus:
         imu = self.sim.pop_imu_samples()
         for s in imu:
             self.imu_t.append(s.t_s)
-            self.imu_rpy.append(_rpy_from_quat(s.quat_wxyz))
+            self.imu_rpy.append(roll_pitch_yaw(s.quat_wxyz))
             self.imu_acc_z.append(float(s.lin_acc_mps2[2]))
         rec = self.recorder
         if rec is None:
@@ -278,7 +271,7 @@ def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
             warnings.extend(rep.warnings)
             events.extend(_detection_events(robot, probe, rep, controller, cfg.detector))
             pos, quat = sim.body_pose()
-            roll, pitch, _ = _rpy_from_quat(quat)
+            roll, pitch, _ = roll_pitch_yaw(quat)
             if abs(roll) > FALL_TILT_RAD or abs(pitch) > FALL_TILT_RAD or pos[2] - sim.scene.terrain.height_at(pos[0], pos[1]) < FALL_HEIGHT_M:
                 fell = True
                 warnings.append(f'robot fell at t={sim.now():.1f} s (roll {roll:.2f}, pitch {pitch:.2f} rad)')

@@ -49,3 +49,14 @@ def test_bad_gaits_are_named(tmp_path):
     p.write_text('wobble: [1, 2')
     with pytest.raises(GaitError, match='cannot load'):
         load_gaits(p)
+
+
+def test_roll_pitch_yaw_of_known_rotations():
+    import math
+
+    from hexapod_locomotion.metrics import roll_pitch_yaw
+    h = math.sqrt(0.5)
+    assert roll_pitch_yaw((1, 0, 0, 0)) == pytest.approx((0, 0, 0))
+    assert roll_pitch_yaw((h, h, 0, 0)) == pytest.approx((math.pi / 2, 0, 0))
+    assert roll_pitch_yaw((math.cos(0.1), 0, math.sin(0.1), 0)) == pytest.approx((0, 0.2, 0))
+    assert roll_pitch_yaw((math.cos(0.3), 0, 0, math.sin(0.3))) == pytest.approx((0, 0, 0.6))

@@ -13,6 +13,13 @@ The driver (hardware) and the sim node expose exactly the same topics and servic
 controller cannot tell them apart.
 """
 
+
+def stamp_parts(t_s: float) -> tuple[int, int]:
+    """(sec, nanosec) of a header stamp for a time in seconds (rounded to whole nanoseconds)."""
+    ns = int(round(t_s * 1e9))
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
 JOINT_COMMANDS = '/joint_commands'          # sensor_msgs/msg/JointState, in
 JOINT_STATES = '/joint_states'              # sensor_msgs/msg/JointState, out, one per read
 READ_SCHEDULE = '/read_schedule'            # hexapod_msgs/msg/ReadSchedule, in
