@@ -6,6 +6,7 @@ Thin: declared parameters, message conversion, one library call per callback. Th
 the emergency stop and the timing publisher. One lock inside DynamixelBus owns the bus.
 
 In:  /joint_commands (sensor_msgs/JointState), /read_schedule (hexapod_msgs/ReadSchedule),
+     /set_read_schedule (hexapod_msgs/SetReadSchedule, the same with an answer),
      /emergency_stop (std_srvs/Trigger).
 Out: /joint_states (one message per read, stamped at the start of the read transaction),
      /servo_diagnostics (hexapod_msgs/ServoDiagnostics), /bus_timing (hexapod_msgs/BusTiming).
@@ -28,6 +29,7 @@ from hexapod_model import contract
 from hexapod_model.bus import BusError
 from hexapod_model.description import ALL_JOINTS, BusJoint, load_robot
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoStatus
+from hexapod_msgs.srv import SetReadSchedule
 
 from .bus import FAULT_POLICIES, LIMIT_POLICIES, CommandError, DriverConfig, DynamixelBus
 
@@ -107,6 +109,7 @@ class DriverNode(Node):
         self.pub_timing = self.create_publisher(BusTiming, contract.BUS_TIMING, 10)
         self.create_subscription(JointState, contract.JOINT_COMMANDS, self.on_command, 10)
         self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self.on_schedule, 10)
+        self.create_service(SetReadSchedule, contract.SET_READ_SCHEDULE, self.on_set_schedule)
         self.create_service(Trigger, contract.EMERGENCY_STOP, self.on_emergency_stop)
         self.create_timer(timing_period, self.on_timing)
         self._running = threading.Event()
@@ -144,10 +147,19 @@ class DriverNode(Node):
             self.get_logger().warn(w, throttle_duration_sec=1.0)
 
     def on_schedule(self, msg: ReadSchedule) -> None:
+        self._set_schedule(msg.joint_names)
+
+    def on_set_schedule(self, request, response):
+        response.success, response.message = self._set_schedule(request.joint_names)
+        return response
+
+    def _set_schedule(self, names) -> tuple[bool, str]:
         try:
-            self.core.set_schedule(msg.joint_names)
+            now = self.core.set_schedule(names)
         except CommandError as exc:
             self.get_logger().warn(f'read schedule rejected: {exc}')
+            return False, str(exc)
+        return True, 'reading ' + ', '.join(now)
 
     def on_emergency_stop(self, request, response):
         response.success, response.message = self.core.emergency_stop()

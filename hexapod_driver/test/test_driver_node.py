@@ -20,6 +20,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 from hexapod_model import contract  # noqa: E402
 from hexapod_model.description import ALL_JOINTS, load_robot  # noqa: E402
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics  # noqa: E402
+from hexapod_msgs.srv import SetReadSchedule  # noqa: E402
 from hexapod_driver.emulator import BusEmulator  # noqa: E402
 
 DOMAIN_ID = 20 + os.getpid() % 20          # 20..39: this package's node tests
@@ -139,6 +140,28 @@ def test_driver_node_serves_the_topic_contract(robot, ros):
             tail = [m.name[0] for m in inbox.states[n0:]]
             assert set(tail) == {'leg1_femur', 'leg2_femur'}
             assert all(a != b for a, b in zip(tail, tail[1:]))
+
+            # the same through the service: refused with the bad name, or applied before the answer
+            client = node.create_client(SetReadSchedule, contract.SET_READ_SCHEDULE)
+            spin_until(ex, client.service_is_ready, 10.0, proc, contract.SET_READ_SCHEDULE)
+
+            def call(names):
+                for _ in range(3):          # a response can be lost right after discovery; idempotent
+                    fut = client.call_async(SetReadSchedule.Request(joint_names=names))
+                    try:
+                        spin_until(ex, fut.done, 5.0, proc, 'set_read_schedule response')
+                        return fut.result()
+                    except AssertionError:
+                        continue
+                raise AssertionError('no answer from /set_read_schedule')
+
+            bad = call(['leg3_femur', 'leg3_knee'])
+            assert not bad.success and 'leg3_knee' in bad.message
+            assert call(['leg3_tibia']).success
+            n0 = len(inbox.states)
+            spin_until(ex, lambda: len(inbox.states) >= n0 + 10, 10.0, proc, 'reads after the service call')
+            assert {m.name[0] for m in inbox.states[n0 + 2:]} == {'leg3_tibia'}   # (2 may have been in flight)
+            node.destroy_client(client)
 
             spin_until(ex, lambda: inbox.diag and inbox.timing and inbox.timing[-1].reads > 0, 10.0, proc,
                        'diagnostics and timing')

@@ -3,13 +3,19 @@ the driver's (or the sim node's) interface, so :class:`GaitController` runs unch
 locomotion node.
 
 * ``sync_write`` publishes one ``/joint_commands`` message (stamped now).
-* ``read_position(joint)`` asks the bus master for that joint via ``/read_schedule`` (when the
-  schedule changes) and returns the next ``/joint_states`` message for the joint sampled after the
-  request, with its sample stamp. Reads arrive in schedule order from the driver.
+* ``read_position(joint)`` asks the bus master for that joint (when the schedule changes) and
+  returns the next ``/joint_states`` message for the joint sampled after the request, with its
+  sample stamp. Reads arrive in schedule order from the driver.
+* ``set_schedule`` calls the ``/set_read_schedule`` service and waits for its answer, so goals
+  written afterwards are read back in the new order; a bus master without the service gets the
+  ``/read_schedule`` topic instead (not in lock-step, which needs the ordering).
 * ``wait_until`` waits on the node clock (ROS time, or /clock with use_sim_time).
 * ``lockstep``: the bus master (sim_node with ``lockstep:=true``) advances one read-schedule cycle
   per ``/joint_commands`` message; waiting and reading then publish empty commands to advance it,
-  so a run does not depend on machine load.
+  so a run does not depend on machine load. Every command is answered by exactly one cycle (the
+  schedule's length in reads, known because the schedule is set through the service), and no new
+  command goes out before all reads owed so far have arrived: the bus time is then exactly the
+  master's time, however far the subscription lags behind the publisher.
 """
 from __future__ import annotations
 
@@ -18,15 +24,18 @@ import threading
 import time
 
 from hexapod_model.bus import BusError
-from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE
+from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE, SET_READ_SCHEDULE, stamp_parts
+from hexapod_model.description import ALL_JOINTS
 
 
 class RosBus:
     def __init__(self, node, t_com_s: float, read_timeout_s: float = 0.5, lockstep: bool = False):
         from hexapod_msgs.msg import ReadSchedule
+        from hexapod_msgs.srv import SetReadSchedule
         from sensor_msgs.msg import JointState
         self._JointState = JointState
         self._ReadSchedule = ReadSchedule
+        self._SetReadSchedule = SetReadSchedule
         self.node = node
         self.t_com_s = t_com_s
         self.read_timeout_s = read_timeout_s
@@ -34,6 +43,7 @@ class RosBus:
         self._last_write = -1.0
         self._consumed: dict[str, float] = {}
         self._newest = None         # newest read stamp received (lock-step time base)
+        self._owed = 0              # lock-step: reads still to come for the commands sent so far
         self._cv = threading.Condition()
         self._latest: dict[str, collections.deque] = collections.defaultdict(lambda: collections.deque(maxlen=64))
         self._schedule: tuple[str, ...] = ()
@@ -41,6 +51,8 @@ class RosBus:
         # would drop goals before they are acknowledged
         self._cmd_pub = node.create_publisher(JointState, JOINT_COMMANDS, 1000)
         self._sched_pub = node.create_publisher(ReadSchedule, READ_SCHEDULE, 10)
+        self._sched_cli = node.create_client(SetReadSchedule, SET_READ_SCHEDULE)
+        self._sched_service: bool | None = None     # unknown until the first schedule change
         node.create_subscription(JointState, JOINT_STATES, self._on_state, 1000)
         self.stopped = threading.Event()
 
@@ -52,42 +64,92 @@ class RosBus:
                 if i < len(msg.position):
                     self._latest[name].append((t, float(msg.position[i])))
             self._newest = t if self._newest is None else max(self._newest, t)
+            self._owed = max(0, self._owed - 1)
             self._cv.notify_all()
 
     def now(self) -> float:
         if self.lockstep and self._newest is not None:
-            # the bus master advances only on our commands: its time is what its reads have shown
-            # (/clock can run ahead of the reads still in flight)
-            return self._newest + self.t_com_s
+            # the bus master advances only on our commands: its time is the end of the last read
+            # owed to us (/clock and the subscription queue can both lag behind it)
+            with self._cv:
+                self._settle()
+                return self._newest + self.t_com_s
         return self.node.get_clock().now().nanoseconds * 1e-9
+
+    # -- lock-step bookkeeping (called with _cv held)
+    def _settle(self) -> None:
+        """Wait until every read owed for the commands sent so far has arrived."""
+        if not self._cv.wait_for(lambda: self._owed == 0 or self.stopped.is_set(), timeout=self.read_timeout_s):
+            raise BusError(f'lock-step: {self._owed} reads of the last command did not arrive within '
+                           f'{self.read_timeout_s} s (is sim_node running with lockstep:=true?)')
+        if self.stopped.is_set():
+            raise BusError('locomotion stopped')
+
+    def _publish(self, msg) -> None:
+        if self.lockstep:
+            with self._cv:
+                self._settle()
+                self._owed += len(self._schedule or ALL_JOINTS)     # one schedule cycle per command
+                self._cmd_pub.publish(msg)
+        else:
+            self._cmd_pub.publish(msg)
 
     def sync_write(self, goals_rad) -> float:
         msg = self._JointState()
+        t = self.now() if self.lockstep else None
         msg.header.stamp = self.node.get_clock().now().to_msg()
         msg.name = list(goals_rad)
         msg.position = [float(v) for v in goals_rad.values()]
-        self._cmd_pub.publish(msg)
+        if t is not None:             # the master's time, not the (lagging) /clock
+            msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_parts(t)
+        self._publish(msg)
         self._last_write = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         return self._last_write
 
     def _advance(self) -> None:
-        """Lock-step: an empty command makes the bus master run one more read cycle. Called with
-        ``_cv`` held; waits until that cycle's reads start arriving, so requests never pile up in
-        the command queue (where they would push out real goals on a slow machine)."""
-        seen = self._newest
+        """Lock-step: an empty command makes the bus master run one more read cycle; returns once
+        that cycle's reads have all arrived."""
         msg = self._JointState()
         msg.header.stamp = self.node.get_clock().now().to_msg()
-        self._cmd_pub.publish(msg)
-        self._cv.wait_for(lambda: self._newest != seen or self.stopped.is_set(), timeout=self.read_timeout_s)
+        self._publish(msg)
+        with self._cv:
+            self._settle()
 
     def set_schedule(self, joints) -> None:
         joints = tuple(joints)
-        if joints != self._schedule:
+        if joints == self._schedule:
+            return
+        if self._sched_service is None:
+            self._sched_service = self._sched_cli.wait_for_service(
+                timeout_sec=self.read_timeout_s if self.lockstep else min(1.0, self.read_timeout_s))
+            if not self._sched_service:
+                if self.lockstep:
+                    raise BusError(f'lock-step needs the {SET_READ_SCHEDULE} service of the bus master '
+                                   f'(sim_node provides it); none answered within {self.read_timeout_s} s')
+                self.node.get_logger().warning(f'no {SET_READ_SCHEDULE} service: sending {READ_SCHEDULE} '
+                                               'messages (the first reads after a change may follow the old order)')
+        if self._sched_service:
+            if self.lockstep:
+                with self._cv:
+                    self._settle()            # the cycle in flight still follows the old schedule
+            self._call_set_schedule(joints)
+        else:
             m = self._ReadSchedule()
             m.header.stamp = self.node.get_clock().now().to_msg()
             m.joint_names = list(joints)
             self._sched_pub.publish(m)
-            self._schedule = joints
+        self._schedule = joints
+
+    def _call_set_schedule(self, joints) -> None:
+        done = threading.Event()
+        fut = self._sched_cli.call_async(self._SetReadSchedule.Request(joint_names=list(joints)))
+        fut.add_done_callback(lambda _: done.set())
+        if not done.wait(self.read_timeout_s) and not fut.done():
+            fut.cancel()
+            raise BusError(f'{SET_READ_SCHEDULE} did not answer within {self.read_timeout_s} s')
+        res = fut.result()
+        if not res.success:
+            raise BusError(f'read schedule {list(joints)} refused by the bus master: {res.message}')
 
     def _fresh(self, joint: str):
         """Newest read of ``joint`` sampled after our last write and after the last one consumed."""
@@ -101,10 +163,12 @@ class RosBus:
         if self._schedule and joint not in self._schedule:
             self.set_schedule(self._schedule + (joint,))
         deadline = time.monotonic() + self.read_timeout_s
-        with self._cv:
-            while True:
+        while True:
+            with self._cv:
                 if self.stopped.is_set():
                     raise BusError('locomotion stopped')
+                if self.lockstep:
+                    self._settle()
                 got = self._fresh(joint)
                 if got is not None:
                     self._latest[joint].clear()
@@ -113,10 +177,10 @@ class RosBus:
                 if time.monotonic() > deadline:
                     raise BusError(f'no /joint_states reading of {joint} within {self.read_timeout_s} s '
                                    f'(is the driver or sim running and reading it?)')
-                if self.lockstep:
-                    self._advance()
-                else:
+                if not self.lockstep:
                     self._cv.wait(timeout=0.005)
+                    continue
+            self._advance()
 
     def wait_until(self, t: float) -> None:
         deadline = time.monotonic() + max(10.0, 100 * self.read_timeout_s)
@@ -124,7 +188,6 @@ class RosBus:
             if time.monotonic() > deadline:
                 raise BusError(f'bus time did not reach {t:.3f} s (clock at {self.now():.3f} s): is /clock published?')
             if self.lockstep:
-                with self._cv:
-                    self._advance()
+                self._advance()
             else:
                 self.stopped.wait(min(0.0005, max(t - self.now(), 0.0)))

@@ -1,12 +1,14 @@
 """The ROS path end to end: sim_node (lock-stepped, standing in for the driver) and locomotion_node
-talk only through the driver's topics; the controller runs its gait cycle, finds the ground and
-publishes telemetry, and both nodes shut down cleanly."""
+talk only through the driver's topics and services; the controller runs its gait cycle at the
+Algorithm 1 read cadence, finds the ground, walks forward and publishes telemetry, and both nodes
+shut down cleanly."""
 import os
 import signal
 import subprocess
 import threading
 import time
 
+import numpy as np
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
@@ -42,11 +44,9 @@ def test_locomotion_node_walks_the_sim_node(nodes):
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node('pipeline_probe', context=ctx)
-    seen = {'swing': [], 'stops': [], 'x': []}
+    seen = {'swing': [], 'reads': [], 'x': []}
     node.create_subscription(SwingDownStart, '/swing_down', lambda m: seen['swing'].append(m), 10)
-    node.create_subscription(LegGroundDetection, '/ground_detection',
-                             lambda m: seen['stops'].append((m.leg, m.stop_reason, m.swing_start.sec,
-                                                             m.swing_start.nanosec)) if m.stopped else None, 100)
+    node.create_subscription(LegGroundDetection, '/ground_detection', lambda m: seen['reads'].append(m), 1000)
     node.create_subscription(PoseStamped, '/sim/body_pose', lambda m: seen['x'].append(m.pose.position.x), 10)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
@@ -64,14 +64,19 @@ def test_locomotion_node_walks_the_sim_node(nodes):
     node.destroy_node()
     rclpy.shutdown(context=ctx)
     assert len(seen['swing']) >= 7, outs[1][-3000:]
-    first_stop = {}
-    for leg, reason, sec, nsec in seen['stops']:
-        first_stop.setdefault((sec, nsec, leg), reason)
+    first_stop, stamps = {}, {}
+    for m in seen['reads']:
+        key = (m.swing_start.sec, m.swing_start.nanosec, m.leg)
+        stamps.setdefault(key, []).append(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9)
+        if m.stopped:
+            first_stop.setdefault(key, m.stop_reason)
     assert sum(r == 1 for r in first_stop.values()) >= 18          # ground found by 18+ leg swing-downs
-    assert seen['x']                                                 # the sim published its truth
-    # Forward progress is not asserted here: over DDS the femur-only /read_schedule can reach the
-    # lock-stepped sim after the goal commands it should govern (two topics, no ordering), so a
-    # swing-down step may run a full 18-read cycle instead of L reads and walking speed varies
-    # between runs. The in-process lock-step (test_sim_locomotion.py) is where walking is tested.
+    # Algorithm 1's cadence: each swinging femur is read once per t_con = L * T_com (tripod: 3 reads
+    # of 1 ms). A read schedule applied after the goals it governs would show 18 ms (all joints).
+    gaps = np.concatenate([np.diff(sorted(v)) for v in stamps.values() if len(v) > 2])
+    assert abs(np.median(gaps) - 0.003) < 2e-4, np.percentile(gaps, [10, 50, 90])
+    assert np.mean(np.abs(gaps - 0.003) < 2e-4) > 0.95, np.percentile(gaps, [10, 50, 90])
+    # and the robot walks forward (0.05 m/s requested; 7 phases are about 5 s of simulated time)
+    assert seen['x'] and seen['x'][-1] - seen['x'][0] > 0.05, (seen['x'][0], seen['x'][-1])
     assert [p.returncode for p in nodes] == [0, 0], outs
     assert 'Traceback' not in outs[0] + outs[1]

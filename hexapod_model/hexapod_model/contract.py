@@ -23,6 +23,7 @@ def stamp_parts(t_s: float) -> tuple[int, int]:
 JOINT_COMMANDS = '/joint_commands'          # sensor_msgs/msg/JointState, in
 JOINT_STATES = '/joint_states'              # sensor_msgs/msg/JointState, out, one per read
 READ_SCHEDULE = '/read_schedule'            # hexapod_msgs/msg/ReadSchedule, in
+SET_READ_SCHEDULE = '/set_read_schedule'    # hexapod_msgs/srv/SetReadSchedule: the same, acknowledged
 SERVO_DIAGNOSTICS = '/servo_diagnostics'    # hexapod_msgs/msg/ServoDiagnostics, out, periodic
 BUS_TIMING = '/bus_timing'                  # hexapod_msgs/msg/BusTiming, out, periodic
 EMERGENCY_STOP = '/emergency_stop'          # std_srvs/srv/Trigger: torque off on every servo

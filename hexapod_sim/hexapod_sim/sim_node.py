@@ -1,7 +1,9 @@
 """``sim_node``: the MuJoCo hexapod behind exactly the driver's ROS interface (hexapod_model.contract).
 
 In: ``/joint_commands`` (sensor_msgs/JointState: goals, one sync write per message),
-``/read_schedule`` (hexapod_msgs/ReadSchedule), service ``/emergency_stop`` (std_srvs/Trigger).
+``/read_schedule`` (hexapod_msgs/ReadSchedule), services ``/set_read_schedule``
+(hexapod_msgs/SetReadSchedule: the schedule, acknowledged once applied) and ``/emergency_stop``
+(std_srvs/Trigger).
 Out: ``/joint_states`` (one message per read, stamped with the sample time), ``/servo_diagnostics``,
 ``/bus_timing``, ``/imu``, ``/power``, ``/clock`` and the evaluation-only truth
 ``/sim/foot_contacts`` and ``/sim/body_pose``. All stamps are simulated time.
@@ -9,7 +11,10 @@ Out: ``/joint_states`` (one message per read, stamped with the sample time), ``/
 Pacing: ``real_time_factor`` > 0 keeps simulated time at that multiple of wall time; 0 runs as fast
 as possible. ``lockstep``: the simulation only advances by one cycle of the read schedule per
 received ``/joint_commands`` message (a message with no names just advances), so a controller
-that waits for its reads gets a deterministic run independent of machine load.
+that waits for its reads gets a deterministic run independent of machine load. A lock-stepped
+controller sets the schedule through the service: a /read_schedule message can be taken after a
+command published later (two topics are not ordered), and that command's cycle would then read
+the old schedule.
 
 ``record``: '' (off), 'auto' (``bags/sim_<UTC time>``), a name (``bags/<name>``) or a path: every
 topic above plus ``/ground_detection`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag.
@@ -35,6 +40,7 @@ from std_srvs.srv import Trigger
 from hexapod_model import contract
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
 from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus
+from hexapod_msgs.srv import SetReadSchedule
 
 from .recorder import Recorder, resolve_bag_dir
 from .sim import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoState, SimError
@@ -139,6 +145,7 @@ class SimNode(Node):
         }
         self.create_subscription(JointState, contract.JOINT_COMMANDS, self._on_command, qos)
         self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self._on_schedule, 10)
+        self.create_service(SetReadSchedule, contract.SET_READ_SCHEDULE, self._on_set_schedule)
         if self.recorder is not None:     # record the controller's topics too
             self.create_subscription(LegGroundDetection, contract.GROUND_DETECTION,
                                      lambda m: self._record(contract.GROUND_DETECTION, m, self.sim.now()), 100)
@@ -179,11 +186,23 @@ class SimNode(Node):
                 self._publish(ev)
 
     def _on_schedule(self, msg: ReadSchedule) -> None:
+        self._apply_schedule(msg, '/read_schedule')
+
+    def _on_set_schedule(self, request, response):
+        msg = ReadSchedule(joint_names=list(request.joint_names))
+        msg.header.stamp = stamp(self.sim.now())
+        response.success, response.message = self._apply_schedule(msg, contract.SET_READ_SCHEDULE)
+        return response
+
+    def _apply_schedule(self, msg: ReadSchedule, via: str) -> tuple[bool, str]:
+        """Set the read schedule; the bag records it as a /read_schedule message either way."""
         self._record(contract.READ_SCHEDULE, msg, self.sim.now())
         try:
             self.loop.set_schedule(list(msg.joint_names))
         except SimError as exc:
-            self.get_logger().error(f'/read_schedule ignored: {exc}')
+            self.get_logger().error(f'{via} ignored: {exc}')
+            return False, str(exc)
+        return True, 'reading ' + ', '.join(self.loop.schedule)
 
     def _on_estop(self, request, response):
         self.sim.emergency_stop()
