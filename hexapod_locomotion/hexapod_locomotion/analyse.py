@@ -133,9 +133,11 @@ def analyse(path: str, robot=None, keep_traces: int = 6) -> dict:
             if det == kind:
                 # the recorded swing-down ended with the step in which its last leg stopped: the
                 # reads after it belong to the next phase (background reads), not to this one
-                done = [ph.state[leg].stop_time_s for leg in legs if ph.state[leg].stopped]
+                # (the step ends with the read of the last leg in bus order)
+                done = [ph.state[leg].stop_time_s + (len(legs) - 1 - slot) * ph.t_com_s
+                        for slot, leg in enumerate(legs) if ph.state[leg].stopped]
                 if done:
-                    end = max(done) + (len(legs) - 1) * ph.t_com_s + 1e-9
+                    end = max(done) + 1e-9
                     reads = [r for r in reads if r[2] <= end]
         if len(traces) < keep_traces:
             traces.append(SwingTrace(legs, t0, tr))

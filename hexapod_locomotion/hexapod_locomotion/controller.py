@@ -47,7 +47,12 @@ class LocomotionParams:
     lift_m: float = 0.05             # swing-up height above the current foothold
     max_stride_m: float = 0.07       # longest foothold displacement per cycle
     max_turn_rad: float = 0.25       # largest yaw per cycle
-    ground_depth_m: float = 0.06     # theta_fin: this far below the nominal ground
+    # theta_fin this far below the nominal ground. Eq. 15 moves the goal from theta_init to theta_fin
+    # in t_des, so a deeper theta_fin means a faster swing-down at the same t_des: more free-swing lag
+    # (the servo's back-EMF), a higher Eq. 17 threshold and a harder touchdown. 3 cm covers the
+    # mockup's step-downs (blocks 0-6 cm: a missed contact is rare and handled); 6 cm raised the
+    # peak femur torque at t_des = 0.5 s from 0.66 to 0.89 N m.
+    ground_depth_m: float = 0.03
     explicit_forward: float = 0.8    # extra body shift per phase, fraction of stride * L / 6
     background_reads: bool = True    # read joints round-robin whenever the bus would idle
 
@@ -83,6 +88,7 @@ class LegOutcome:
     stop_step: int
     peak_err_tick: float
     premature_suspects: int
+    femur_step_tick: float          # |Delta theta| of the femur goal per control step (Eq. 15)
 
 
 @dataclass
@@ -218,7 +224,7 @@ class GaitController:
                 missed.add(leg)
                 warnings.append(f'leg {leg}: no ground found down to theta_fin; leg excluded from leveling')
             outcomes.append(LegOutcome(leg, st.stop_reason, st.stop_time_s - t_sd, st.stop_step,
-                                       st.peak_err_tick, st.premature_suspects))
+                                       st.peak_err_tick, st.premature_suspects, phase.femur_step_tick(leg)))
 
         # 4. body leveling + explicit forward motion + turn
         roll_pitch = self._level(bus, d * (p.explicit_forward * L / 6.0), missed, warnings)

@@ -156,6 +156,13 @@ class SwingDownPhase:
             out[joint_name(leg, 'tibia')] = float(th[1])
         return out
 
+    def femur_step_tick(self, leg: int) -> float:
+        """|Delta theta| of ``leg``'s femur goal per control step, Eq. 15 [ticks]. With the leg held
+        rigidly at contact its error grows by this much per t_con, so an Eq. 17 margin of epsilon
+        needs at least epsilon / step control periods to be crossed."""
+        slot = self.legs.index(leg)
+        return float(abs(self._fin_tick[slot, 0] - self._init_tick[slot, 0]) * self.t_con_s / self.t_des_s)
+
     def reached_fin(self, k: int) -> bool:
         return k + 1 >= self.n_interp
 

@@ -211,7 +211,7 @@ def format_free_swing(rows: list[dict]) -> str:
 
 def format_quality(results: list[dict]) -> str:
     lines = ['Ground-detection quality on the mockup (simulation truth)',
-             f'{"gait":9} {"t_des":>5} {"detection":9} | {"delay ms":>8} {"periods":>7} | {"torque@stop":>11} '
+             f'{"gait":9} {"t_des":>5} {"detection":9} | {"delay ms":>8} {"periods":>7} {"floor":>5} | {"torque@stop":>11} '
              f'{"peak torque":>11} | {"overshoot mm":>12} | {"prem.":>5} {"missed":>6}']
     for g in GAITS:
         for t in sorted({r['config']['t_des_s'] for r in results}):
@@ -222,10 +222,14 @@ def format_quality(results: list[dict]) -> str:
                 if not rs:
                     continue
                 m = lambda k, s='median': float(np.mean([x[k][s] for x in rs]))  # noqa: E731
-                lines.append(f'{g:9} {t:5.1f} {d:9} | {m("delay_s") * 1e3:8.1f} {m("delay_control_periods"):7.1f} | '
+                fl = [x['blocked_leg_floor_periods']['median'] for x in rs if x.get('blocked_leg_floor_periods')]
+                floor = f'{np.mean(fl):5.1f}' if fl else '    -'
+                lines.append(f'{g:9} {t:5.1f} {d:9} | {m("delay_s") * 1e3:8.1f} {m("delay_control_periods"):7.1f} {floor} | '
                              f'{m("femur_torque_at_stop_nm"):11.2f} {m("peak_femur_torque_nm"):11.2f} | '
                              f'{m("command_overshoot_m") * 1e3:12.1f} | {sum(x["premature_stops"] for x in rs):5d} '
                              f'{sum(x["missed_contacts"] for x in rs):6d}')
+    lines.append('periods = control periods t_con from the first true contact to the stop; floor = epsilon / femur '
+                 'goal step (Eq. 15), the fewest periods in which even a rigidly blocked leg crosses Eq. 17')
     return '\n'.join(lines)
 
 

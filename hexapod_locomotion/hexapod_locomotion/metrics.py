@@ -90,6 +90,8 @@ class DetectionEvent:
     femur_torque_at_stop_nm: float
     peak_femur_torque_nm: float    # largest |femur torque| from true contact to stop + 0.1 s
     overshoot_m: float             # commanded foot below the true foot at the stop
+    floor_periods: float = float('nan')   # adaptive: epsilon / femur goal step, the fewest control
+    #                                       periods in which a rigidly blocked leg crosses Eq. 17
 
 
 def detection_quality(events: list[DetectionEvent]) -> dict:
@@ -105,6 +107,7 @@ def detection_quality(events: list[DetectionEvent]) -> dict:
     tq = np.array([abs(e.femur_torque_at_stop_nm) for e in valid])
     peak = np.array([e.peak_femur_torque_nm for e in valid if np.isfinite(e.peak_femur_torque_nm)])
     over = np.array([e.overshoot_m for e in valid])
+    floor = np.array([e.floor_periods for e in valid if np.isfinite(e.floor_periods)])
 
     def stats(a):
         return {'mean': float(a.mean()), 'median': float(np.median(a)), 'p90': float(np.percentile(a, 90)),
@@ -114,6 +117,7 @@ def detection_quality(events: list[DetectionEvent]) -> dict:
             'missed_contacts': len(missed), 'no_ground': sum(1 for e in events if e.stop_reason == 2
                                                              and not np.isfinite(e.t_true_contact_s)),
             'delay_s': stats(delays), 'delay_control_periods': stats(periods),
+            'blocked_leg_floor_periods': stats(floor),
             'femur_torque_at_stop_nm': stats(tq), 'peak_femur_torque_nm': stats(peak),
             'command_overshoot_m': stats(over)}
 

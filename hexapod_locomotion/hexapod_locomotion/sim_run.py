@@ -205,7 +205,7 @@ class TrialResult:
 
 
 def _detection_events(robot: Robot, probe: ProbeBus, rep: PhaseReport, controller: GaitController,
-                      detector: str) -> list[DetectionEvent]:
+                      detector: DetectorConfig) -> list[DetectionEvent]:
     out = []
     t_con = len(rep.legs) * probe.t_com_s
     for o in rep.outcomes:
@@ -221,8 +221,10 @@ def _detection_events(robot: Robot, probe: ProbeBus, rep: PhaseReport, controlle
         if at_stop is not None:
             goal = controller.leg_angles(o.leg)
             overshoot = float(forward(robot, o.leg, at_stop[3])[2] - forward(robot, o.leg, goal)[2])
-        out.append(DetectionEvent(o.leg, detector, rep.t_swing_down_start_s, t_stop, o.stop_reason, t_contact, t_con,
-                                  at_stop[2] if at_stop else math.nan, peak, overshoot))
+        floor = detector.epsilon_tick / o.femur_step_tick if detector.kind == 'adaptive' and o.femur_step_tick > 0 \
+            else math.nan
+        out.append(DetectionEvent(o.leg, detector.kind, rep.t_swing_down_start_s, t_stop, o.stop_reason, t_contact,
+                                  t_con, at_stop[2] if at_stop else math.nan, peak, overshoot, floor))
     return out
 
 
@@ -269,7 +271,7 @@ def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
                 warnings.append(f'controller stopped: {exc}')
                 break
             warnings.extend(rep.warnings)
-            events.extend(_detection_events(robot, probe, rep, controller, cfg.detector))
+            events.extend(_detection_events(robot, probe, rep, controller, det))
             pos, quat = sim.body_pose()
             roll, pitch, _ = roll_pitch_yaw(quat)
             if abs(roll) > FALL_TILT_RAD or abs(pitch) > FALL_TILT_RAD or pos[2] - sim.scene.terrain.height_at(pos[0], pos[1]) < FALL_HEIGHT_M:

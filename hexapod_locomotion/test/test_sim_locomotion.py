@@ -31,11 +31,11 @@ def _block_under_leg1(robot):
 def _one_phase(robot, kind):
     sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
     probe = ProbeBus(sim)
-    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=1.0), DetectorConfig(kind=kind),
-                       t_com_s=sim.t_com_s)
+    det = DetectorConfig(kind=kind)
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=1.0), det, t_com_s=sim.t_com_s)
     c.startup(probe)
     rep = c.step_phase(probe, VelocityCommand(0.05, 0.0, 0.0))      # legs 1, 6, 3 swing
-    return {e.leg: e for e in _detection_events(robot, probe, rep, c, kind)}, rep
+    return {e.leg: e for e in _detection_events(robot, probe, rep, c, det)}, rep
 
 
 @pytest.fixture(scope='module')
