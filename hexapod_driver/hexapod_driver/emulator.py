@@ -295,6 +295,7 @@ class LogEntry:
     error: int
     wall_reply: float = float('nan')   # time.time() when the status packet was written
     reply_params: bytes = b''          # parameters of the status packet (the data of a READ)
+    reply_delay_s: float = 0.0         # the servo's return delay time applied before replying
 
 
 # ----------------------------------------------------------------------------- faults
@@ -594,6 +595,7 @@ class BusEmulator:
                     self._reply_delay = 0.0
                     reply = self._handle(pkt, t_arrival, wall)
                     if reply is not None:
+                        self.log[-1].reply_delay_s = self._reply_delay
                         replies.append((reply, self._reply_delay, len(pkt.params) + 6, self.log[-1]))
             for reply, delay, n_in, entry in replies:
                 self._send(reply, t_arrival, delay, n_in)
