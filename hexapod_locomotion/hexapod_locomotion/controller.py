@@ -55,6 +55,10 @@ class LocomotionParams:
     ground_depth_m: float = 0.03
     explicit_forward: float = 0.8    # extra body shift per phase, fraction of stride * L / 6
     background_reads: bool = True    # read joints round-robin whenever the bus would idle
+    # Leveling treats a leg that has just found ground as carrying this fraction of an equal share
+    # of the body weight among the legs that support the next swing (GaitController.
+    # landing_preload_rad); 0 = take its goal as it is.
+    landing_preload: float = 1.0
 
     def __post_init__(self):
         for f in self.__dataclass_fields__:
@@ -227,7 +231,8 @@ class GaitController:
                                        st.peak_err_tick, st.premature_suspects, phase.femur_step_tick(leg)))
 
         # 4. body leveling + explicit forward motion + turn
-        roll_pitch = self._level(bus, d * (p.explicit_forward * L / 6.0), missed, warnings)
+        landed = [o.leg for o in outcomes if o.stop_reason == STOP_CONTACT]
+        roll_pitch = self._level(bus, d * (p.explicit_forward * L / 6.0), missed, warnings, landed)
         report = PhaseReport(self.phase_index, legs, t_start, t_sd, t_sd_end, bus.now(), outcomes, roll_pitch,
                              warnings)
         self.phase_index += 1
@@ -263,7 +268,29 @@ class GaitController:
         warnings.append(f'leg {leg}: cannot reach below the nominal ground; theta_fin at the nominal ground')
         return inverse(self.robot, leg, np.array([foot[0], foot[1], -self.body_height_m]))
 
-    def _level(self, bus: ServoBus, shift_xy, missed: set[int], warnings: list[str]):
+    def landing_preload_rad(self, leg: int, n_support: int) -> np.ndarray:
+        """Goal offset (coxa, femur, tibia) [rad] under which ``leg``'s servos push its foot down with
+        ``landing_preload`` x an equal share of the body weight.
+
+        A loaded stance leg's goals sit below its real pose by the servos' compliance deflection
+        (about 8 femur ticks for a sixth of the weight); a leg stopped at contact has goals at its
+        unloaded pose. Leveling all commanded feet onto one plane would leave that leg
+        under-preloaded, and it is the first to lift off when the next group swings (tetrapod:
+        a stance leg was in the air 22 % of the time). ``n_support`` legs share the weight.
+        Static balance: gain * (goal - theta) = -J^T f with f the ground reaction on the foot."""
+        th = self.leg_angles(leg)
+        jac = np.empty((3, 3))
+        h = 1e-6
+        for i in range(3):
+            d = np.zeros(3)
+            d[i] = h
+            jac[:, i] = (forward(self.robot, leg, th + d) - forward(self.robot, leg, th - d)) / (2 * h)
+        f = np.array([0.0, 0.0, self.params.landing_preload * self.robot.total_mass_kg * self.robot.gravity_mps2
+                      / max(n_support, 1)])
+        servo = self.robot.servo
+        return -(jac.T @ f) / (servo.gain_nm_per_tick / servo.rad_per_tick)
+
+    def _level(self, bus: ServoBus, shift_xy, missed: set[int], warnings: list[str], landed=()):
         """Eq. 8-10 on the support feet, then the yaw that best maps the neutral stance onto the feet
         (so the body follows turning legs) and the explicit forward shift.
 
@@ -274,6 +301,10 @@ class GaitController:
         compliant servos share the load like equal springs."""
         support = [leg for leg in range(1, 7) if leg not in missed]
         feet = np.array([self.foot(leg) for leg in range(1, 7)])
+        # the legs that will carry the body while the next group swings
+        n_next = len([leg for leg in support if leg not in self.gait.swing_legs(self.phase_index + 1)])
+        for leg in landed:
+            feet[leg - 1] = forward(self.robot, leg, self.leg_angles(leg) + self.landing_preload_rad(leg, n_next))
         try:
             pose, _ = level_body(feet[[leg - 1 for leg in support]], self.body_height_m)
         except LevelingError as exc:

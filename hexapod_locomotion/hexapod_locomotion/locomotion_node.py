@@ -33,6 +33,8 @@ PARAMS = {
     't_com_s': (0.0, 'duration of one bus read [s]; 0 = from the robot description'),
     'lift_m': (0.05, 'swing-up height [m]'),
     'ground_depth_m': (0.03, 'theta_fin this far below the nominal ground [m]; deeper = faster swing-down'),
+    'landing_preload': (1.0, 'a leg that found ground is leveled as carrying this fraction of its share of the weight '
+                             '(compensates servo compliance; 0 = off, for rigid servos)'),
     'max_stride_m': (0.06, 'largest foothold displacement per cycle [m]; beyond reach is clamped'),
     'cmd_vel_timeout_s': (1.0, 'stop walking (finish the phase, then stand) when /cmd_vel is older than this'),
     'default_vx': (0.0, 'forward speed [m/s] used when no /cmd_vel has been received'),
@@ -69,7 +71,7 @@ class LocomotionNode(Node):
         self.controller = GaitController(
             self.robot, get_gait(g('gait')),
             LocomotionParams(t_des_s=g('t_des_s'), lift_m=g('lift_m'), max_stride_m=g('max_stride_m'),
-                             ground_depth_m=g('ground_depth_m'),
+                             ground_depth_m=g('ground_depth_m'), landing_preload=g('landing_preload'),
                              background_reads=False),
             DetectorConfig(kind=g('detector'), epsilon_tick=g('epsilon_tick'),
                            fixed_threshold_tick=g('fixed_threshold_tick')),
@@ -88,7 +90,8 @@ class LocomotionNode(Node):
                     return SetParametersResult(successful=False, reason=str(exc))
             if p.name == 'detector' and p.value not in ('adaptive', 'fixed'):
                 return SetParametersResult(successful=False, reason="detector must be 'adaptive' or 'fixed'")
-            if p.name in ('t_des_s', 'epsilon_tick', 'fixed_threshold_tick', 'lift_m', 'ground_depth_m', 'max_stride_m') and \
+            if p.name in ('t_des_s', 'epsilon_tick', 'fixed_threshold_tick', 'lift_m', 'ground_depth_m', 'landing_preload',
+                          'max_stride_m') and \
                     not (isinstance(p.value, float) and p.value >= 0):
                 return SetParametersResult(successful=False, reason=f'{p.name} must be a non-negative float')
         return SetParametersResult(successful=True)

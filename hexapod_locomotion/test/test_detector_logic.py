@@ -91,7 +91,9 @@ def test_gait_cycle_on_kinematic_ground(robot):
     """Three feet stay down in tripod; missing ground is reported and the body stays level."""
     bus = KinematicGroundBus(robot, ground_z_m=-0.11)
     reports = []
-    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), on_phase=reports.append)
+    # rigid servos: no compliance for a landing preload to stand for (it would tilt the feet's plane)
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5, landing_preload=0.0),
+                       on_phase=reports.append)
     c.startup(bus)
     for _ in range(4):
         c.step_phase(bus, VelocityCommand(0.05, 0.0, 0.0))
