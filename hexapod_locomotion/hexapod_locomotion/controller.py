@@ -276,7 +276,8 @@ class GaitController:
         (about 8 femur ticks for a sixth of the weight); a leg stopped at contact has goals at its
         unloaded pose. Leveling all commanded feet onto one plane would leave that leg
         under-preloaded, and it is the first to lift off when the next group swings (tetrapod:
-        a stance leg was in the air 22 % of the time). ``n_support`` legs share the weight.
+        a stance leg was in the air 22 % of the time). ``n_support`` legs share the weight. Only
+        needed where the support is statically indeterminate (more than three legs).
         Static balance: gain * (goal - theta) = -J^T f with f the ground reaction on the foot."""
         th = self.leg_angles(leg)
         jac = np.empty((3, 3))
@@ -301,9 +302,10 @@ class GaitController:
         compliant servos share the load like equal springs."""
         support = [leg for leg in range(1, 7) if leg not in missed]
         feet = np.array([self.foot(leg) for leg in range(1, 7)])
-        # the legs that will carry the body while the next group swings
+        # the legs that will carry the body while the next group swings; three or fewer carry it by
+        # statics whatever their preload, which then only squeezes the feet (tripod: +7 W)
         n_next = len([leg for leg in support if leg not in self.gait.swing_legs(self.phase_index + 1)])
-        for leg in landed:
+        for leg in (landed if n_next > 3 else ()):
             feet[leg - 1] = forward(self.robot, leg, self.leg_angles(leg) + self.landing_preload_rad(leg, n_next))
         try:
             pose, _ = level_body(feet[[leg - 1 for leg in support]], self.body_height_m)
