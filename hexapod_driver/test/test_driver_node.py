@@ -95,6 +95,20 @@ def spin_until(ex, cond, timeout, proc=None, what=''):
     raise AssertionError(f'timed out waiting for {what}')
 
 
+def call_idempotent(ex, client, request, timeout, proc, what):
+    """Call a service with an idempotent request and return the response. A request sent right
+    after discovery can lose its response (the server has not yet matched the client's response
+    reader), so it is asked up to three times."""
+    for attempt in range(3):
+        fut = client.call_async(request)
+        try:
+            spin_until(ex, fut.done, timeout, proc, what)
+            return fut.result()
+        except AssertionError:
+            if attempt == 2:
+                raise
+
+
 def command(node, pub, names, positions):
     msg = JointState()
     msg.header.stamp = node.get_clock().now().to_msg()
@@ -146,14 +160,8 @@ def test_driver_node_serves_the_topic_contract(robot, ros):
             spin_until(ex, client.service_is_ready, 10.0, proc, contract.SET_READ_SCHEDULE)
 
             def call(names):
-                for _ in range(3):          # a response can be lost right after discovery; idempotent
-                    fut = client.call_async(SetReadSchedule.Request(joint_names=names))
-                    try:
-                        spin_until(ex, fut.done, 5.0, proc, 'set_read_schedule response')
-                        return fut.result()
-                    except AssertionError:
-                        continue
-                raise AssertionError('no answer from /set_read_schedule')
+                return call_idempotent(ex, client, SetReadSchedule.Request(joint_names=names), 5.0, proc,
+                                       'set_read_schedule response')
 
             bad = call(['leg3_femur', 'leg3_knee'])
             assert not bad.success and 'leg3_knee' in bad.message
@@ -189,17 +197,8 @@ def test_emergency_stop_service(robot, ros):
         try:
             spin_until(ex, lambda: client.service_is_ready(), 30.0, proc, '/emergency_stop')
             assert all(s.get('torque_enable') == 1 for s in emu.servos)
-            # A request sent right after discovery can lose its response (the server has not yet
-            # matched the client's response reader): the stop is idempotent, so ask again.
-            for attempt in range(3):
-                fut = client.call_async(Trigger.Request())
-                try:
-                    spin_until(ex, fut.done, 10.0, proc, 'emergency stop response')
-                    break
-                except AssertionError:
-                    if attempt == 2:
-                        raise
-            assert fut.result().success, fut.result().message
+            res = call_idempotent(ex, client, Trigger.Request(), 10.0, proc, 'emergency stop response')
+            assert res.success, res.message
             assert all(s.get('torque_enable') == 0 for s in emu.servos)
         finally:
             rc, out = stop_node(proc)

@@ -96,12 +96,12 @@ class RosBus:
 
     def sync_write(self, goals_rad) -> float:
         msg = self._JointState()
-        t = self.now() if self.lockstep else None
-        msg.header.stamp = self.node.get_clock().now().to_msg()
+        if self.lockstep:             # the master's time, not the (lagging) /clock
+            msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_parts(self.now())
+        else:
+            msg.header.stamp = self.node.get_clock().now().to_msg()
         msg.name = list(goals_rad)
         msg.position = [float(v) for v in goals_rad.values()]
-        if t is not None:             # the master's time, not the (lagging) /clock
-            msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_parts(t)
         self._publish(msg)
         self._last_write = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         return self._last_write
