@@ -61,6 +61,22 @@ _NO_GAP = np.zeros(2)
 
 
 @njit(cache=True, fastmath=True, nogil=True)
+def _play_contact(ch, cl, f, um, am, u, inv_self, inv_cross, t_other, lo, hi, h):
+    """One projected Gauss-Seidel pass over the two contact sides of one joint's backlash play
+    (see :func:`_backlash_substep`): the upper-side torque ``ch >= 0``, then the lower-side ``cl <=
+    0``, each so that the motor-link relative velocity does not close the gap beyond ``hi`` / ``lo``
+    within the step. ``u``, ``inv_self``, ``inv_cross`` and ``t_other`` give this joint's link
+    velocity from the contact torques; ``f``, ``um``, ``am`` its motor side. Returns ``(ch, cl)``."""
+    keff = h * (1.0 / am + inv_self)
+    nm = um + h * (f - ch - cl) / am
+    nv = u + h * (inv_self * (ch + cl) + inv_cross * t_other)
+    ch = max(ch + (nm - nv - hi) / keff, 0.0)
+    nm = um + h * (f - ch - cl) / am
+    nv = u + h * (inv_self * (ch + cl) + inv_cross * t_other)
+    return ch, min(cl + (nm - nv - lo) / keff, 0.0)
+
+
+@njit(cache=True, fastmath=True, nogil=True)
 def _backlash_substep(p, h, tau2, tau3, q2, q3, v2, v3, m2s, m3s, w2m, w3m):
     """One substep of the leg with gear backlash on one or both joints (see :func:`_rollout_kernel`).
 
@@ -149,24 +165,12 @@ def _backlash_substep(p, h, tau2, tau3, q2, q3, v2, v3, m2s, m3s, w2m, w3m):
         nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
         nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
         if not r2:
-            keff = h * (1.0 / am2 + inv11)
-            nm2 = um2 + h * (f2 - ch2 - cl2) / am2
-            ch2 = max(ch2 + (nm2 - nv2 - hi2) / keff, 0.0)
-            nm2 = um2 + h * (f2 - ch2 - cl2) / am2
-            t2 = ch2 + cl2
-            nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
-            cl2 = min(cl2 + (nm2 - nv2 - lo2) / keff, 0.0)
+            ch2, cl2 = _play_contact(ch2, cl2, f2, um2, am2, u2, inv11, inv12, t3, lo2, hi2, h)
             t2 = ch2 + cl2
             nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
             nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
         if not r3:
-            keff = h * (1.0 / am3 + inv22)
-            nm3 = um3 + h * (f3 - ch3 - cl3) / am3
-            ch3 = max(ch3 + (nm3 - nv3 - hi3) / keff, 0.0)
-            nm3 = um3 + h * (f3 - ch3 - cl3) / am3
-            t3 = ch3 + cl3
-            nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
-            cl3 = min(cl3 + (nm3 - nv3 - lo3) / keff, 0.0)
+            ch3, cl3 = _play_contact(ch3, cl3, f3, um3, am3, u3, inv22, inv12, t2, lo3, hi3, h)
             t3 = ch3 + cl3
             nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
             nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
