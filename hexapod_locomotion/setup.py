@@ -21,6 +21,7 @@ setup(
     entry_points={
         'console_scripts': [
             'locomotion_node = hexapod_locomotion.locomotion_node:main',
+            'robot = hexapod_locomotion.robot:main',
             'demo = hexapod_locomotion.demo:main',
             'experiment = hexapod_locomotion.experiments:main',
             'analyse = hexapod_locomotion.analyse:main',

@@ -23,7 +23,7 @@ from hexapod_model.bus import ServoBus
 from hexapod_model.description import ALL_JOINTS, Robot, joint_name
 from hexapod_model.kinematics import UnreachableTargetError, forward, inverse, stance_feet
 from hexapod_model.leveling import LevelingError, level_body
-from hexapod_model.swing_model import LegModel
+from hexapod_model.swing_model import LegModel, predict_swing_down
 
 from .detector import (STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, ReadResult, SwingDownPhase,
                        run_swing_down)
@@ -130,6 +130,14 @@ class GaitController:
         self.goals = self._stance_goals()
         self.phase_index = 0
         self._rr = 0                                        # round-robin read pointer
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the swing-down model now, before the robot moves: in
+        real time, the first swing-down would otherwise stall its legs for the compile time."""
+        legs = self.gait.swing_legs(0)
+        angles = [self.leg_angles(leg)[1:] for leg in legs]
+        predict_swing_down(self.robot, legs, angles, angles, self.params.t_des_s, self.t_com_s, n_steps=2,
+                           models=self.models)
 
     # ------------------------------------------------------------------ helpers
     def _stance_goals(self) -> dict[str, float]:

@@ -1,13 +1,21 @@
 """locomotion_node: the adaptive gait cycle behind ROS topics.
 
-Subscribes the servo interface (``/joint_states`` from the driver or the sim node, they are
-indistinguishable) and ``/cmd_vel``; publishes ``/joint_commands``, ``/read_schedule`` and per-read
-ground-detection telemetry on ``/ground_detection``. The controller (library code) runs in a worker
-thread and talks to the bus through :class:`RosBus`.
+Subscribes ``/cmd_vel`` and publishes per-read ground-detection telemetry on ``/ground_detection``
+and each swing-down's inputs on ``/swing_down``. The controller (library code) runs in a worker
+thread and talks to a servo bus:
+
+* on its own (``ros2 run hexapod_locomotion locomotion_node``), through :class:`RosBus`: the servo
+  interface of the driver or the sim node in another process (``/joint_states`` in,
+  ``/joint_commands`` and the read schedule out; they are indistinguishable). Over DDS this cannot
+  hold Algorithm 1's cadence in real time (docs/architecture.md); it is exact lock-stepped.
+* composed with the driver or sim node in one process (``hexapod_locomotion robot``), through the
+  bus object that node hands over: the controller then owns the bus as on the robot.
 """
 from __future__ import annotations
 
+import math
 import threading
+import traceback
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -36,7 +44,9 @@ PARAMS = {
     'landing_preload': (1.0, 'a leg that found ground is leveled as carrying this fraction of its share of the weight '
                              '(compensates servo compliance; 0 = off, for rigid servos)'),
     'max_stride_m': (0.06, 'largest foothold displacement per cycle [m]; beyond reach is clamped'),
-    'cmd_vel_timeout_s': (1.0, 'stop walking (finish the phase, then stand) when /cmd_vel is older than this'),
+    'cmd_vel_timeout_s': (2.0, 'stop walking (finish the phase, then stand) when the last /cmd_vel is older than '
+                               'this [s of bus time]; longer than the period of common publishers (ros2 topic pub: '
+                               '1 s), so one late message does not stop the robot'),
     'default_vx': (0.0, 'forward speed [m/s] used when no /cmd_vel has been received'),
     'read_timeout_s': (0.0, 'give up on a position read after this wall time [s]; 0 = 0.5 s, or 10 s in lockstep '
                             '(a lock-stepped sim on a loaded machine answers late but surely)'),
@@ -48,17 +58,23 @@ PARAMS = {
 
 
 class LocomotionNode(Node):
-    def __init__(self):
-        super().__init__('locomotion_node')
+    def __init__(self, bus=None, **node_kwargs):
+        """``bus``: a :class:`hexapod_model.bus.ServoBus` with ``stopped`` (threading.Event) and
+        ``set_schedule(joints)`` owned by a node in this process; None = the bus over ROS topics."""
+        super().__init__('locomotion_node', **node_kwargs)
         for name, (default, desc) in PARAMS.items():
             self.declare_parameter(name, default, ParameterDescriptor(description=desc))
         self.add_on_set_parameters_callback(self._validate)
         g = lambda n: self.get_parameter(n).value  # noqa: E731
         overlays = [o for o in g('robot_overlays') if o]
         self.robot = load_robot(g('robot_description') or None, overlays)
-        t_com = g('t_com_s') or self.robot.bus.t_com_s
-        timeout = g('read_timeout_s') or (10.0 if g('lockstep') else 0.5)
-        self.bus = RosBus(self, t_com, read_timeout_s=timeout, lockstep=g('lockstep'))
+        if bus is not None:
+            t_com = bus.t_com_s
+            self.bus = bus
+        else:
+            t_com = g('t_com_s') or self.robot.bus.t_com_s
+            timeout = g('read_timeout_s') or (10.0 if g('lockstep') else 0.5)
+            self.bus = RosBus(self, t_com, read_timeout_s=timeout, lockstep=g('lockstep'))
         from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from geometry_msgs.msg import Twist
         self._LGD = LegGroundDetection
@@ -77,7 +93,9 @@ class LocomotionNode(Node):
                            fixed_threshold_tick=g('fixed_threshold_tick')),
             t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
             on_swing_start=self._publish_swing_start)
+        self.controller.warm_up()
         self._swing_start = {}
+        self.failed = False
         self._worker = threading.Thread(target=self._run, daemon=True)
         self._worker.start()
 
@@ -99,14 +117,22 @@ class LocomotionNode(Node):
     def _on_cmd(self, msg) -> None:
         try:
             self._cmd = VelocityCommand(msg.linear.x, msg.linear.y, msg.angular.z)
-            self._cmd_time = self.bus.now()
+            # never wait here: in lock-step the bus time waits for reads this executor delivers
+            t = self._bus_time()
+            self._cmd_time = math.nan if t is None else t       # nan: stamped by the worker on first use
         except LocomotionError as exc:
             self.get_logger().error(f'/cmd_vel rejected: {exc}')
+
+    def _bus_time(self) -> float | None:
+        hint = getattr(self.bus, 'time_hint', None)
+        return hint() if hint is not None else self.bus.now()
 
     def _current_cmd(self) -> VelocityCommand | None:
         timeout = self.get_parameter('cmd_vel_timeout_s').value
         if self._cmd_time is None:
             return self._cmd if self._cmd.vx or self._cmd.vy or self._cmd.wz else None
+        if math.isnan(self._cmd_time):
+            self._cmd_time = self.bus.now()
         if self.bus.now() - self._cmd_time > timeout:
             return None
         return self._cmd
@@ -152,16 +178,35 @@ class LocomotionNode(Node):
                 self.bus.set_schedule(ALL_JOINTS)
         except (BusError, LocomotionError, DetectorError) as exc:
             if not self.bus.stopped.is_set():
+                self.failed = True
                 self.get_logger().error(f'locomotion stopped: {exc}')
         except RCLError:
             # SIGINT/SIGTERM shut the context down while this thread was publishing: a normal stop
             if self.context.ok():
-                raise
+                self.failed = True
+                self.get_logger().error(f'locomotion stopped by a middleware error:\n{traceback.format_exc()}')
+        except Exception:      # noqa: BLE001 - a bug: say where, and let main() end the process non-zero
+            self.failed = True
+            self.get_logger().error(f'locomotion stopped by an unexpected error:\n{traceback.format_exc()}')
+
+    @property
+    def running(self) -> bool:
+        """The controller thread is alive (it only ends on a stop or a failure)."""
+        return self._worker.is_alive()
 
     def destroy_node(self):
         self.bus.stopped.set()
         self._worker.join(timeout=2.0)
         return super().destroy_node()
+
+
+def spin_while_walking(executor, node: LocomotionNode) -> None:
+    """Spin until shutdown, or until the controller thread has ended (then raise SystemExit(1) if it
+    failed: a supervisor or the user restarts the node; the bus master holds the last goals)."""
+    while rclpy.ok(context=node.context) and node.running:
+        executor.spin_once(timeout_sec=0.1)
+    if node.failed:
+        raise SystemExit(1)
 
 
 def main(args=None):
@@ -171,7 +216,7 @@ def main(args=None):
         node = LocomotionNode()
         ex = MultiThreadedExecutor(num_threads=2)
         ex.add_node(node)
-        ex.spin()
+        spin_while_walking(ex, node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RCLError:

@@ -9,7 +9,12 @@ locomotion node.
 * ``set_schedule`` calls the ``/set_read_schedule`` service and waits for its answer, so goals
   written afterwards are read back in the new order; a bus master without the service gets the
   ``/read_schedule`` topic instead (not in lock-step, which needs the ordering).
-* ``wait_until`` waits on the node clock (ROS time, or /clock with use_sim_time).
+* Time is the bus master's: the stamps of its reads (sim time from the sim node, ROS time from
+  the driver), whatever the node's own clock is. Writes are stamped on that time base too, so a
+  read "sampled after the last write" means the same thing on both sides with default parameters
+  (no use_sim_time needed). Between two reads the time runs on with the wall clock, for at most
+  one read (``t_com_s``), so it never runs ahead of the master by more than that.
+* ``wait_until`` waits until that time passes ``t``.
 * ``lockstep``: the bus master (sim_node with ``lockstep:=true``) advances one read-schedule cycle
   per ``/joint_commands`` message; waiting and reading then publish empty commands to advance it,
   so a run does not depend on machine load. Every command is answered by exactly one cycle (the
@@ -22,6 +27,8 @@ from __future__ import annotations
 import collections
 import threading
 import time
+
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
 from hexapod_model.bus import BusError
 from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE, SET_READ_SCHEDULE, stamp_parts
@@ -42,7 +49,9 @@ class RosBus:
         self.lockstep = lockstep
         self._last_write = -1.0
         self._consumed: dict[str, float] = {}
-        self._newest = None         # newest read stamp received (lock-step time base)
+        self._newest = None         # newest read stamp received: the bus time base
+        self._newest_mono = 0.0     # monotonic wall time when it arrived
+        self._now = -float('inf')   # bus time handed out last (never goes backwards)
         self._owed = 0              # lock-step: reads still to come for the commands sent so far
         self._cv = threading.Condition()
         self._latest: dict[str, collections.deque] = collections.defaultdict(lambda: collections.deque(maxlen=64))
@@ -53,7 +62,9 @@ class RosBus:
         self._sched_pub = node.create_publisher(ReadSchedule, READ_SCHEDULE, 10)
         self._sched_cli = node.create_client(SetReadSchedule, SET_READ_SCHEDULE)
         self._sched_service: bool | None = None     # unknown until the first schedule change
-        node.create_subscription(JointState, JOINT_STATES, self._on_state, 1000)
+        # own callback group: a callback of the node that waits for reads can never starve this one
+        node.create_subscription(JointState, JOINT_STATES, self._on_state, 1000,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
         self.stopped = threading.Event()
 
     # -- subscription callback (executor thread)
@@ -63,18 +74,43 @@ class RosBus:
             for i, name in enumerate(msg.name):
                 if i < len(msg.position):
                     self._latest[name].append((t, float(msg.position[i])))
-            self._newest = t if self._newest is None else max(self._newest, t)
+            if self._newest is None or t > self._newest:
+                self._newest, self._newest_mono = t, time.monotonic()
             self._owed = max(0, self._owed - 1)
             self._cv.notify_all()
 
     def now(self) -> float:
-        if self.lockstep and self._newest is not None:
-            # the bus master advances only on our commands: its time is the end of the last read
-            # owed to us (/clock and the subscription queue can both lag behind it)
-            with self._cv:
+        """The bus master's time (see the module doc); waits for its first read if none came yet."""
+        if self.lockstep and self._newest is None:
+            self._advance()           # a lock-stepped master reads only when told: ask for the first cycle
+        with self._cv:
+            if self._newest is None and not self._cv.wait_for(
+                    lambda: self._newest is not None or self.stopped.is_set(), timeout=self.read_timeout_s):
+                raise BusError(f'no {JOINT_STATES} from a bus master within {self.read_timeout_s} s '
+                               '(is the driver or sim node running?)')
+            if self.stopped.is_set():
+                raise BusError('locomotion stopped')
+            if self.lockstep:
+                # the bus master advances only on our commands: its time is the end of the last read
+                # owed to us (/clock and the subscription queue can both lag behind it)
                 self._settle()
                 return self._newest + self.t_com_s
-        return self.node.get_clock().now().nanoseconds * 1e-9
+            return self._time_hint()
+
+    def _time_hint(self) -> float:
+        """Bus time from the newest read without waiting (called with _cv held)."""
+        if self._newest is None:
+            return self._now
+        t = self._newest + self.t_com_s
+        if not self.lockstep:
+            t += min(time.monotonic() - self._newest_mono, self.t_com_s)
+        self._now = max(self._now, t)
+        return self._now
+
+    def time_hint(self) -> float | None:
+        """The bus time as far as known now, never blocking (for callbacks); None before the first read."""
+        with self._cv:
+            return None if self._newest is None else self._time_hint()
 
     # -- lock-step bookkeeping (called with _cv held)
     def _settle(self) -> None:
@@ -96,10 +132,7 @@ class RosBus:
 
     def sync_write(self, goals_rad) -> float:
         msg = self._JointState()
-        if self.lockstep:             # the master's time, not the (lagging) /clock
-            msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_parts(self.now())
-        else:
-            msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_parts(self.now())     # the master's time base
         msg.name = list(goals_rad)
         msg.position = [float(v) for v in goals_rad.values()]
         self._publish(msg)
@@ -110,7 +143,8 @@ class RosBus:
         """Lock-step: an empty command makes the bus master run one more read cycle; returns once
         that cycle's reads have all arrived."""
         msg = self._JointState()
-        msg.header.stamp = self.node.get_clock().now().to_msg()
+        t = 0.0 if self._newest is None else self._newest + self.t_com_s
+        msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_parts(t)
         self._publish(msg)
         with self._cv:
             self._settle()
@@ -135,7 +169,7 @@ class RosBus:
             self._call_set_schedule(joints)
         else:
             m = self._ReadSchedule()
-            m.header.stamp = self.node.get_clock().now().to_msg()
+            m.header.stamp.sec, m.header.stamp.nanosec = stamp_parts(self.time_hint() or 0.0)
             m.joint_names = list(joints)
             self._sched_pub.publish(m)
         self._schedule = joints
@@ -179,6 +213,10 @@ class RosBus:
                                    f'(is the driver or sim running and reading it?)')
                 if not self.lockstep:
                     self._cv.wait(timeout=0.005)
+                    continue
+                if self._newest is None:
+                    self._cv.wait_for(lambda: self._newest is not None or self.stopped.is_set(),
+                                      timeout=self.read_timeout_s)
                     continue
             self._advance()
 

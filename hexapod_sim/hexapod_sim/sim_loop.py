@@ -151,10 +151,25 @@ class SimBusLoop:
                 break
             joint = self.schedule[self._pos]
             self._pos = (self._pos + 1) % len(self.schedule)
-            theta, t = self.sim.read_position(joint)
-            out.append(JointSample(joint, theta, t))
+            self._read(joint, out)
             reads += 1
-            self._periodic(out)
+        return self._finish(out)
+
+    def read(self, joint: str) -> list:
+        """One read of ``joint`` now, outside the schedule (a controller that owns the bus); returns
+        the outputs due, sorted by stamp, the :class:`JointSample` among them."""
+        if joint not in ALL_JOINTS:
+            raise SimError(f'unknown joint {joint!r}; joints are leg<1..6>_<coxa|femur|tibia>')
+        out: list = []
+        self._read(joint, out)
+        return self._finish(out)
+
+    def _read(self, joint: str, out: list) -> None:
+        theta, t = self.sim.read_position(joint)
+        out.append(JointSample(joint, theta, t))
+        self._periodic(out)
+
+    def _finish(self, out: list) -> list:
         out.extend(self.sim.pop_imu_samples(IMU_MIN_BATCH))
         out.sort(key=_stamp_of)
         return out

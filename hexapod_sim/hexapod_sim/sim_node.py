@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import math
 import sys
-import time
+import threading
 
 import rclpy
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, Twist
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
@@ -42,6 +43,7 @@ from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
 from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus
 from hexapod_msgs.srv import SetReadSchedule
 
+from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from .recorder import Recorder, resolve_bag_dir
 from .sim import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoState, SimError
 from .sim_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
@@ -51,6 +53,7 @@ from .terrain import TERRAINS
 TIMER_PERIOD_S = 0.002        # wall period of the stepping timer
 MAX_READS_PER_TICK = 200      # bound one callback so subscriptions/services stay responsive
 MAX_LAG_S = 0.5               # behind the real-time target by more than this: re-anchor, warn
+QOS_DEPTH = 1000              # one message per read: deep queues so a loaded subscriber loses nothing
 
 
 def stamp(t_s: float) -> Time:
@@ -122,17 +125,20 @@ class SimNode(Node):
                                    truth_period_s=period('truth_rate_hz'), clock_period_s=period('clock_rate_hz'))
         except (SimError, ValueError) as exc:
             raise SystemExit(f'sim_node: {exc}') from None
-        self.rtf = float(g('real_time_factor'))
-        if not math.isfinite(self.rtf) or self.rtf < 0:
-            raise SystemExit(f'sim_node: real_time_factor must be >= 0, got {self.rtf}')
+        try:
+            self.pacer = Pacer(float(g('real_time_factor')), self.sim.now, max_lag_s=MAX_LAG_S)
+        except SimError as exc:
+            raise SystemExit(f'sim_node: {exc}') from None
         self.lockstep = bool(g('lockstep'))
+        self._lock = threading.RLock()      # the sim, its loop and the bag: executor vs in-process controller
+        self._local: LocalSimBus | None = None
         self.recorder = None
         if g('record'):
             path = resolve_bag_dir(g('record'))
             self.recorder = Recorder(path)
             self.get_logger().info(f'recording to {path}')
 
-        qos = QoSProfile(depth=1000)
+        qos = QoSProfile(depth=QOS_DEPTH)
         self.pub = {
             contract.JOINT_STATES: self.create_publisher(JointState, contract.JOINT_STATES, qos),
             contract.SERVO_DIAGNOSTICS: self.create_publisher(ServoDiagnostics, contract.SERVO_DIAGNOSTICS, 10),
@@ -143,8 +149,8 @@ class SimNode(Node):
             contract.SIM_TRUTH_CONTACTS: self.create_publisher(Float64MultiArray, contract.SIM_TRUTH_CONTACTS, 100),
             contract.SIM_TRUTH_POSE: self.create_publisher(PoseStamped, contract.SIM_TRUTH_POSE, 100),
         }
-        self.create_subscription(JointState, contract.JOINT_COMMANDS, self._on_command, qos)
-        self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self._on_schedule, 10)
+        self._cmd_sub = self.create_subscription(JointState, contract.JOINT_COMMANDS, self._on_command, qos)
+        self._sched_sub = self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self._on_schedule, 10)
         self.create_service(SetReadSchedule, contract.SET_READ_SCHEDULE, self._on_set_schedule)
         if self.recorder is not None:     # record the controller's topics too
             self.create_subscription(LegGroundDetection, contract.GROUND_DETECTION,
@@ -152,12 +158,38 @@ class SimNode(Node):
             self.create_subscription(Twist, contract.CMD_VEL,
                                      lambda m: self._record(contract.CMD_VEL, m, self.sim.now()), 10)
         self.create_service(Trigger, contract.EMERGENCY_STOP, self._on_estop)
-        self._anchor = (time.monotonic(), self.sim.now())
         self.create_timer(TIMER_PERIOD_S, self._on_timer)
         self.get_logger().info(
             f'sim ready: terrain={g("terrain")} seed={g("seed")} t_com={self.sim.t_com_s * 1e3:g} ms '
-            f'{"lockstep" if self.lockstep else f"real_time_factor={self.rtf:g}"} '
+            f'{"lockstep" if self.lockstep else f"real_time_factor={self.pacer.rtf:g}"} '
             f'effects={len(robot.effects)}')
+
+    # ------------------------------------------------------------------ in-process controller
+    def local_bus(self) -> LocalSimBus:
+        """The bus for a controller composed into this process (``hexapod_locomotion robot``).
+
+        The controller then owns the bus as it would on the robot: it reads and writes in its own
+        thread at Algorithm 1's cadence, and this node publishes and records every transaction
+        (``/joint_commands`` included) instead of taking commands or schedules from the graph.
+        """
+        if self.lockstep:
+            raise SimError('lockstep:=true and an in-process controller exclude each other '
+                           '(lock-step is for a controller in another process; in-process, use real_time_factor:=0)')
+        if self._local is None:
+            self.destroy_subscription(self._cmd_sub)
+            self.destroy_subscription(self._sched_sub)
+            self.pub[contract.JOINT_COMMANDS] = self.create_publisher(
+                JointState, contract.JOINT_COMMANDS, QoSProfile(depth=QOS_DEPTH))
+            self._local = LocalSimBus(self.loop, self._emit, self.pacer, self._lock, on_lag=self._warn_lag)
+        return self._local
+
+    def _emit(self, events) -> None:
+        for ev in events:
+            self._publish(ev)
+
+    def _warn_lag(self, behind_s: float) -> None:
+        self.get_logger().warn(f'cannot keep real_time_factor={self.pacer.rtf:g} ({behind_s:.2f} s behind): '
+                               'running as fast as possible', throttle_duration_sec=10.0)
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -167,12 +199,15 @@ class SimNode(Node):
                 if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                     return SetParametersResult(
                         successful=False, reason=f'real_time_factor must be >= 0 (0 = as fast as possible), got {v!r}')
-                self.rtf = float(v)
-                self._anchor = (time.monotonic(), self.sim.now())
+                self.pacer.reanchor(float(v))
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ inputs
     def _on_command(self, msg: JointState) -> None:
+        with self._lock:
+            self._command(msg)
+
+    def _command(self, msg: JointState) -> None:
         self._record(contract.JOINT_COMMANDS, msg, self.sim.now())
         if len(msg.name) != len(msg.position):
             self.get_logger().error(f'/joint_commands ignored: {len(msg.name)} names but {len(msg.position)} positions')
@@ -189,6 +224,10 @@ class SimNode(Node):
         self._apply_schedule(msg, '/read_schedule')
 
     def _on_set_schedule(self, request, response):
+        if self._local is not None:
+            response.success = False
+            response.message = 'the read schedule belongs to the controller running in this process'
+            return response
         msg = ReadSchedule(joint_names=list(request.joint_names))
         msg.header.stamp = stamp(self.sim.now())
         response.success, response.message = self._apply_schedule(msg, contract.SET_READ_SCHEDULE)
@@ -196,16 +235,18 @@ class SimNode(Node):
 
     def _apply_schedule(self, msg: ReadSchedule, via: str) -> tuple[bool, str]:
         """Set the read schedule; the bag records it as a /read_schedule message either way."""
-        self._record(contract.READ_SCHEDULE, msg, self.sim.now())
-        try:
-            self.loop.set_schedule(list(msg.joint_names))
-        except SimError as exc:
-            self.get_logger().error(f'{via} ignored: {exc}')
-            return False, str(exc)
-        return True, 'reading ' + ', '.join(self.loop.schedule)
+        with self._lock:
+            self._record(contract.READ_SCHEDULE, msg, self.sim.now())
+            try:
+                self.loop.set_schedule(list(msg.joint_names))
+            except SimError as exc:
+                self.get_logger().error(f'{via} ignored: {exc}')
+                return False, str(exc)
+            return True, 'reading ' + ', '.join(self.loop.schedule)
 
     def _on_estop(self, request, response):
-        self.sim.emergency_stop()
+        with self._lock:
+            self.sim.emergency_stop()
         self.get_logger().warn('emergency stop: torque off on every servo')
         response.success = True
         response.message = f'torque off on all {len(ALL_JOINTS)} servos at t={self.sim.now():.3f} s (sim time)'
@@ -215,23 +256,21 @@ class SimNode(Node):
     def _on_timer(self) -> None:
         if self.lockstep:
             return                      # the simulation advances in _on_command only
-        if self.rtf > 0:
-            wall0, sim0 = self._anchor
-            target = sim0 + self.rtf * (time.monotonic() - wall0)
-            if target - self.sim.now() > MAX_LAG_S:
-                self.get_logger().warn(f'cannot keep real_time_factor={self.rtf:g}: running as fast as possible',
-                                       throttle_duration_sec=10.0)
-                self._anchor = (time.monotonic(), self.sim.now())
-            events = self.loop.run(until_s=target, max_reads=MAX_READS_PER_TICK)
-        else:
-            events = self.loop.run(max_reads=MAX_READS_PER_TICK)
-        for ev in events:
-            self._publish(ev)
+        if self._local is not None and self._local.busy():
+            return                      # the in-process controller drives the bus (and its pacing)
+        with self._lock:
+            target = self.pacer.target()
+            if target is not None and target - self.sim.now() > MAX_LAG_S:
+                self._warn_lag(target - self.sim.now())
+                self.pacer.reanchor()
+                target = self.pacer.target()
+            self._emit(self.loop.run(until_s=target, max_reads=MAX_READS_PER_TICK))
 
     # ------------------------------------------------------------------ outputs
     def _record(self, topic: str, msg, t_s: float) -> None:
-        if self.recorder is not None:
-            self.recorder.write(topic, contract.MSG_TYPES.get(topic) or _type_name(msg), msg, t_s)
+        with self._lock:
+            if self.recorder is not None:
+                self.recorder.write(topic, contract.MSG_TYPES.get(topic) or _type_name(msg), msg, t_s)
 
     def _send(self, topic: str, msg, t_s: float) -> None:
         self.pub[topic].publish(msg)
@@ -244,6 +283,16 @@ class SimNode(Node):
             m.name = [ev.joint]
             m.position = [ev.theta_rad]
             self._send(contract.JOINT_STATES, m, ev.t_s + self.sim.t_com_s)
+        elif isinstance(ev, CommandSample):
+            m = JointState()
+            m.header.stamp = stamp(ev.t_s)
+            m.name = list(ev.goals_rad)
+            m.position = [float(v) for v in ev.goals_rad.values()]
+            self._send(contract.JOINT_COMMANDS, m, ev.t_s)
+        elif isinstance(ev, ScheduleSample):
+            m = ReadSchedule(joint_names=list(ev.joint_names))
+            m.header.stamp = stamp(ev.t_s)
+            self._record(contract.READ_SCHEDULE, m, ev.t_s)
         elif isinstance(ev, ClockTick):
             self._send(contract.CLOCK, Clock(clock=stamp(ev.t_s)), ev.t_s)
         elif isinstance(ev, ImuSample):
@@ -306,8 +355,11 @@ class SimNode(Node):
 
     def close(self) -> None:
         """Finalise the bag (safe to call twice, also after the ROS context was shut down)."""
+        if self._local is not None:
+            self._local.stopped.set()
         if self.recorder is not None:
-            self.recorder.close()
+            with self._lock:
+                self.recorder.close()
             text = f'bag closed: {self.recorder.path} ({self.recorder.count} messages)'
             if self.context.ok():
                 self.get_logger().info(text)
@@ -340,6 +392,9 @@ def main(args=None) -> None:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:
+        if rclpy.ok():          # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
+            raise
     finally:
         if node is not None:
             node.close()

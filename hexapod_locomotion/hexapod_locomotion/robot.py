@@ -1,0 +1,100 @@
+"""robot: the hexapod's nodes composed in one process, the controller owning the bus (real time).
+
+``ros2 run hexapod_locomotion robot`` starts, in one process and one executor,
+
+* the bus master: ``sim_node`` (``hardware:=sim``, the default: the MuJoCo hexapod) or
+  ``driver_node`` (``hardware:=dynamixel``: the AX-12A bus on a serial port),
+* ``model_node`` (the ``/predict_swing_down`` service),
+* ``locomotion_node``, whose controller calls the bus master's bus directly: Algorithm 1 reads the
+  femurs, decides and writes at t_con = L x T_com, as on the paper's robot, where over DDS between
+  processes it cannot (docs/architecture.md).
+
+Every node keeps its name, parameters and topics, so the graph looks as if they ran apart:
+``/joint_states`` per read, ``/joint_commands`` per write, diagnostics, ``/ground_detection``,
+``/cmd_vel`` in. Parameters given with ``-p`` go to every node that declares them
+(``robot_description``/``robot_overlays`` are shared on purpose); a ``--params-file`` can address
+each node by name.
+"""
+from __future__ import annotations
+
+import sys
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+
+from hexapod_model.description import DescriptionError
+
+from .controller import LocomotionError
+from .detector import DetectorError
+from .gait import GaitError
+
+HARDWARE = ('sim', 'dynamixel')
+
+
+def _hardware(context) -> str:
+    """The ``hardware`` parameter, read by a short-lived node before the bus master is chosen."""
+    from rclpy.node import Node
+    probe = Node('robot', context=context)
+    try:
+        probe.declare_parameter('hardware', 'sim', ParameterDescriptor(
+            description=f'bus master composed with the controller: {" | ".join(HARDWARE)}', read_only=True))
+        return probe.get_parameter('hardware').value
+    finally:
+        probe.destroy_node()
+
+
+def _bus_master(hardware: str):
+    """(node, its bus for the controller, cleanup)."""
+    if hardware == 'sim':
+        from hexapod_sim.sim_node import SimNode
+        node = SimNode()
+        return node, node.local_bus(), node.close
+    from hexapod_driver.driver_node import DriverNode
+    node = DriverNode()
+    return node, node.local_bus(), node.close
+
+
+def main(args=None) -> None:
+    from hexapod_model.model_node import ModelNode
+    from hexapod_sim.sim import SimError
+
+    from .locomotion_node import LocomotionNode, spin_while_walking
+    rclpy.init(args=args)
+    nodes, cleanups, loco = [], [], None
+    try:
+        hardware = _hardware(rclpy.get_default_context())
+        if hardware not in HARDWARE:
+            raise SystemExit(f'robot: parameter hardware must be one of {", ".join(HARDWARE)}, got {hardware!r}')
+        master, bus, cleanup = _bus_master(hardware)
+        nodes.append(master)
+        cleanups.append(cleanup)
+        nodes.append(ModelNode())
+        loco = LocomotionNode(bus=bus)
+        nodes.append(loco)
+        ex = MultiThreadedExecutor(num_threads=2)
+        for n in nodes:
+            ex.add_node(n)
+        spin_while_walking(ex, loco)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RCLError:
+        if rclpy.ok():        # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
+            raise
+    except (DescriptionError, GaitError, DetectorError, LocomotionError, SimError) as exc:
+        print(f'robot: {exc}', file=sys.stderr)
+        raise SystemExit(2)
+    finally:
+        if loco is not None:            # the controller first: it stops using the bus
+            loco.destroy_node()
+        for c in cleanups:
+            c()
+        for n in nodes:
+            if n is not loco:
+                n.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
