@@ -1,0 +1,149 @@
+"""The ROS graph as users run it, driven by /cmd_vel: lock-stepped over DDS (deterministic), in real
+time with default parameters over DDS (the clocks agree), and composed in one process
+(``hexapod_locomotion robot``, the real-time route). Judged on simulated time and message
+contents; wall-clock limits are only failure bounds."""
+import math
+import os
+import signal
+import subprocess
+import threading
+import time
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+
+def _exe(pkg, name):
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix(pkg), 'lib', pkg, name)
+
+
+def _start(pkg, exe, *params):
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    args = [_exe(pkg, exe), '--ros-args'] + [a for p in params for a in ('-p', p)]
+    return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+class Probe:
+    """Publishes /cmd_vel at 10 Hz and collects body pose, swing-down starts and detector reads."""
+
+    def __init__(self, vx=0.05, wz=0.0):
+        from geometry_msgs.msg import PoseStamped, Twist
+        from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
+        from rclpy.executors import SingleThreadedExecutor
+        self.ctx = rclpy.context.Context()
+        rclpy.init(context=self.ctx)
+        self.node = rclpy.create_node('graph_probe', context=self.ctx)
+        self.pose, self.swings, self.reads = [], [], []
+        self.node.create_subscription(PoseStamped, '/sim/body_pose', self._on_pose, 100)
+        self.node.create_subscription(SwingDownStart, '/swing_down', self.swings.append, 100)
+        self.node.create_subscription(LegGroundDetection, '/ground_detection', self.reads.append, 1000)
+        pub = self.node.create_publisher(Twist, '/cmd_vel', 10)
+        self.twist = Twist()
+        self.twist.linear.x, self.twist.angular.z = vx, wz
+        self.node.create_timer(0.1, lambda: pub.publish(self.twist))
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        threading.Thread(target=self.ex.spin, daemon=True).start()
+
+    def _on_pose(self, m):
+        q = m.pose.orientation
+        yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+        self.pose.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.pose.position.x, yaw))
+
+    def wait(self, done, procs, limit_s=240):
+        deadline = time.monotonic() + limit_s
+        while time.monotonic() < deadline and not done(self):
+            for p in procs:
+                assert p.poll() is None, p.communicate()[0][-3000:]
+            time.sleep(0.25)
+
+    def close(self):
+        self.ex.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+def _stop(procs, sig=signal.SIGINT):
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(sig)
+    outs = []
+    for p in procs:
+        try:
+            outs.append(p.communicate(timeout=30)[0])
+        except subprocess.TimeoutExpired:
+            p.kill()
+            outs.append(p.communicate()[0] + '\n<killed: did not stop within 30 s>')
+    return outs
+
+
+def _walked(probe):
+    return probe.pose[-1][1] - probe.pose[0][1] if len(probe.pose) > 1 else 0.0
+
+
+def _turned(probe):
+    return probe.pose[-1][2] - probe.pose[0][2] if len(probe.pose) > 1 else 0.0
+
+
+def test_lockstep_graph_walks_and_turns_by_cmd_vel():
+    """Lock-step sim_node + locomotion_node, driven only by /cmd_vel (no default_vx): no deadlock
+    between the /cmd_vel callback and the reads it must not wait for; walks > 5 cm and turns."""
+    procs = [_start('hexapod_sim', 'sim_node', 'terrain:=flat', 'lockstep:=true')]
+    procs.append(_start('hexapod_locomotion', 'locomotion_node', 'use_sim_time:=true', 'lockstep:=true',
+                        't_des_s:=0.5'))
+    probe = Probe(vx=0.05, wz=0.15)
+    try:
+        probe.wait(lambda p: _walked(p) > 0.06 and abs(_turned(p)) > 0.05, procs)
+    finally:
+        outs = _stop(procs)
+        probe.close()
+    assert _walked(probe) > 0.05, (probe.pose[:1], probe.pose[-1:], outs[1][-3000:])
+    assert _turned(probe) > 0.05, (probe.pose[:1], probe.pose[-1:], outs[1][-3000:])   # wz > 0: to the left
+    assert [p.returncode for p in procs] == [0, 0], outs
+    assert 'Traceback' not in ''.join(outs), outs
+
+
+def test_realtime_graph_with_default_parameters_accepts_the_sim_reads():
+    """Two processes in real time, every parameter at its default (the sim stamps in sim time, the
+    controller runs without use_sim_time): the controller accepts the reads, finds ground and walks."""
+    procs = [_start('hexapod_sim', 'sim_node', 'terrain:=flat'), _start('hexapod_locomotion', 'locomotion_node')]
+    probe = Probe(vx=0.05)
+    try:
+        probe.wait(lambda p: len(p.swings) >= 3 and any(r.stopped and r.stop_reason == 1 for r in p.reads), procs)
+    finally:
+        outs = _stop(procs)
+        probe.close()
+    assert 'locomotion stopped' not in outs[1], outs[1][-3000:]
+    assert len(probe.swings) >= 3, outs[1][-3000:]
+    sim_t = [p[0] for p in probe.pose]
+    stamps = [r.header.stamp.sec + r.header.stamp.nanosec * 1e-9 for r in probe.reads]
+    assert stamps and min(sim_t) - 1 <= min(stamps) and max(stamps) <= max(sim_t) + 1   # on the sim's clock
+    assert any(r.stopped and r.stop_reason == 1 for r in probe.reads), outs[1][-3000:]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    assert 'Traceback' not in ''.join(outs), outs
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_composed_robot_walks_in_real_time_and_stops_cleanly(sig):
+    """``hexapod_locomotion robot`` (sim + model + locomotion in one process, defaults, real time):
+    walks by /cmd_vel at Algorithm 1's cadence in simulated time and ends with rc 0, no traceback."""
+    procs = [_start('hexapod_locomotion', 'robot', 'terrain:=flat')]
+    probe = Probe(vx=0.05)
+    try:
+        probe.wait(lambda p: _walked(p) > 0.06 and len(p.swings) >= 4, procs)
+    finally:
+        outs = _stop(procs, sig)
+        probe.close()
+    assert _walked(probe) > 0.05, outs[0][-3000:]
+    # the reads of one leg within one swing-down come every t_con = 3 T_com (tripod) or later
+    by_swing = {}
+    for r in probe.reads:
+        by_swing.setdefault((r.swing_start.sec, r.swing_start.nanosec, r.leg), []).append(
+            r.header.stamp.sec + r.header.stamp.nanosec * 1e-9)
+    gaps = sorted(b - a for v in by_swing.values() for a, b in zip(sorted(v), sorted(v)[1:]))
+    assert gaps and gaps[0] > 0.003 - 1e-6, gaps[:5]
+    assert procs[0].returncode == 0, outs
+    assert 'Traceback' not in outs[0], outs[0][-3000:]
+    assert 'serving /predict_swing_down' in outs[0]            # the model node is part of the graph
