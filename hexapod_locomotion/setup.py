@@ -22,6 +22,7 @@ setup(
         'console_scripts': [
             'locomotion_node = hexapod_locomotion.locomotion_node:main',
             'robot = hexapod_locomotion.robot:main',
+            'bench_graph = hexapod_locomotion.bench_graph:main',
             'demo = hexapod_locomotion.demo:main',
             'experiment = hexapod_locomotion.experiments:main',
             'analyse = hexapod_locomotion.analyse:main',

@@ -166,6 +166,9 @@ class LocomotionNode(Node):
 
     def _run(self) -> None:
         try:
+            wait = getattr(self.bus, 'wait_for_master', None)
+            if wait is not None:
+                wait(self.get_logger().info)
             self.bus.set_schedule(ALL_JOINTS)
             self.bus.wait_until(self.bus.now() + 0.5)
             self.controller.startup(self.bus)

@@ -112,6 +112,25 @@ class RosBus:
         with self._cv:
             return None if self._newest is None else self._time_hint()
 
+    def wait_for_master(self, log) -> None:
+        """Block until a bus master is up: its schedule service answers, and in lock-step it also
+        listens to our commands; otherwise its first read arrived. ``log(text)`` every 5 s meanwhile
+        (a node started before the driver or sim node waits for it, as ROS clients wait for services)."""
+        waited = 0.0
+        while not self.stopped.is_set():
+            if self.lockstep:
+                if self._sched_cli.wait_for_service(timeout_sec=1.0) and self._cmd_pub.get_subscription_count():
+                    return
+            else:
+                with self._cv:
+                    if self._cv.wait_for(lambda: self._newest is not None or self.stopped.is_set(), timeout=1.0):
+                        return
+            waited += 1.0
+            if waited % 5 == 0:
+                log(f'waiting for a bus master ({JOINT_STATES}, {SET_READ_SCHEDULE}): start the driver or sim node '
+                    f'({waited:.0f} s)')
+        raise BusError('locomotion stopped')
+
     # -- lock-step bookkeeping (called with _cv held)
     def _settle(self) -> None:
         """Wait until every read owed for the commands sent so far has arrived."""

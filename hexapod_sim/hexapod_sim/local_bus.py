@@ -30,7 +30,6 @@ from .sim import SimError
 from .sim_loop import JointSample, SimBusLoop
 
 IDLE_CHUNK_S = 0.002          # background reads are run in slices this long (sim time), lock released between
-BUSY_WINDOW_S = 0.1           # a controller that called the bus within this wall time owns it
 
 
 @dataclass(frozen=True)
@@ -91,19 +90,15 @@ class LocalSimBus:
         self.sleep = sleep
         self.on_lag = on_lag
         self.stopped = threading.Event()
-        self._last_call = -math.inf
-
-    # -- ownership: the sim node steps the bus itself only while no controller is calling it
-    def busy(self) -> bool:
-        return self.pacer.clock() - self._last_call < BUSY_WINDOW_S
+        self._started = False
 
     def _enter(self) -> None:
         """Before a transaction: wait for the wall clock if early; if late, let the bus idle to now."""
         if self.stopped.is_set():
             raise BusError('locomotion stopped')
-        if self._last_call == -math.inf:
+        if not self._started:
+            self._started = True
             self.pacer.reanchor()           # time spent starting the process is not the bus's
-        self._last_call = self.pacer.clock()
         wait = self.pacer.wall_wait_s(self.sim.now())
         if wait > 0:
             self.sleep(wait)

@@ -17,7 +17,7 @@ command published later (two topics are not ordered), and that command's cycle w
 the old schedule.
 
 ``record``: '' (off), 'auto' (``bags/sim_<UTC time>``), a name (``bags/<name>``) or a path: every
-topic above plus ``/ground_detection`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag.
+topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag.
 """
 from __future__ import annotations
 
@@ -40,7 +40,8 @@ from std_srvs.srv import Trigger
 
 from hexapod_model import contract
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
-from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus
+from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus,
+                              SwingDownStart)
 from hexapod_msgs.srv import SetReadSchedule
 
 from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
@@ -154,11 +155,13 @@ class SimNode(Node):
         self.create_service(SetReadSchedule, contract.SET_READ_SCHEDULE, self._on_set_schedule)
         if self.recorder is not None:     # record the controller's topics too
             self.create_subscription(LegGroundDetection, contract.GROUND_DETECTION,
-                                     lambda m: self._record(contract.GROUND_DETECTION, m, self.sim.now()), 100)
+                                     lambda m: self._record(contract.GROUND_DETECTION, m, self.sim.now()), QOS_DEPTH)
+            self.create_subscription(SwingDownStart, contract.SWING_DOWN,
+                                     lambda m: self._record(contract.SWING_DOWN, m, self.sim.now()), 100)
             self.create_subscription(Twist, contract.CMD_VEL,
                                      lambda m: self._record(contract.CMD_VEL, m, self.sim.now()), 10)
         self.create_service(Trigger, contract.EMERGENCY_STOP, self._on_estop)
-        self.create_timer(TIMER_PERIOD_S, self._on_timer)
+        self._timer = self.create_timer(TIMER_PERIOD_S, self._on_timer)
         self.get_logger().info(
             f'sim ready: terrain={g("terrain")} seed={g("seed")} t_com={self.sim.t_com_s * 1e3:g} ms '
             f'{"lockstep" if self.lockstep else f"real_time_factor={self.pacer.rtf:g}"} '
@@ -176,6 +179,9 @@ class SimNode(Node):
             raise SimError('lockstep:=true and an in-process controller exclude each other '
                            '(lock-step is for a controller in another process; in-process, use real_time_factor:=0)')
         if self._local is None:
+            # the controller's thread steps the bus from now on (background reads included): a 2 ms
+            # timer would only take the interpreter from it
+            self.destroy_timer(self._timer)
             self.destroy_subscription(self._cmd_sub)
             self.destroy_subscription(self._sched_sub)
             self.pub[contract.JOINT_COMMANDS] = self.create_publisher(
@@ -256,8 +262,6 @@ class SimNode(Node):
     def _on_timer(self) -> None:
         if self.lockstep:
             return                      # the simulation advances in _on_command only
-        if self._local is not None and self._local.busy():
-            return                      # the in-process controller drives the bus (and its pacing)
         with self._lock:
             target = self.pacer.target()
             if target is not None and target - self.sim.now() > MAX_LAG_S:

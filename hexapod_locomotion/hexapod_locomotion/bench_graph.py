@@ -1,0 +1,251 @@
+"""bench_graph: the ROS graph walking the mockup in real time, driven by /cmd_vel, against the
+in-process run of the same seed. A benchmark that prints figures, not a test.
+
+Routes (``--route``):
+  composed  ``hexapod_locomotion robot``: sim + model + locomotion nodes in one process, the
+            controller owning the bus (the real-time route)
+  dds       ``sim_node`` and ``locomotion_node`` as two processes, every parameter at its default,
+            the reads and commands over DDS
+
+Each route runs ``--seconds`` of wall time from the first swing-down, the sim publishing its truth
+topics at ``--truth-rate`` (1 kHz: true contact times to the millisecond); nothing is recorded.
+From what this process receives: distance walked
+per minute of wall time and of simulated time, the swing-down read cadence t_con (stamp gaps
+between consecutive reads of one femur within one swing-down, as the controller consumed them,
+against L x T_com), the detection delay after the first true contact, and the CPU each process
+used. The in-process reference is ``run_trial`` for the same simulated time (what ``./hexapod demo``
+runs). DDS stays on loopback in its own ROS_DOMAIN_ID.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import numpy as np
+
+ROUTES = ('composed', 'dds')
+
+
+def _exe(pkg: str, name: str) -> str:
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix(pkg), 'lib', pkg, name)
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process (Linux /proc)."""
+    with open(f'/proc/{pid}/stat') as f:
+        fields = f.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def _processes(route: str, args) -> list[tuple[str, list[str]]]:
+    sim_params = [f'terrain:={args.terrain}', f'seed:={args.seed}', f'truth_rate_hz:={args.truth_rate}']
+    loco_params = [f'gait:={args.gait}']
+    p = lambda params: [a for x in params for a in ('-p', x)]  # noqa: E731
+    if route == 'composed':
+        return [('robot (sim+model+locomotion)', [_exe('hexapod_locomotion', 'robot'), '--ros-args',
+                                                  *p(sim_params + loco_params)])]
+    return [('sim_node', [_exe('hexapod_sim', 'sim_node'), '--ros-args', *p(sim_params)]),
+            ('locomotion_node', [_exe('hexapod_locomotion', 'locomotion_node'), '--ros-args', *p(loco_params)])]
+
+
+class _Probe:
+    """Collects what the figures need, in this process (the graph under test records nothing)."""
+
+    def __init__(self, node):
+        from geometry_msgs.msg import PoseStamped
+        from hexapod_model.contract import GROUND_DETECTION, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN
+        from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
+        from std_msgs.msg import Float64MultiArray
+        self.pose, self.contacts, self.reads, self.swings = [], [], {}, []
+        self.first_swing = threading.Event()
+        node.create_subscription(PoseStamped, SIM_TRUTH_POSE, self._pose, 1000)
+        node.create_subscription(Float64MultiArray, SIM_TRUTH_CONTACTS, self._contacts, 1000)
+        node.create_subscription(LegGroundDetection, GROUND_DETECTION, self._read, 1000)
+        node.create_subscription(SwingDownStart, SWING_DOWN, self._swing, 100)
+        self.measuring = False
+
+    def _swing(self, m):
+        self.first_swing.set()
+        if self.measuring:
+            self.swings.append(_t(m.header.stamp))
+
+    def _pose(self, m):
+        if self.measuring:
+            self.pose.append((_t(m.header.stamp), m.pose.position.x))
+
+    def _contacts(self, m):
+        # the truth topic has no header: the sim publishes it with the pose, same stamp
+        if self.measuring and self.pose:
+            self.contacts.append((self.pose[-1][0], [bool(c) for c in m.data[:6]]))
+
+    def _read(self, m):
+        if self.measuring:
+            self.reads.setdefault((round(_t(m.swing_start), 6), m.leg), []).append(
+                (_t(m.header.stamp), bool(m.stopped), int(m.stop_reason)))
+
+
+def _t(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def run_route(route: str, args, workdir: str) -> dict:
+    import rclpy
+    from geometry_msgs.msg import Twist
+    from rclpy.executors import SingleThreadedExecutor
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(args.domain_id),
+               PYTHONUNBUFFERED='1')
+    logs = [open(os.path.join(workdir, f'{route}_{i}.log'), 'w+') for i in range(2)]
+    procs = [(name, subprocess.Popen(cmd, env=env, stdout=logs[i], stderr=subprocess.STDOUT))
+             for i, (name, cmd) in enumerate(_processes(route, args))]
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx, domain_id=args.domain_id)
+    node = rclpy.create_node('bench_graph', context=ctx)
+    probe = _Probe(node)
+    pub = node.create_publisher(Twist, '/cmd_vel', 10)
+    tw = Twist()
+    tw.linear.x = args.vx
+    node.create_timer(0.1, lambda: pub.publish(tw))
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    threading.Thread(target=ex.spin, daemon=True).start()
+    try:
+        if not probe.first_swing.wait(120):
+            raise RuntimeError(f'{route}: no swing-down within 120 s; logs in {workdir}')
+        cpu0 = {name: _cpu_s(p.pid) for name, p in procs}
+        probe.measuring = True
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < args.seconds:
+            for name, p in procs:
+                if p.poll() is not None:
+                    raise RuntimeError(f'{route}: {name} ended with rc {p.returncode}; logs in {workdir}')
+            time.sleep(0.5)
+        probe.measuring = False
+        wall = time.monotonic() - t0
+        cpu = {name: (_cpu_s(p.pid) - cpu0[name]) / wall for name, p in procs}
+    finally:
+        for _, p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        for _, p in procs:
+            try:
+                p.wait(30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    out = figures(probe, args.gait)
+    out.update(route=route, wall_s=wall, cpu=cpu)
+    return out
+
+
+def figures(probe: _Probe, gait: str) -> dict:
+    """Distance, t_con and detection delay from what the probe saw."""
+    from hexapod_model.description import load_robot
+    from .gait import get_gait
+    t_com = load_robot().bus.t_com_s
+    L = len(get_gait(gait).swing_legs(0))
+    gaps, delays = [], []
+    c_t = np.array([c[0] for c in probe.contacts])
+    c_in = np.array([c[1] for c in probe.contacts]) if probe.contacts else np.zeros((0, 6), bool)
+    for (start, leg), rs in probe.reads.items():
+        rs.sort()
+        gaps.extend(np.diff([r[0] for r in rs]))
+        stop = next((r for r in rs if r[1]), None)
+        if stop is None or stop[2] != 1 or not len(c_t):
+            continue
+        sel = (c_t >= start) & (c_t <= stop[0] + 1e-9) & c_in[:, leg - 1]
+        if np.any(sel):
+            delays.append(stop[0] - c_t[np.flatnonzero(sel)[0]])
+    pose = probe.pose
+    return {'distance_m': pose[-1][1] - pose[0][1] if len(pose) > 1 else 0.0,
+            'sim_s': pose[-1][0] - pose[0][0] if len(pose) > 1 else 0.0,
+            't_con_nominal_s': L * t_com, 'gaps_s': np.array(gaps), 'delays_s': np.array(delays),
+            'swing_downs': len(probe.swings)}
+
+
+def in_process(args, sim_s: float) -> dict:
+    from .sim_run import TrialConfig, run_trial
+    res = run_trial(TrialConfig(gait=args.gait, terrain=args.terrain, seed=args.seed, duration_s=sim_s,
+                                vx_mps=args.vx))
+    d = res.detection or {}
+    return {'distance_m': res.distance_m, 'sim_s': res.sim_time_s,
+            'delay_median_s': (d.get('delay_s') or {}).get('median', math.nan)}
+
+
+def _pct(a, q):
+    return float(np.percentile(a, q)) if len(a) else math.nan
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog='bench_graph', description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument('--route', choices=ROUTES + ('all',), default='all', help='which graph to run')
+    ap.add_argument('--seconds', type=float, default=60.0, help='wall time per route, from the first swing-down')
+    ap.add_argument('--gait', default='tripod', help='gait of the controller')
+    ap.add_argument('--terrain', default='mockup', help='terrain of the sim')
+    ap.add_argument('--seed', type=int, default=0, help='terrain seed (the in-process reference uses it too)')
+    ap.add_argument('--vx', type=float, default=0.05, help='/cmd_vel forward speed [m/s]')
+    ap.add_argument('--domain-id', type=int, default=86, help='ROS_DOMAIN_ID of the graph (loopback only)')
+    ap.add_argument('--truth-rate', type=float, default=1000.0,
+                    help='rate of the sim truth topics [Hz]: the resolution of the true contact times')
+    ap.add_argument('--keep', metavar='DIR', help='keep the node logs in DIR')
+    args = ap.parse_args(argv)
+    if not (math.isfinite(args.seconds) and args.seconds > 0):
+        ap.error(f'--seconds must be a positive number, got {args.seconds}')
+    if not math.isfinite(args.vx):
+        ap.error(f'--vx must be finite, got {args.vx}')
+    from .gait import GaitError, get_gait
+    try:
+        get_gait(args.gait)
+    except GaitError as exc:
+        ap.error(str(exc))
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    workdir = args.keep or tempfile.mkdtemp(prefix='bench_graph_')
+    os.makedirs(workdir, exist_ok=True)
+    routes = ROUTES if args.route == 'all' else (args.route,)
+    print(f'bench_graph: {args.gait} on {args.terrain} (seed {args.seed}), /cmd_vel x = {args.vx} m/s, '
+          f'{args.seconds:g} s of wall time per route, {os.cpu_count()} CPU(s), ROS_DOMAIN_ID={args.domain_id}',
+          flush=True)
+    try:
+        results = []
+        for r in routes:
+            print(f'running route {r} ...', file=sys.stderr, flush=True)
+            results.append(run_route(r, args, workdir))
+        print('in-process reference (run_trial, same seed and simulated time) ...', file=sys.stderr, flush=True)
+        ref = in_process(args, max(r['sim_s'] for r in results))
+    except RuntimeError as exc:
+        print(f'bench_graph: {exc}', file=sys.stderr)
+        return 1
+    finally:
+        if not args.keep:
+            shutil.rmtree(workdir, ignore_errors=True)
+    print(f'\nin-process: {ref["distance_m"]:.3f} m in {ref["sim_s"]:.1f} s simulated '
+          f'({60 * ref["distance_m"] / ref["sim_s"]:.3f} m/min), detection delay median '
+          f'{ref["delay_median_s"] * 1e3:.0f} ms')
+    hdr = ('route', 'wall s', 'sim s', 'm/min wall', 'vs in-proc', 't_con med ms', 'p95 ms', 'L*T_com ms',
+           'delay med ms', 'vs in-proc', 'CPU per process')
+    print(' | '.join(hdr))
+    for r in results:
+        per_min = 60 * r['distance_m'] / r['wall_s']
+        ref_per_min = 60 * ref['distance_m'] / ref['sim_s']
+        dmed = float(np.median(r['delays_s'])) if len(r['delays_s']) else math.nan
+        cpu = ', '.join(f'{k} {100 * v:.0f} %' for k, v in r['cpu'].items())
+        print(' | '.join([r['route'], f'{r["wall_s"]:.0f}', f'{r["sim_s"]:.1f}', f'{per_min:.3f}',
+                          f'{per_min / ref_per_min:.0%}', f'{_pct(r["gaps_s"], 50) * 1e3:.2f}',
+                          f'{_pct(r["gaps_s"], 95) * 1e3:.2f}', f'{r["t_con_nominal_s"] * 1e3:.1f}',
+                          f'{dmed * 1e3:.0f}', f'{dmed / ref["delay_median_s"]:.2f}x', cpu]))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
