@@ -475,7 +475,7 @@ class DynamixelBus:
                                 f'{(late + wire) * 1e3:.1f} ms, wire time {wire * 1e6:.0f} us): the USB adapter\'s '
                                 f'latency timer is probably at its 16 ms default. Set the adapter\'s latency_timer to '
                                 f'1 (udev rule, see docs/real-robot.md). Until then every read waits for it: reply '
-                                f'timeout widened from latency_timer_ms={old:g} to {port.latency_timer_ms:g}')
+                                f'timeout widened from latency_timer_ms={old:g} to {port.latency_timer_ms:.1f}')
 
     def _ping(self, sid: int, rtts: list[float] | None = None) -> tuple[int | None, int, str]:
         """PING, then READ the model number: (model, result, what failed)."""
