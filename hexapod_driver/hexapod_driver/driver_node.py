@@ -348,9 +348,13 @@ def main(args=None) -> int:
     try:
         node = DriverNode()
         executor.add_node(node)
-        while node.exit_code is None:
-            executor.spin_once(timeout_sec=0.2)
-        rc = node.exit_code
+        while node.exit_code is None and node.context.ok():
+            try:
+                executor.spin_once(timeout_sec=0.2)
+            except Exception:            # noqa: BLE001 - SIGTERM/Ctrl-C invalidates the context mid-wait
+                if node.context.ok():
+                    raise
+        rc = EXIT_OK if node.exit_code is None else node.exit_code
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (BusError, ValueError) as exc:

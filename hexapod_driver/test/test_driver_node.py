@@ -458,6 +458,7 @@ def test_port_lost_then_sigterm_makes_no_false_torque_off_claim(robot, ros, tmp_
             wait_for(ex, lambda: 'reconnect failed' in out.text(), 30.0, proc, 'a failed reconnect')
             wait_for(ex, lambda: 'watchdog: no bus transaction completed' in out.text(), 30.0, proc, 'the watchdog')
             proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=30)
         finally:
             rc, text = out.finish(proc)
             inbox.close(node)
