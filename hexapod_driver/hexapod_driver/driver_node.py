@@ -249,6 +249,12 @@ class DriverNode(Node):
             self._bus_loop_crashed(traceback.format_exc())
 
     def _bus_loop_crashed(self, tb: str) -> None:
+        if self.context.ok():            # first word out before the torque-off round (which takes a while)
+            try:
+                self.pub_diag.publish(self._error_diagnostics(
+                    f'ERROR bus loop crashed, turning torque off: {tb.strip().splitlines()[-1]}'))
+            except Exception:            # noqa: BLE001 - the context may be going down meanwhile
+                pass
         ok, torque = self.core.shutdown()
         text = f'bus loop crashed; {torque}; the driver exits with code {EXIT_BUS_LOOP_CRASH}'
         if self.context.ok():
