@@ -25,8 +25,12 @@ write to the complete status packet.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import math
+import os
 import select
+import struct
+import termios
 import threading
 import time
 from collections import deque
@@ -35,7 +39,7 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 import serial
-from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
 
 from hexapod_model.bus import BusError
 from hexapod_model.description import ALL_JOINTS, BusJoint, DescriptionError, Robot, parse_joint_name
@@ -43,7 +47,7 @@ from hexapod_model.servo import servo_theta, servo_tick
 
 from . import protocol as p
 
-FAULT_POLICIES = ('hold', 'limp', 'recover')
+FAULT_POLICIES = ('limp', 'recover')
 LIMIT_POLICIES = ('clamp', 'reject')
 ALARM_BITS = p.ERR_OVERHEATING | p.ERR_OVERLOAD
 DIAG_START = 24                       # torque_enable .. moving in one READ
@@ -116,6 +120,7 @@ class DriverConfig:
     latency_timer_ms: float = 1.0                # USB adapter latency timer (udev rule sets 1 ms)
     timeout_margin_ms: float = 5.0               # added to every reply timeout (host scheduling jitter)
     startup_timeout_margin_ms: float = 50.0      # the same during verification/configuration (robustness first)
+    startup_attempts: int = 5                    # tries per transaction during start-up before giving up
     return_delay_time: int = 0                   # register 5 [x 2 us]
     compliance_margin: int | None = None         # None: robot.servo.compliance_margin_ticks
     compliance_slope: int | None = None          # None: robot.servo.compliance_slope_ticks
@@ -127,7 +132,7 @@ class DriverConfig:
     reconnect_period_s: float = 0.5              # how often a lost port is reopened
     command_timeout_s: float = 1.0               # stale-command timeout (0 disables)
     limit_policy: str = 'clamp'                  # goals outside the joint limits: clamp or reject
-    fault_policy: str = 'hold'                   # overheating/overload: hold, limp or recover
+    fault_policy: str = 'limp'                   # overheating/overload: limp or recover
     diagnostics_period_s: float = 1.0            # one diagnostics round (all servos) per period
     read_period_s: float = 0.0                   # minimum spacing of position reads (0: back to back)
 
@@ -152,6 +157,8 @@ class DriverConfig:
             bad('compliance_slope', f'must be 1..254, got {self.compliance_slope}')
         if not 1 <= self.torque_limit <= 1023:
             bad('torque_limit', f'must be 1..1023 (0 would leave the servos limp), got {self.torque_limit}')
+        if self.startup_attempts < 1:
+            bad('startup_attempts', f'must be >= 1, got {self.startup_attempts}')
         if self.read_retries < 0:
             bad('read_retries', f'must be >= 0, got {self.read_retries}')
         if self.missing_after_failures < 1:
@@ -164,6 +171,9 @@ class DriverConfig:
                 bad(name, f'must be >= 0, got {getattr(self, name)}')
         if self.limit_policy not in LIMIT_POLICIES:
             bad('limit_policy', f'must be one of {LIMIT_POLICIES}, got {self.limit_policy!r}')
+        if self.fault_policy == 'hold':
+            bad('fault_policy', "'hold' no longer exists: an AX-12A in alarm shutdown has zeroed its own torque "
+                                "limit, so nothing can hold the joint; use 'limp' or 'recover'")
         if self.fault_policy not in FAULT_POLICIES:
             bad('fault_policy', f'must be one of {FAULT_POLICIES}, got {self.fault_policy!r}')
         if self.joints is not None:
@@ -201,11 +211,12 @@ class ServoState:
     last_probe: float = -math.inf
     error_bits: int = 0
     torque_enabled: bool = False
-    torque_limit: int = 0
+    torque_limit: int | None = 0    # register 34 as last read (None: unknown)
     temperature_c: float = math.nan
     voltage_v: float = math.nan
     load_fraction: float = math.nan
     present_tick: int | None = None
+    failed_attempts: int = 0        # read attempts without a valid reply, since start-up
     faulted: int = 0                # alarm bits that triggered the fault policy (0 = no fault)
     message: str = ''
 
@@ -310,6 +321,16 @@ class DynamixelBus:
         self._next_reconnect_t = -math.inf
         self._events: deque[tuple[str, str]] = deque(maxlen=1000)
         self._last_read: tuple[float, float, int] = (math.nan, math.nan, 0)
+        self._packets: dict[tuple, bytes] = {}     # encoded READ instructions (the hot path)
+        self._rx = bytearray()                     # received, not yet consumed bytes
+        self.stale_bytes = 0                       # bytes discarded as not answering the request
+        self._startup_attempts: int | None = None  # attempts per transaction while starting up
+        self.last_ok_t = -math.inf                 # clock() of the last answered transaction (watchdog)
+        self.last_failure = ''
+        self.reply_latency_s = math.nan            # measured at start-up (median PING round trip - wire)
+        self._closed_report: tuple[bool, str] | None = None
+        self._throttle: dict[str, list] = {}       # key -> [window start, suppressed count, level, last text]
+        self.throttle_s = 5.0
 
     # ------------------------------------------------------------------ conversions
     def to_tick(self, joint: str, theta_rad: float) -> int:
@@ -365,12 +386,16 @@ class DynamixelBus:
 
     @contextlib.contextmanager
     def _startup_timeouts(self):
+        """Start-up: a longer reply timeout and ``startup_attempts`` tries per transaction."""
         port = self.port
         port.margin_ms = max(self.config.timeout_margin_ms, self.config.startup_timeout_margin_ms)
+        self._startup_attempts = self.config.startup_attempts
         try:
             yield
         finally:
-            port.margin_ms = self.config.timeout_margin_ms
+            self._startup_attempts = None
+            if self.port is not None:
+                self.port.margin_ms = self.config.timeout_margin_ms
 
     def _open(self) -> None:
         self._close_port()
@@ -395,59 +420,104 @@ class DynamixelBus:
         self.port_ok = False
 
     def verify(self) -> None:
-        """PING every joint's servo and check its model number; raise naming every bad one."""
-        missing, wrong = [], []
+        """PING every joint's servo and check its model number; raise naming every bad one.
+
+        Also measures the reply latency (median PING round trip minus its wire time); replies far
+        later than the wire time mean the USB adapter's latency timer is not 1 ms: the reply
+        timeout is widened to cover it (so no reply is declared lost and then taken for the answer
+        to a later request) and a warning says what to fix."""
+        missing, wrong, rtts = [], [], []
+        attempts = self._attempts(None)
         for j in self.joints:
             sid = self.mount[j].servo_id
-            model, result = None, None
-            for _ in range(1 + self.config.read_retries):
-                model, result = self._ping(sid)
+            model, result, why = None, None, ''
+            for _ in range(attempts):
+                model, result, why = self._ping(sid, rtts)
                 if result == COMM_SUCCESS:
                     break
             if result != COMM_SUCCESS:
-                missing.append((j, sid))
+                missing.append((j, sid, why))
             elif model != p.AX12A_MODEL_NUMBER:
                 wrong.append((j, sid, model))
         if missing or wrong:
             parts = []
-            if missing:
-                parts.append('no answer from ' + ', '.join(f'{j} (id {i})' for j, i in missing))
+            if len(missing) == len(self.joints):
+                parts.append(
+                    f'no servo answers at {self.baud_rate} baud (tried ids '
+                    f'{", ".join(str(i) for _j, i, _w in missing)}, {attempts} attempts each). Check the servo '
+                    f'power and cable; if the servos are set to another baud rate (register 4), find them with '
+                    f'`./hexapod run hexapod_driver servo_tool --device {self.config.device} --baud <rate> scan` '
+                    f'(AX-12A rates: 1000000 factory default, 500000, 400000, 250000, 200000, 117647, 57600, '
+                    f'19200, 9600) and set the driver parameter baud_rate to match')
+            elif missing:
+                parts.append('no answer from ' + ', '.join(
+                    f'{j} (id {i})' + (f' [{w}]' if w else '') for j, i, w in missing))
             if wrong:
                 parts.append('wrong model: ' + ', '.join(
                     f'{j} (id {i}) reports model number {m}, expected {p.AX12A_MODEL_NUMBER} (AX-12A)'
                     for j, i, m in wrong))
             raise ServoVerificationError(f'servo verification on {self.config.device} failed: ' + '; '.join(parts),
-                                         missing, wrong)
+                                         [(j, i) for j, i, _w in missing], wrong)
+        self._check_latency(rtts)
 
-    def _ping(self, sid: int) -> tuple[int | None, int]:
-        """PING, then READ the model number (the SDK's ping() indexes a short reply blindly)."""
+    def _check_latency(self, rtts: list[float]) -> None:
+        if not rtts:
+            return
+        wire = 12 * p.BITS_PER_BYTE / self.baud_rate            # PING: 6 bytes out, 6 back
+        late = max(0.0, float(np.median(rtts)) - wire)
+        self.reply_latency_s = late
+        if late * 1e3 > max(2.0, 2.0 * self.config.latency_timer_ms + 1.0):
+            port = self.port
+            needed_ms = late * 1e3 + 1.0
+            old = port.latency_timer_ms
+            port.latency_timer_ms = max(old, needed_ms / 2.0)       # the timeout counts it twice
+            self._event('warn', f'replies arrive ~{late * 1e3:.0f} ms late (median PING round trip '
+                                f'{(late + wire) * 1e3:.1f} ms, wire time {wire * 1e6:.0f} us): the USB adapter\'s '
+                                f'latency timer is probably at its 16 ms default. Set the adapter\'s latency_timer to '
+                                f'1 (udev rule, see docs/real-robot.md). Until then every read waits for it: reply '
+                                f'timeout widened from latency_timer_ms={old:g} to {port.latency_timer_ms:.1f}')
+
+    def _ping(self, sid: int, rtts: list[float] | None = None) -> tuple[int | None, int, str]:
+        """PING, then READ the model number: (model, result, what failed)."""
         _data, result, _err = self._transact(sid, p.PING, [], 0)
         if result != COMM_SUCCESS:
-            return None, result
+            return None, result, f'PING: {_result_text(result)}'
+        if rtts is not None:
+            rtts.append(self.clock() - self.port.last_tx_time)
         data, result, _err = self._transact(sid, p.READ, [0, 2], 2)
+        if result == COMM_RX_TIMEOUT:
+            # answers PING but not READ: status return level 0. Set it to 2 (EEPROM; the write
+            # itself is not answered at level 0) and ask again.
+            self._transact(sid, p.WRITE, [16, p.RETURN_ALL], 0, expect_reply=False)
+            self._event('warn', f'servo id {sid} answers PING but not READ (status return level 0?): '
+                                f'status return level (address 16) set to {p.RETURN_ALL}')
+            data, result, _err = self._transact(sid, p.READ, [0, 2], 2)
         if result != COMM_SUCCESS:
-            return None, result
-        return _u16(data), COMM_SUCCESS
+            return None, result, f'READ of the model number: {_result_text(result)}'
+        self.last_ok_t = self.clock()
+        return _u16(data), COMM_SUCCESS, ''
 
     def configure(self, enable_torque: bool = True) -> None:
         """Configure every servo, hold it at its present position and enable torque."""
         shutdown = ALARM_BITS
         for j in self.joints:
             sid = self.mount[j].servo_id
+            self._ensure_status_return_level(j)
             self._ensure_eeprom(j, 'return_delay_time', self.config.return_delay_time)
             self._ensure_eeprom(j, 'alarm_shutdown', shutdown)
             if self.config.write_angle_limits:
                 cw, ccw = self.angle_limits_tick(j)
                 old = self._read_raw(j, 6, 4)
                 if old is None:
-                    raise BusError(f'{j} (id {sid}): cannot read the angle limits (address 6)')
+                    raise BusError(f'{j} (id {sid}): cannot read the angle limits (address 6): {self.last_failure}')
                 if (_u16(old[:2]), _u16(old[2:])) != (cw, ccw):       # both in one write: never cw > ccw
                     self._write(j, 6, _word(cw) + _word(ccw))
             self._write(j, 26, [self.margin, self.margin, self.slope, self.slope])
             self._write(j, 34, _word(self.config.torque_limit))
             data = self._read_raw(j, 36, 2)
             if data is None:
-                raise BusError(f'{j} (id {sid}): cannot read the present position during configuration')
+                raise BusError(f'{j} (id {sid}): cannot read the present position during configuration: '
+                               f'{self.last_failure}')
             tick = _u16(data)
             lo, hi = self.angle_limits_tick(j) if self.config.write_angle_limits else (0, self.robot.servo.max_tick)
             goal = min(hi, max(lo, tick))
@@ -462,35 +532,137 @@ class DynamixelBus:
             st.responding, st.missing, st.consecutive_failures, st.faulted = True, False, 0, 0
             st.message = 'configured' if enable_torque else 'configured, torque off (emergency stop)'
 
+    def _ensure_status_return_level(self, joint: str) -> None:
+        """Status return level (address 16) = 2, so that every write is answered and confirmed.
+
+        At level 1 a servo answers only READ (and PING); at 0 only PING. The write that raises the
+        level is therefore not answered: it is sent without waiting and checked by reading back."""
+        sid = self.mount[joint].servo_id
+        data = self._read_raw(joint, 16, 1)
+        if data is None:
+            raise BusError(f'{joint} (id {sid}): cannot read the status return level (address 16): '
+                           f'{self.last_failure}')
+        if data[0] == p.RETURN_ALL:
+            return
+        for _ in range(self._attempts(None)):
+            self._transact(sid, p.WRITE, [16, p.RETURN_ALL], 0, expect_reply=False)
+            self._sleep(0.002)                       # an unanswered EEPROM write: give it time
+            back = self._read_raw(joint, 16, 1)
+            if back is not None and back[0] == p.RETURN_ALL:
+                self._event('warn', f'{joint} (id {sid}): status return level was {data[0]} '
+                                    f'({"replies to PING only" if data[0] == 0 else "replies to reads only"}); '
+                                    f'set to {p.RETURN_ALL} (EEPROM) so that every write is confirmed')
+                return
+        raise BusError(f'{joint} (id {sid}): status return level is {data[0]} and could not be set to '
+                       f'{p.RETURN_ALL} (address 16): {self.last_failure or "read back a different value"}')
+
     def _ensure_eeprom(self, joint: str, name: str, value: int) -> None:
         r = p.register(name)
         data = self._read_raw(joint, r.address, r.size)
         if data is None:
-            raise BusError(f'{joint} (id {self.mount[joint].servo_id}): cannot read {name} (address {r.address})')
+            raise BusError(f'{joint} (id {self.mount[joint].servo_id}): cannot read {name} (address {r.address}): '
+                           f'{self.last_failure}')
         if int.from_bytes(bytes(data), 'little') != value:      # write EEPROM only when it differs
             self._write(joint, r.address, list(int(value).to_bytes(r.size, 'little')))
 
     # ------------------------------------------------------------------ low-level transactions
-    def _transact(self, sid: int, instruction: int, params: list[int], n_reply: int) -> tuple[bytes, int, int]:
-        """One instruction/status exchange through the SDK's txPacket/rxPacket: (data, result, error).
+    def _transact(self, sid: int, instruction: int, params: list[int], n_reply: int,
+                  expect_reply: bool = True) -> tuple[bytes, int, int]:
+        """One instruction/status exchange: (data, result, error); result is a dynamixel-sdk COMM_* code.
 
-        Unlike the SDK's txRxPacket, which takes the first packet carrying the right ID, a packet of
-        the wrong ID *or length* (a late reply to an earlier, timed-out transaction) is skipped and
-        the wait goes on until the reply timeout.
+        Bytes already waiting before the instruction goes out are stale (the late reply to an
+        earlier, timed-out transaction) and are discarded. A reply is accepted only if it answers
+        this instruction: the right ID, the LENGTH this instruction's status packet has
+        (``n_reply`` data bytes + 2) and a valid checksum; any other packet is skipped and the wait
+        goes on until the reply timeout. A corrupt reply of the right ID and length ends the wait
+        (COMM_RX_CORRUPT) so the caller can retry at once.
         """
-        tx = [0, 0, sid, len(params) + 2, instruction, *params, 0]
-        result = self._sdk(self.packet.txPacket, tx)
-        if result != COMM_SUCCESS:
-            self.port.is_using = False
-            return b'', result, 0
-        self.port.setPacketTimeout(n_reply + 6)
+        port = self.port
+        if port is None or not self.port_ok:
+            raise PortLostError(f'{self.config.device} is not open')
+        key = (sid, instruction, tuple(params))
+        pkt = self._packets.get(key)
+        if pkt is None:
+            pkt = p.encode_instruction(sid, instruction, params)
+            if instruction == p.READ and len(self._packets) < 4096:
+                self._packets[key] = pkt
+        fd = port.ser.fd
+        rx = self._rx
+        try:
+            if rx or _in_waiting(fd):
+                self.stale_bytes += len(rx) + self._discard_input(port)
+                rx.clear()
+            port.last_tx_time = self.clock()
+            t0 = time.perf_counter()
+            _write_all(fd, pkt)
+            if not expect_reply:
+                return b'', COMM_SUCCESS, 0
+            total = n_reply + 6
+            deadline = t0 + (total * BITS_TIMES_1000 / self.baud_rate + 2.0 * port.latency_timer_ms
+                             + port.margin_ms) * 1e-3
+            while True:
+                # parse what has arrived
+                while len(rx) >= 4:
+                    start = rx.find(p.HEADER)
+                    if start < 0:
+                        keep = 1 if rx[-1] == 0xFF else 0
+                        self.stale_bytes += len(rx) - keep
+                        del rx[:len(rx) - keep]
+                        break
+                    if start:
+                        self.stale_bytes += start
+                        del rx[:start]
+                        continue
+                    if rx[2] == 0xFF:
+                        self.stale_bytes += 1
+                        del rx[0]
+                        continue
+                    length = rx[3]
+                    if length < 2:
+                        self.stale_bytes += 2
+                        del rx[:2]
+                        continue
+                    if len(rx) < length + 4:
+                        break
+                    ok = (~sum(rx[2:length + 3])) & 0xFF == rx[length + 3]
+                    if rx[2] == sid and length == n_reply + 2:
+                        if not ok:
+                            rx.clear()
+                            return b'', COMM_RX_CORRUPT, 0
+                        err = rx[4]
+                        data = bytes(rx[5:5 + n_reply])
+                        del rx[:length + 4]
+                        return data, COMM_SUCCESS, err
+                    # a packet that does not answer this instruction (stale, foreign): skip it
+                    self.stale_bytes += length + 4
+                    del rx[:length + 4]
+                left = deadline - time.perf_counter()
+                if left <= 0:
+                    return b'', COMM_RX_TIMEOUT, 0
+                r, _, _ = select.select((fd,), (), (), left)
+                if r:
+                    chunk = os.read(fd, 4096)
+                    if not chunk:
+                        raise OSError('device reports readiness to read but returned no data '
+                                      '(device disconnected?)')
+                    rx += chunk
+        except (serial.SerialException, OSError, ValueError, TypeError) as exc:
+            rx.clear()
+            self.port_ok = False
+            raise PortLostError(f'{self.config.device}: {exc}') from None
+
+    def _discard_input(self, port) -> int:
+        """Throw away whatever the port has buffered; returns how many bytes."""
+        n = 0
+        fd = port.ser.fd
         while True:
-            rx, result = self._sdk(self.packet.rxPacket)
-            if result != COMM_SUCCESS:
-                return b'', result, 0
-            if rx[2] == sid and len(rx) == n_reply + 6:
-                return bytes(rx[5:5 + n_reply]), COMM_SUCCESS, rx[4]
-            # anything else is a stale or foreign packet: skip it and keep listening
+            r, _, _ = select.select((fd,), (), (), 0)
+            if not r:
+                return n
+            chunk = os.read(fd, 4096)
+            if not chunk:
+                raise OSError('device disconnected')
+            n += len(chunk)
 
     def _sdk(self, fn, *args):
         """Call a dynamixel-sdk function; a vanished port raises PortLostError."""
@@ -504,10 +676,16 @@ class DynamixelBus:
             self.port_ok = False
             raise PortLostError(f'{self.config.device}: {exc}') from None
 
+    def _attempts(self, retries: int | None) -> int:
+        if self._startup_attempts is not None:
+            return self._startup_attempts
+        return 1 + (self.config.read_retries if retries is None else retries)
+
     def _write(self, joint: str, address: int, data: list[int]) -> None:
         sid = self.mount[joint].servo_id
         last = ''
-        for _ in range(1 + self.config.read_retries):
+        attempts = self._attempts(None)
+        for _ in range(attempts):
             _d, result, err = self._transact(sid, p.WRITE, [address, *data], 0)
             if result == COMM_SUCCESS and err & p.ERR_CHECKSUM:
                 last = 'the servo received a corrupt instruction (checksum error)'
@@ -516,22 +694,33 @@ class DynamixelBus:
                 if err & ~ALARM_BITS & ~p.ERR_INPUT_VOLTAGE:
                     raise BusError(f'{joint} (id {sid}): write of {data} at address {address} refused: '
                                    f'{p.describe_error(err)}')
+                self.last_ok_t = self.clock()
                 return
-            last = self.packet.getTxRxResult(result)
-        raise BusError(f'{joint} (id {sid}): write at address {address} failed: {last}')
+            last = _result_text(result)
+        raise BusError(f'{joint} (id {sid}): write at address {address} failed after {attempts} attempts: {last}')
 
     def _read_raw(self, joint: str, address: int, n: int, retries: int | None = None):
-        """Bytes read from a servo, or None after the retry budget (failures recorded)."""
+        """Bytes read from a servo, or None after the retry budget (failures recorded).
+
+        Each retry asks for one more byte than the attempt before (from an address moved down if
+        the table ends), so the late reply to an earlier attempt has another LENGTH and can never
+        be taken for the answer to this one."""
         sid = self.mount[joint].servo_id
         st = self.states[joint]
-        for _ in range(1 + (self.config.read_retries if retries is None else retries)):
-            data, result, err = self._transact(sid, p.READ, [address, n], n)
+        for k in range(self._attempts(retries)):
+            n_k = min(p.TABLE_SIZE, n + k)
+            a_k = min(address, p.TABLE_SIZE - n_k)
+            data, result, err = self._transact(sid, p.READ, [a_k, n_k], n_k)
             t_end = self.clock()
             if result == COMM_SUCCESS:
                 self._last_read = (self.port.last_tx_time, t_end - self.port.last_tx_time, err)
-                return bytes(data)
+                self.last_ok_t = t_end
+                off = address - a_k
+                return data[off:off + n]
             self.timing.failed()
+            st.failed_attempts += 1
             st.message = 'no reply (timeout)' if result == COMM_RX_TIMEOUT else 'corrupt reply'
+            self.last_failure = f'{joint} (id {sid}): read of {n} bytes at address {address}: {st.message}'
         return None
 
     def _read_joint(self, joint: str, retries: int) -> Sample | None:
@@ -568,7 +757,7 @@ class DynamixelBus:
         st.responding = False
         if not st.missing and st.consecutive_failures < self.config.missing_after_failures:
             self._event('warn', f'{joint} (id {st.servo_id}): read failed after {1 + self.config.read_retries} '
-                                f'attempts ({st.message}); no position reported')
+                                f'attempts ({st.message}); no position reported', key=f'read-failed {joint}')
         if not st.missing and st.consecutive_failures >= self.config.missing_after_failures:
             st.missing = True
             self._event('error', f'{joint} (id {st.servo_id}) stopped answering ({st.message}); '
@@ -576,23 +765,32 @@ class DynamixelBus:
         st.last_probe = now
 
     # ------------------------------------------------------------------ fault policy
+    def _fault_message(self, st: ServoState) -> str:
+        what = p.describe_error(st.faulted)
+        limit = 'torque limit unknown' if st.torque_limit is None else f'torque limit {st.torque_limit}'
+        state = 'limp' if st.torque_limit == 0 or not st.torque_enabled else 'torque on'
+        if self.config.fault_policy == 'limp':
+            return (f'{what}: alarm shutdown, {limit} ({state}); policy limp: torque '
+                    f'{"off" if not st.torque_enabled else "enable still 1"}, commands ignored until restart')
+        return (f'{what}: alarm shutdown, {limit} ({state}); policy recover: commands ignored, torque limit '
+                f'restored once the alarm clears')
+
     def _apply_fault_policy(self, joint: str, err: int) -> None:
+        """What the servo does on an alarm in alarm_shutdown: it zeroes its own torque limit
+        (address 34) and goes limp, torque enable unchanged. The policy decides what follows:
+        ``limp`` also writes torque enable 0 and leaves the joint out until restart; ``recover``
+        sets the goal to the present position and writes the torque limit again once the alarm
+        bit has cleared (the servo restores nothing by itself until power-up)."""
         st = self.states[joint]
         alarm = err & ALARM_BITS
         policy = self.config.fault_policy
         if alarm and not st.faulted:
             st.faulted = alarm
-            what = p.describe_error(alarm)
-            if policy == 'limp':
-                self._write_quiet(joint, 24, [0])
+            data = self._read_raw(joint, 34, 2, retries=self.config.read_retries)
+            st.torque_limit = _u16(data) if data is not None else None
+            if policy == 'limp' and self._write_quiet(joint, 24, [0]):
                 st.torque_enabled = False
-                st.message = f'{what}: torque off (policy limp)'
-            else:
-                if st.present_tick is not None:
-                    self._write_quiet(joint, 30, _word(st.present_tick))
-                    self.goals_tick[joint] = st.present_tick
-                st.message = (f'{what}: holding position, commands ignored (policy hold)' if policy == 'hold' else
-                              f'{what}: holding position until the alarm clears (policy recover)')
+            st.message = self._fault_message(st)
             self._event('error', f'{joint} (id {st.servo_id}) {st.message}')
         elif st.faulted and not alarm and policy == 'recover':
             tick = st.present_tick if st.present_tick is not None else self.goals_tick.get(joint)
@@ -600,10 +798,12 @@ class DynamixelBus:
                 self._write_quiet(joint, 30, _word(tick))
                 self.goals_tick[joint] = tick
             if self._write_quiet(joint, 34, _word(self.config.torque_limit)):
-                st.faulted = 0
-                st.torque_limit = self.config.torque_limit
-                st.message = 'recovered: torque limit restored'
-                self._event('info', f'{joint} (id {st.servo_id}) {st.message}')
+                data = self._read_raw(joint, 34, 2, retries=self.config.read_retries)
+                st.torque_limit = _u16(data) if data is not None else None
+                if st.torque_limit == self.config.torque_limit:
+                    st.faulted = 0
+                    st.message = f'recovered: alarm cleared, torque limit {st.torque_limit} restored (read back)'
+                    self._event('info', f'{joint} (id {st.servo_id}) {st.message}')
 
     def _write_quiet(self, joint: str, address: int, data: list[int]) -> bool:
         try:
@@ -706,23 +906,22 @@ class DynamixelBus:
         for j, tick in goals.items():
             params += [self.mount[j].servo_id, tick & 0xFF, tick >> 8]
         t0 = self.clock()
-        result = self._sdk(self.packet.syncWriteTxOnly, 30, 2, params, len(params))
+        self._transact(p.BROADCAST_ID, p.SYNC_WRITE, [30, 2, *params], 0, expect_reply=False)
         t = self.port.last_tx_time
-        if result != COMM_SUCCESS:
-            raise BusError(f'sync write failed: {self.packet.getTxRxResult(result)}')
         self.timing.write(self.clock() - t0)
         self.goals_tick.update(goals)
         return t
 
     # ------------------------------------------------------------------ emergency stop / shutdown
     def torque_off(self) -> list[str]:
-        """Torque off on every servo: a broadcast write, then each servo checked. Returns joints
-        whose torque could not be confirmed off."""
+        """Torque off on every servo: a broadcast write, then each servo read back (and written
+        individually if needed). Returns joints whose torque could not be confirmed off; raises
+        PortLostError when the port is gone."""
         unconfirmed = []
         with self.lock:
             if not self.port_ok:
-                return list(self.joints)
-            self._sdk(self.packet.write1ByteTxOnly, p.BROADCAST_ID, 24, 0)
+                raise PortLostError(f'{self.config.device} is not open')
+            self._transact(p.BROADCAST_ID, p.WRITE, [24, 0], 0, expect_reply=False)
             for j in self.joints:
                 data = self._read_raw(j, 24, 1, retries=self.config.read_retries)
                 if data is not None and data[0] == 0:
@@ -735,29 +934,56 @@ class DynamixelBus:
                     unconfirmed.append(j)
         return unconfirmed
 
+    def torque_off_report(self) -> tuple[bool, str]:
+        """Torque off everywhere; (confirmed, what the driver knows), never claiming more than it
+        saw: "torque off" only when every servo answered the write or read back 0."""
+        with self.lock:
+            if self.port is None or not self.port_ok:
+                return False, 'torque state unknown: port lost (nothing could reach the servos)'
+            try:
+                bad = self.torque_off()
+            except PortLostError as exc:
+                return False, f'torque state unknown: port lost ({exc})'
+        if bad:
+            return False, (f'torque state unknown for {", ".join(bad)} (no answer); '
+                           f'torque off confirmed for the other {len(self.joints) - len(bad)}')
+        return True, 'torque off on all servos (read back)'
+
     def emergency_stop(self) -> tuple[bool, str]:
         """Torque off everywhere and refuse further commands."""
         self.estopped = True
         with self._cmd_lock:
             self._pending.clear()
-        try:
-            bad = self.torque_off()
-        except PortLostError as exc:
-            return False, f'emergency stop: port lost ({exc}); torque state unknown'
-        if bad:
-            return False, f'emergency stop: torque off not confirmed for {", ".join(bad)}'
-        return True, 'torque off on all servos; commands are refused until the driver restarts'
+        ok, text = self.torque_off_report()
+        if ok:
+            return True, f'emergency stop: {text}; commands are refused until the driver restarts'
+        return False, f'emergency stop: {text}; commands are refused until the driver restarts'
+
+    def shutdown(self) -> tuple[bool, str]:
+        """Torque off and close the port (safe to call twice): (confirmed, what the driver knows)."""
+        with self.lock:
+            if self.port is None and self._closed_report is not None:
+                return self._closed_report
+            ok, text = self.torque_off_report()
+            self._close_port()
+            self._closed_report = (ok, text)
+        return ok, text
 
     def close(self) -> list[str]:
-        """Torque off and close the port (safe to call twice). Returns unconfirmed joints."""
-        bad: list[str] = []
+        """Torque off and close the port (safe to call twice). Returns joints whose torque is not
+        confirmed off (all of them when the port was lost)."""
         with self.lock:
-            if self.port is not None and self.port_ok:
-                try:
-                    bad = self.torque_off()
-                except PortLostError:
-                    bad = list(self.joints)
+            if self.port is None and self._closed_report is not None and self._closed_report[0]:
+                return []
+            if self.port is None or not self.port_ok:
+                self._close_port()
+                return list(self.joints)
+            try:
+                bad = self.torque_off()
+            except PortLostError:
+                bad = list(self.joints)
             self._close_port()
+            self._closed_report = (not bad, '')
         return bad
 
     # ------------------------------------------------------------------ the bus loop
@@ -797,7 +1023,8 @@ class DynamixelBus:
             self.port_ok = False
             for st in self.states.values():
                 st.responding = False
-            self._event('error', f'port lost: {exc}; reopening every {self.config.reconnect_period_s} s')
+            self._event('error', f'port lost: {exc}; torque state unknown (nothing reaches the servos); '
+                                 f'reopening every {self.config.reconnect_period_s} s')
             self._next_reconnect_t = self.clock() + self.config.reconnect_period_s
         except BusError as exc:
             self._event('error', str(exc))
@@ -810,10 +1037,11 @@ class DynamixelBus:
                 self.configure(enable_torque=not self.estopped)   # goals = present positions: no jump
             with self._cmd_lock:
                 self._pending.clear()
+            self._event_end('reconnect')
             self._event('info', f'{self.config.device} reopened, servos verified and holding position')
         except BusError as exc:
             self._close_port()
-            self._event('error', f'reconnect failed: {exc}')
+            self._event('error', f'reconnect failed: {exc}', key='reconnect')
 
     def _write_pending(self, res: StepResult) -> None:
         with self._cmd_lock:
@@ -885,16 +1113,37 @@ class DynamixelBus:
                 st.voltage_v = d[42] * p.VOLTAGE_UNIT_V
                 st.temperature_c = float(d[43])
                 self._success(joint, err)
-                if not st.faulted:
+                if st.faulted:
+                    st.message = self._fault_message(st)
+                else:
                     st.message = (p.describe_error(err) if err else
                                   'ok' if st.torque_enabled and st.torque_limit else
-                                  'torque off' if not st.torque_enabled else 'torque limit 0 (shut down)')
+                                  'torque off' if not st.torque_enabled else 'torque limit 0 (limp)')
+                if st.failed_attempts:
+                    st.message += f'; {st.failed_attempts} read attempts without a valid reply since start-up'
         if not self._diag_queue:
             res.diagnostics = [replace(self.states[j]) for j in self.joints]
 
     # ------------------------------------------------------------------ events
-    def _event(self, level: str, text: str) -> None:
+    def _event(self, level: str, text: str, key: str | None = None) -> None:
+        """Queue a log event. With a ``key``, repeats within ``throttle_s`` are counted instead of
+        queued, and summarised when the window ends or :meth:`_event_end` closes the series."""
+        if key is not None:
+            now = self.clock()
+            th = self._throttle.get(key)
+            if th is not None and now - th[0] < self.throttle_s:
+                th[1] += 1
+                th[3] = text
+                return
+            if th is not None and th[1]:
+                text = f'{text} (and {th[1]} more times in the last {self.throttle_s:g} s)'
+            self._throttle[key] = [now, 0, level, text]
         self._events.append((level, text))
+
+    def _event_end(self, key: str) -> None:
+        th = self._throttle.pop(key, None)
+        if th is not None and th[1]:
+            self._events.append((th[2], f'{th[3]} (repeated {th[1]} more times before it stopped)'))
 
     def _drain_events(self) -> list[tuple[str, str]]:
         ev = list(self._events)
@@ -905,6 +1154,25 @@ class DynamixelBus:
         """Events (level, text) not yet returned by :meth:`step` (for direct library use)."""
         with self.lock:
             return self._drain_events()
+
+
+BITS_TIMES_1000 = p.BITS_PER_BYTE * 1000.0
+
+
+def _in_waiting(fd: int) -> int:
+    """Bytes waiting in the port's input buffer (TIOCINQ), without pyserial's overhead."""
+    return struct.unpack('I', fcntl.ioctl(fd, termios.TIOCINQ, b'\0\0\0\0'))[0]
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        n = os.write(fd, view)
+        view = view[n:]
+
+
+def _result_text(result: int) -> str:
+    return {COMM_RX_TIMEOUT: 'no reply (timeout)', COMM_RX_CORRUPT: 'corrupt reply'}.get(result, f'result {result}')
 
 
 def _word(v: int) -> list[int]:

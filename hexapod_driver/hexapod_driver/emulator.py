@@ -18,10 +18,17 @@ What the horns do is a *backend*:
   (direction, offset) between DH angle and raw tick.
 
 Fault injection (:class:`Faults`): dropped replies, corrupt checksums, late (stale) replies ahead of
-the real one, a servo that disappears,
+the real one, every reply held back by an adapter latency (:meth:`Faults.set_reply_latency`, the
+FTDI latency timer), a servo that disappears,
 overheating (temperature above the limit at address 11), overload, input voltage, and the whole
 port vanishing (:meth:`BusEmulator.disconnect`) and coming back (:meth:`BusEmulator.reconnect`,
-behind a stable symlink like a udev name).
+behind a stable symlink like a udev name). A servo whose baud rate register (address 4) does not
+match the rate the host opened the port at (the pty's termios speed) does not answer, and the
+status return level (address 16) is honoured as the e-manual defines it: 0 = status packets only
+for PING, 1 = only for PING and READ, 2 = for every instruction (never for broadcasts).
+
+The log (:attr:`BusEmulator.log`) keeps every instruction as received (``rx``), the bytes sent
+back (``tx``, as corrupted or prefixed) and, without a reply, why (``note``).
 
 Timing convention: emulator time is seconds since :meth:`BusEmulator.start` on its clock; the
 firmware ticks at integer milliseconds of it; a goal takes effect at the first tick at or after
@@ -39,7 +46,9 @@ import os
 import random
 import select
 import signal
+import heapq
 import sys
+import termios
 import threading
 import time
 import tty
@@ -296,6 +305,9 @@ class LogEntry:
     wall_reply: float = float('nan')   # time.time() when the status packet was written
     reply_params: bytes = b''          # parameters of the status packet (the data of a READ)
     reply_delay_s: float = 0.0         # the servo's return delay time applied before replying
+    rx: bytes = b''                    # the instruction packet exactly as received
+    tx: bytes = b''                    # the bytes sent back (corrupted / with a stale packet ahead, as sent)
+    note: str = ''                     # why there was no reply (status return level, baud mismatch, fault)
 
 
 # ----------------------------------------------------------------------------- faults
@@ -313,6 +325,7 @@ class Faults:
         self._corrupt: list[tuple[set[int] | None, int | None, float]] = []
         self._stale: list[tuple[set[int] | None, int | None, float]] = []
         self.missing: set[int] = set()
+        self.reply_latency_s = 0.0
         self.dropped = 0
         self.corrupted = 0
         self.stale = 0
@@ -338,6 +351,15 @@ class Faults:
         when the reply to an earlier, timed-out instruction arrives late."""
         with self._emu.lock:
             self._stale.append((self._ids(ids), count, probability))
+
+    def set_reply_latency(self, seconds: float) -> None:
+        """Every reply reaches the host ``seconds`` later than the servo sent it, as behind an FTDI
+        adapter whose latency timer is at its 16 ms default. Instructions are still executed on
+        arrival (the host-to-servo direction is not held back)."""
+        if not seconds >= 0:
+            raise EmulatorError(f'reply latency must be >= 0, got {seconds}')
+        with self._emu.lock:
+            self.reply_latency_s = float(seconds)
 
     def remove_servo(self, servo_id: int) -> None:
         """The servo disappears from the bus (cable cut): it neither answers nor executes."""
@@ -454,6 +476,10 @@ class BusEmulator:
         self._t0 = 0.0
         self._parser = p.PacketParser()
         self.packets = 0
+        self._late: list[tuple[float, int, bytes]] = []
+        self._late_seq = iter(range(1 << 62))
+        self._late_cv = threading.Condition()
+        self._late_thread: threading.Thread | None = None
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -501,13 +527,39 @@ class BusEmulator:
         self._stop.clear()
         self._thread = threading.Thread(target=self._serve, name='ax12-bus-emulator', daemon=True)
         self._thread.start()
+        self._late_thread = threading.Thread(target=self._deliver_late, name='ax12-late-replies', daemon=True)
+        self._late_thread.start()
         return self
+
+    def _deliver_late(self) -> None:
+        """Write the replies held back by ``Faults.set_reply_latency`` when they are due."""
+        while not self._stop.is_set():
+            with self._late_cv:
+                if not self._late:
+                    self._late_cv.wait(0.05)
+                    continue
+                due, _seq, reply = self._late[0]
+                left = due - self.clock()
+                if left > 2e-4:
+                    self._late_cv.wait(left - 1.5e-4)
+                    continue
+                heapq.heappop(self._late)
+            _sleep_until(self.clock, due)
+            fd = self._master
+            if fd is not None:
+                try:
+                    os.write(fd, reply)
+                except OSError:
+                    pass
 
     def stop(self) -> None:
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        with self._late_cv:
+            self._late_cv.notify_all()
+        for th in (self._thread, self._late_thread):
+            if th is not None:
+                th.join(timeout=2.0)
+        self._thread = self._late_thread = None
         self._close_pty()
         if self.link_path and self.link_path.is_symlink():
             self.link_path.unlink()
@@ -540,6 +592,16 @@ class BusEmulator:
                 tick, _ = self.backend.sample(t, s.slot)
                 s.power_up(present_tick=int(round(tick)))
                 self.backend.torque(t, s.slot, False)
+
+    def line_baud(self) -> int | None:
+        """Baud rate the driver set on the port (the pty's termios), or None when unknown."""
+        if self._slave is None:
+            return None
+        try:
+            speed = termios.tcgetattr(self._slave)[5]
+        except (termios.error, OSError):
+            return None
+        return _TERMIOS_BAUD.get(speed)
 
     # ------------------------------------------------------------------ inspection
     def servo(self, servo_id: int) -> EmulatedServo:
@@ -604,6 +666,12 @@ class BusEmulator:
     def _send(self, reply: bytes, t_arrival: float, delay: float, n_instruction_bytes: int) -> None:
         if self.wire_time:
             delay += (n_instruction_bytes + len(reply)) * p.BITS_PER_BYTE / self.baud_rate
+        latency = self.faults.reply_latency_s
+        if latency > 0:                          # delivered by the late-reply thread
+            with self._late_cv:
+                heapq.heappush(self._late, (self._t0 + t_arrival + delay + latency, next(self._late_seq), reply))
+                self._late_cv.notify()
+            return
         if delay > 0:
             _sleep_until(self.clock, self._t0 + t_arrival + delay)
         fd = self._master
@@ -667,10 +735,20 @@ class BusEmulator:
         targets = [s for s in targets if s.servo_id not in self.faults.missing]
         address = pkt.params[0] if pkt.params else None
         entry = LogEntry(t=t, wall=wall, servo_id=pkt.servo_id, instruction=pkt.code, address=address,
-                         data=bytes(pkt.params[1:]), replied=False, error=0)
+                         data=bytes(pkt.params[1:]), replied=False, error=0,
+                         rx=p.encode_instruction(pkt.servo_id, pkt.code, pkt.params) if pkt.checksum_ok else b'')
         self.log.append(entry)
         if not targets:
+            entry.note = 'no servo with this id'
             return None
+        line = self.line_baud()
+        if line is not None:
+            heard = [s for s in targets if _baud_matches(s.get('baud_rate'), line)]
+            if len(heard) != len(targets):
+                entry.note = f'baud mismatch: line at {line} baud'
+            targets = heard
+            if not targets:
+                return None
         if not pkt.checksum_ok:
             if broadcast:
                 return None
@@ -751,8 +829,10 @@ class BusEmulator:
         error = err | self._check_alarms(s)
         entry.error = error
         if s.get('status_return_level') < reply_level:
+            entry.note = f'status return level {s.get("status_return_level")}: no status packet'
             return None
         if self.faults._should_drop(s.servo_id):
+            entry.note = 'reply dropped (fault injection)'
             return None
         pkt = bytearray(p.encode_status(s.servo_id, error, params))
         if self.faults._should_corrupt(s.servo_id):
@@ -761,8 +841,20 @@ class BusEmulator:
             pkt[:0] = p.encode_status(s.servo_id, 0)
         entry.replied = True
         entry.reply_params = bytes(params)
+        entry.tx = bytes(pkt)
         self._reply_delay = s.get('return_delay_time') * p.RETURN_DELAY_UNIT_S
         return bytes(pkt)
+
+
+_TERMIOS_BAUD = {getattr(termios, f'B{b}'): b for b in (
+    9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000, 1152000, 1500000,
+    2000000, 2500000, 3000000, 3500000, 4000000) if hasattr(termios, f'B{b}')}
+
+
+def _baud_matches(register_value: int, line_baud: float) -> bool:
+    """A servo at register-4 rate hears the line only within the UART tolerance (about 3 %);
+    otherwise it sees framing errors and garbage and does not answer."""
+    return abs(p.baud_of_register(register_value) - line_baud) <= 0.03 * line_baud
 
 
 def _sleep_until(clock: Callable[[], float], deadline: float) -> None:
@@ -796,6 +888,13 @@ def main(argv=None) -> int:
     ap.add_argument('--drop-probability', type=float, default=0.0, help='lose each reply with this probability')
     ap.add_argument('--corrupt-probability', type=float, default=0.0,
                     help='corrupt the checksum of each reply with this probability')
+    ap.add_argument('--reply-latency-ms', type=float, default=0.0,
+                    help='hold every reply back this long, like an FTDI adapter with its 16 ms default latency timer')
+    ap.add_argument('--servo-baud', type=int, default=None,
+                    help='baud rate register (address 4) of every servo, e.g. 34 for 57600 baud; a servo answers '
+                         'only when the port is opened at its rate')
+    ap.add_argument('--status-return-level', type=int, choices=[0, 1, 2], default=None,
+                    help='status return level (address 16) of every servo: 0 PING only, 1 reads only, 2 all')
     ap.add_argument('--seed', type=int, default=0, help='seed of the random faults')
     ap.add_argument('--verbose', action='store_true', help='print every instruction packet (slow)')
     args = ap.parse_args(argv)
@@ -814,6 +913,16 @@ def main(argv=None) -> int:
         emu.faults.drop_replies(count=None, probability=args.drop_probability)
     if args.corrupt_probability:
         emu.faults.corrupt_replies(count=None, probability=args.corrupt_probability)
+    if args.reply_latency_ms < 0:
+        ap.error(f'--reply-latency-ms must be >= 0, got {args.reply_latency_ms}')
+    emu.faults.set_reply_latency(args.reply_latency_ms / 1000.0)
+    if args.servo_baud is not None and not 0 <= args.servo_baud <= 254:
+        ap.error(f'--servo-baud is register 4 (0..254), got {args.servo_baud}')
+    for s in emu.servos:
+        if args.servo_baud is not None:
+            s.set_register('baud_rate', args.servo_baud)
+        if args.status_return_level is not None:
+            s.set_register('status_return_level', args.status_return_level)
     emu.start()
     ids = sorted(s.servo_id for s in emu.servos)
     print(f'AX-12A bus emulator: {len(ids)} servos (ids {ids}) on {emu.port}', flush=True)
@@ -827,7 +936,8 @@ def main(argv=None) -> int:
                 e = emu.log.popleft()
                 print(f'{e.t:10.4f} id={e.servo_id:3d} {p.INSTRUCTION_NAMES.get(e.instruction, hex(e.instruction))}'
                       f' addr={e.address} data={e.data.hex(" ")} err={e.error:#04x}'
-                      f'{" reply=" + e.reply_params.hex(" ") if e.replied else " (no reply)"}', flush=True)
+                      f'{" reply=" + e.reply_params.hex(" ") if e.replied else " (no reply: " + e.note + ")"}'
+                      f' rx={e.rx.hex(" ")} tx={e.tx.hex(" ")}', flush=True)
     except KeyboardInterrupt:
         pass
     finally:

@@ -97,6 +97,8 @@ def test_wrong_model_is_named_at_startup(robot):
 
 
 def test_config_validation_names_the_parameter(robot):
+    with pytest.raises(ValueError, match="fault_policy: 'hold' no longer exists"):
+        DynamixelBus(robot, DriverConfig(fault_policy='hold'))
     with pytest.raises(ValueError, match='fault_policy'):
         DynamixelBus(robot, DriverConfig(fault_policy='explode'))
     with pytest.raises(ValueError, match='torque_limit'):
@@ -203,10 +205,22 @@ def test_dropped_and_corrupt_replies_are_retried_counted_and_never_invented(emu,
     bus.take_events()
     bus.read_position('leg1_femur')                              # answers again: failure streak reset
     bus.set_schedule(['leg1_femur'])
+    bus.throttle_s = 0.0                                         # a new series is logged at once
+    n0 = bus.states['leg1_femur'].failed_attempts
     emu.faults.corrupt_replies(ids=2, count=2)
     r = bus.step()
     assert r.samples == [] and any('leg1_femur' in t and 'read failed' in t for t in events([r]))
+    assert bus.states['leg1_femur'].failed_attempts == n0 + 2
     assert bus.step().samples[0].joint == 'leg1_femur'
+    bus.throttle_s = 60.0
+    emu.faults.corrupt_replies(ids=2, count=2)                   # again within throttle_s: counted, not logged
+    r = bus.step()
+    assert r.samples == [] and not events([r]) and bus.states['leg1_femur'].failed_attempts == n0 + 4
+    assert bus.step().samples
+    bus.throttle_s = 0.0
+    emu.faults.corrupt_replies(ids=2, count=2)                   # window over: logged with the summary
+    r = bus.step()
+    assert any('read failed' in t and '1 more times' in t for t in events([r]))
 
 
 def test_a_late_reply_is_not_taken_for_the_answer(emu, bus):
@@ -237,7 +251,7 @@ def test_vanished_servo_is_reported_skipped_and_welcomed_back(emu, bus):
     assert not bus.states['leg2_coxa'].missing
 
 
-@pytest.mark.parametrize('policy', ['hold', 'limp', 'recover'])
+@pytest.mark.parametrize('policy', ['limp', 'recover'])
 def test_overheating_triggers_the_fault_policy(robot, emu, policy):
     b = make_bus(robot, emu, fault_policy=policy)
     try:
@@ -250,10 +264,9 @@ def test_overheating_triggers_the_fault_policy(robot, emu, policy):
         assert st.faulted & p.ERR_OVERHEATING and st.error_bits & p.ERR_OVERHEATING
         s = emu.servo(6)
         assert s.get('torque_limit') == 0                         # the servo's own alarm shutdown
+        assert st.torque_limit == 0 and 'torque limit 0 (limp)' in st.message   # said as it is
         if policy == 'limp':
-            assert s.get('torque_enable') == 0
-        else:
-            assert s.get('goal_position') == st.present_tick      # frozen where it was
+            assert s.get('torque_enable') == 0 and not st.torque_enabled
         n0 = len(sync_writes(emu))
         w = b.set_command(['leg2_tibia'], [-0.5])
         assert w and 'ignored, servo in fault' in w[0]
@@ -266,9 +279,11 @@ def test_overheating_triggers_the_fault_policy(robot, emu, policy):
         if policy == 'recover':
             steps_until(b, lambda r: b.states['leg2_tibia'].faulted == 0, timeout=1.0)
             assert s.get('torque_limit') == 1023 and s.torque_on
+            assert s.get('goal_position') == b.states['leg2_tibia'].present_tick   # no jump on recovery
+            assert 'torque limit 1023 restored' in b.states['leg2_tibia'].message
             assert b.set_command(['leg2_tibia'], [-0.5]) == []
         else:
-            assert b.states['leg2_tibia'].faulted                  # hold/limp: stays out until restart
+            assert b.states['leg2_tibia'].faulted                  # limp: stays out until restart
             assert s.get('torque_limit') == 0
         assert any('leg2_tibia (id 6) reports: overheating' in t for t in events(seen))
     finally:

@@ -217,3 +217,288 @@ def test_missing_servo_fails_startup_naming_it(robot):
         rc = proc.returncode
     assert rc == 1
     assert 'no answer from leg6_femur (id 17)' in out
+
+
+# ----------------------------------------------------------------------------- faults through the node
+import threading  # noqa: E402
+
+from hexapod_model.servo import servo_tick  # noqa: E402
+from hexapod_driver import protocol as p  # noqa: E402
+
+
+class Output:
+    """The node's stdout+stderr, read line by line in the background."""
+
+    def __init__(self, proc):
+        self.lines = []
+        self._t = threading.Thread(target=lambda: [self.lines.append(ln) for ln in proc.stdout], daemon=True)
+        self._t.start()
+
+    def text(self):
+        return ''.join(self.lines)
+
+    def finish(self, proc, timeout=15.0):
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        self._t.join(timeout=5.0)
+        return proc.returncode, self.text()
+
+
+def start_node_env(port, extra=(), env_extra=None):
+    args = [sys.executable, '-m', 'hexapod_driver.driver_node', '--ros-args', '-p', f'device:={port}']
+    for prm in [*PARAMS, *extra]:
+        args += ['-p', prm]
+    proc = subprocess.Popen(args, env={**node_env(), **(env_extra or {})}, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    return proc, Output(proc)
+
+
+def wait_for(ex, cond, timeout, proc, what):
+    spin_until(ex, cond, timeout, None, what)
+    assert proc.poll() is None or what.startswith('exit'), f'driver_node exited while waiting for {what}'
+
+
+def sample_tick(robot, msg):
+    return int(round(float(servo_tick(msg.position[0], robot.servo, robot.bus.by_joint(msg.name[0])))))
+
+
+def request_of(emu, sid, stamp):
+    """The emulator's log entry of the READ a sample stamped ``stamp`` answers: the first READ of that
+    servo to arrive at or after the stamp (the driver stamps just before writing; the request before
+    it arrived before that write)."""
+    for e in list(emu.log):
+        if e.servo_id == sid and e.instruction == p.READ and e.address is not None and e.wall >= stamp:
+            return e
+    return None
+
+
+def test_noisy_bus_keeps_reading_and_never_invents_a_position(robot, ros):
+    node, ex = ros
+    with BusEmulator(robot, seed=11) as emu:
+        emu.faults.drop_replies(count=None, probability=0.1)
+        emu.faults.corrupt_replies(count=None, probability=0.1)
+        proc, out = start_node_env(emu.port)                    # start-up itself on the noisy bus
+        inbox = Inbox(node)
+        try:
+            wait_for(ex, lambda: len(inbox.states) >= 600 and len(inbox.diag) >= 3, 90.0, proc,
+                     'reads on the noisy bus')
+        finally:
+            rc, text = out.finish(proc)
+            inbox.close(node)
+        log = list(emu.log)
+    assert rc == 0, text
+    assert 'Logger severity' not in text and 'Traceback' not in text, text
+    clean = [e for e in log if e.instruction == p.READ and e.replied and len(e.tx) >= 6
+             and p.checksum(e.tx[2:-1]) == e.tx[-1]]
+    bad = [e for e in log if e.instruction == p.READ and e.address is not None and e.servo_id != p.BROADCAST_ID
+           and not (e in clean)]
+    assert bad, 'the fault injection did nothing'
+    # every published position is the answer the servo gave to exactly that request
+    by_id = {bj.joint: bj.servo_id for bj in robot.bus.joints}
+    for m in inbox.states[::7]:
+        stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+        e = request_of(emu, by_id[m.name[0]], stamp)
+        assert e is not None and e in clean, (m, e)
+        assert sample_tick(robot, m) == e.reply_params[0] | e.reply_params[1] << 8
+    # the position reads kept going through the whole run: no second of emulator time without reads
+    reads = sorted(e.t for e in log if e.instruction == p.READ and e.address == 36)
+    t0, t1 = reads[0] + 1.0, reads[-1]
+    secs = {int(t - t0) for t in reads if t0 <= t < t1}
+    assert set(range(int(t1 - t0))) <= secs, 'a second without position reads'
+    # failures are reported per joint (diagnostics) and counted (timing)
+    d = inbox.diag[-1]
+    reported = [s for s in d.servos if 'without a valid reply' in s.message]
+    assert reported and sum(tm.failed_reads for tm in inbox.timing) > 0
+    assert 'read failed after' in text
+
+
+def test_overheating_servo_is_limp_others_commandable_and_recover_restores(robot, ros):
+    node, ex = ros
+    with BusEmulator(robot) as emu:
+        proc, out = start_node_env(emu.port, ['fault_policy:=recover'])
+        inbox = Inbox(node)
+        cmd_pub = node.create_publisher(JointState, contract.JOINT_COMMANDS, 10)
+        try:
+            wait_for(ex, lambda: inbox.diag, 30.0, proc, 'first diagnostics')
+            emu.faults.set_temperature(6, 85.0)                     # leg2_tibia
+            assert emu.servo(6).get('torque_limit') == 0            # the servo's own alarm shutdown
+
+            def tibia():
+                return next(s for s in inbox.diag[-1].servos if s.joint_name == 'leg2_tibia')
+            wait_for(ex, lambda: tibia().error_bits & p.ERR_OVERHEATING and 'torque limit 0 (limp)' in tibia().message,
+                     20.0, proc, 'overheating on diagnostics')
+            assert not tibia().torque_enabled                       # limp is not "holding"
+            others = [j for j in ALL_JOINTS if j != 'leg2_tibia']
+            ids = {bj.joint: bj.servo_id for bj in robot.bus.joints}
+            goal = round(512 + 0.1 / robot.servo.rad_per_tick)
+
+            def reached():
+                return sum(emu.servo(ids[j]).get('goal_position') != 512 for j in others) == len(others)
+            wait_for(ex, lambda: command(node, cmd_pub, others, [0.1] * len(others)) or reached(), 20.0, proc,
+                     'the other 17 joints commanded')
+            assert any(e.instruction == p.SYNC_WRITE for e in emu.log)
+            assert goal in {emu.servo(ids[j]).get('goal_position') for j in others}
+            assert emu.servo(6).get('torque_limit') == 0
+            emu.faults.set_temperature(6, 40.0)                     # alarm clears
+            wait_for(ex, lambda: emu.servo(6).get('torque_limit') == 1023, 20.0, proc, 'torque limit restored')
+            assert any(e.servo_id == 6 and e.instruction == p.WRITE and e.address == 34 and e.data == b'\xff\x03'
+                       and e.replied for e in emu.log)
+            assert emu.servo(6).torque_on
+        finally:
+            rc, text = out.finish(proc)
+            inbox.close(node)
+            node.destroy_publisher(cmd_pub)
+    assert rc == 0, text
+    assert 'Logger severity' not in text and 'Traceback' not in text, text
+    assert 'torque limit 1023 restored' in text
+
+
+def test_emergency_stop_twice_with_different_outcomes(robot, ros):
+    node, ex = ros
+    with BusEmulator(robot) as emu:
+        proc, out = start_node_env(emu.port)
+        client = node.create_client(Trigger, contract.EMERGENCY_STOP)
+        try:
+            wait_for(ex, client.service_is_ready, 30.0, proc, '/emergency_stop')
+            first = call_idempotent(ex, client, Trigger.Request(), 10.0, proc, 'first emergency stop')
+            assert first.success and 'torque off on all servos (read back)' in first.message
+            for s in emu.servos:
+                emu.faults.remove_servo(s.servo_id)                 # nobody answers any more
+            second = call_idempotent(ex, client, Trigger.Request(), 30.0, proc, 'second emergency stop')
+            assert not second.success and 'torque state unknown' in second.message
+            assert proc.poll() is None                              # the node lives on
+        finally:
+            rc, text = out.finish(proc)
+            node.destroy_client(client)
+    assert rc == 0, text
+    assert 'Logger severity' not in text and 'Traceback' not in text, text
+
+
+def test_late_replies_are_never_paired_with_the_wrong_request_and_the_cause_is_named(robot, ros):
+    node, ex = ros
+    with BusEmulator(robot) as emu:
+        emu.faults.set_reply_latency(0.016)                         # FTDI latency timer at its default
+        proc, out = start_node_env(emu.port)
+        inbox = Inbox(node)
+        cmd_pub = node.create_publisher(JointState, contract.JOINT_COMMANDS, 10)
+        sched_pub = node.create_publisher(ReadSchedule, contract.READ_SCHEDULE, 10)
+        try:
+            wait_for(ex, lambda: inbox.states, 60.0, proc, 'first reads')
+            sched = ReadSchedule()
+            sched.joint_names = ['leg1_coxa']
+            target = [0.8]
+
+            def moving():                                            # keep leg1_coxa moving back and forth
+                tick = emu.present_tick(1)
+                if abs(tick - round(512 + target[0] / robot.servo.rad_per_tick)) < 5:
+                    target[0] = -target[0]
+                command(node, cmd_pub, ['leg1_coxa'], target)
+                sched_pub.publish(sched)
+                return sum(m.name[0] == 'leg1_coxa' for m in inbox.states) >= 150
+            wait_for(ex, moving, 90.0, proc, 'reads of the moving joint')
+        finally:
+            rc, text = out.finish(proc)
+            inbox.close(node)
+            node.destroy_publisher(cmd_pub)
+            node.destroy_publisher(sched_pub)
+    assert rc == 0, text
+    import re
+    m = re.search(r'replies arrive ~(\d+) ms late', text)
+    assert m and 15 <= int(m.group(1)) <= 25 and 'latency_timer to 1' in text, text
+    samples = [m for m in inbox.states if m.name[0] == 'leg1_coxa']
+    ticks = set()
+    for m in samples:
+        stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+        e = request_of(emu, 1, stamp)
+        assert e is not None and e.replied, m
+        assert sample_tick(robot, m) == e.reply_params[0] | e.reply_params[1] << 8, 'reply paired with another request'
+        ticks.add(sample_tick(robot, m))
+    assert len(ticks) > 20                                          # the joint really moved: pairing was testable
+
+
+def test_exception_in_the_bus_loop_turns_torque_off_and_exits_non_zero(robot, ros):
+    node, ex = ros
+    with BusEmulator(robot) as emu:
+        proc, out = start_node_env(emu.port, env_extra={'HEXAPOD_DRIVER_TEST_RAISE_AFTER_STEPS': '300'})
+        inbox = Inbox(node)
+        try:
+            wait_for(ex, lambda: proc.poll() is not None and any(
+                'bus loop crashed' in s.message for d in inbox.diag for s in d.servos), 60.0, proc,
+                'exit after the forced exception')
+        finally:
+            rc, text = out.finish(proc)
+            inbox.close(node)
+        log = list(emu.log)
+    assert rc == 3, text
+    assert 'Traceback' in text and 'exception forced inside the bus loop' in text
+    assert 'torque off on all servos (read back)' in text
+    crash = next(i for i, e in enumerate(log) if e.servo_id == p.BROADCAST_ID and e.instruction == p.WRITE
+                 and e.address == 24 and e.data == b'\x00')
+    read_back = {e.servo_id for e in log[crash:] if e.instruction == p.READ and e.address == 24 and e.replied
+                 and e.reply_params == b'\x00'}
+    assert read_back == {s.servo_id for s in emu.servos}           # every id confirmed torque off
+    assert all(s.get('torque_enable') == 0 for s in emu.servos)
+    assert all(s.message.startswith('ERROR') for s in next(d for d in inbox.diag
+                                                           if 'bus loop crashed' in d.servos[0].message).servos)
+
+
+def test_port_lost_then_sigterm_makes_no_false_torque_off_claim(robot, ros, tmp_path):
+    node, ex = ros
+    with BusEmulator(robot, link_path=tmp_path / 'ttyDXL') as emu:
+        proc, out = start_node_env(emu.port, ['reconnect_period_s:=0.1'])
+        inbox = Inbox(node)
+        try:
+            wait_for(ex, lambda: len(inbox.states) > 20, 30.0, proc, 'reads')
+            emu.disconnect()
+            wait_for(ex, lambda: 'reconnect failed' in out.text(), 30.0, proc, 'a failed reconnect')
+            wait_for(ex, lambda: 'watchdog: no bus transaction completed' in out.text(), 30.0, proc, 'the watchdog')
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=30)
+        finally:
+            rc, text = out.finish(proc)
+            inbox.close(node)
+    assert rc == 0, text
+    assert 'torque state unknown: port lost' in text and 'torque off on all servos' not in text, text
+    assert 'Traceback' not in text, text
+
+
+def test_servos_at_another_baud_get_an_actionable_error(robot):
+    with BusEmulator(robot) as emu:
+        for s in emu.servos:
+            s.set_register('baud_rate', 34)                          # 57600 baud
+        proc, out = start_node_env(emu.port, ['startup_attempts:=1'])
+        proc.wait(timeout=60)
+        rc, text = out.finish(proc)
+    assert rc == 1
+    assert 'no servo answers at 1000000 baud' in text and 'servo_tool' in text and '--baud' in text
+    assert 'Traceback' not in text
+
+
+def test_status_return_level_1_is_set_to_2_at_startup(robot, ros):
+    node, ex = ros
+    with BusEmulator(robot) as emu:
+        for s in emu.servos:
+            s.set_register('status_return_level', 1)
+        proc, out = start_node_env(emu.port)
+        inbox = Inbox(node)
+        try:
+            wait_for(ex, lambda: len(inbox.states) > 20, 30.0, proc, 'reads')
+        finally:
+            rc, text = out.finish(proc)
+            inbox.close(node)
+    assert rc == 0, text
+    assert all(s.get('status_return_level') == 2 for s in emu.servos)
+    assert 'status return level was 1 (replies to reads only); set to 2' in text
+    assert all(s.get('torque_enable') == 0 for s in emu.servos)
+
+
+def test_help_does_not_open_the_device():
+    r = subprocess.run([sys.executable, '-m', 'hexapod_driver.driver_node', '--help'], env=node_env(),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and 'watchdog_timeout_s' in r.stdout and 'fault_policy' in r.stdout
+    assert '/dev/hexapod_dynamixel' in r.stdout and 'cannot open' not in r.stdout + r.stderr

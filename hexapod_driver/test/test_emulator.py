@@ -292,3 +292,59 @@ def test_emulator_over_a_servobus_serves_reads_from_it(robot):
         assert fake.writes[-1][1] == {'leg1_tibia': 0.0}
         ln.close()
     assert math.isfinite(fake.t)
+
+
+# ----------------------------------------------------------------------------- issue 11 faults
+def _open(port, baud):
+    import serial
+    return serial.Serial(port, baud, timeout=0.2)
+
+
+def _ask(ser, pkt, n):
+    ser.reset_input_buffer()
+    ser.write(pkt)
+    return ser.read(n)
+
+
+def test_status_return_level_follows_the_datasheet(robot):
+    with BusEmulator(robot) as emu:
+        ser = _open(emu.port, robot.bus.baud_rate)
+        ping, read = p.encode_instruction(1, p.PING), p.encode_instruction(1, p.READ, [36, 2])
+        write = p.encode_instruction(1, p.WRITE, [25, 1])
+        for level, answered in ((0, (True, False, False)), (1, (True, True, False)), (2, (True, True, True))):
+            emu.servo(1).set_register('status_return_level', level)
+            got = tuple(bool(_ask(ser, pkt, n)) for pkt, n in ((ping, 6), (read, 8), (write, 6)))
+            assert got == answered, level
+            assert emu.servo(1).get('led') == 1                   # the write is executed either way
+            assert emu.log[-1].note == ('' if level == 2 else f'status return level {level}: no status packet')
+        ser.close()
+
+
+def test_servo_at_another_baud_does_not_answer(robot):
+    with BusEmulator(robot) as emu:
+        emu.servo(1).set_register('baud_rate', 34)                # 57600 baud
+        ser = _open(emu.port, robot.bus.baud_rate)
+        assert _ask(ser, p.encode_instruction(1, p.PING), 6) == b''
+        assert emu.log[-1].note.startswith('baud mismatch')
+        assert _ask(ser, p.encode_instruction(2, p.PING), 6) == p.encode_status(2, 0)
+        ser.close()
+        ser = _open(emu.port, 57600)
+        assert _ask(ser, p.encode_instruction(1, p.PING), 6) == p.encode_status(1, 0)
+        assert emu.log[-1].tx == p.encode_status(1, 0) and emu.log[-1].rx == p.encode_instruction(1, p.PING)
+        ser.close()
+
+
+def test_reply_latency_holds_replies_back_without_blocking_instructions(robot):
+    with BusEmulator(robot) as emu:
+        emu.faults.set_reply_latency(0.3)
+        ser = _open(emu.port, robot.bus.baud_rate)
+        ser.write(p.encode_instruction(1, p.PING))
+        assert ser.read(6) == b''                                 # not within 0.2 s
+        ser.write(p.encode_instruction(1, p.WRITE, [25, 1]))      # executed on arrival meanwhile
+        deadline = time.monotonic() + 5.0
+        while emu.servo(1).get('led') != 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert emu.servo(1).get('led') == 1
+        ser.timeout = 5.0
+        assert ser.read(12) == p.encode_status(1, 0) * 2          # both replies, late, in order
+        ser.close()
