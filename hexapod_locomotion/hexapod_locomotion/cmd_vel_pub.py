@@ -104,6 +104,16 @@ def twist(cmd: VelocityCommand):
     return m
 
 
+def user_args(argv: list[str]) -> list[str]:
+    """argv[1:] without the --ros-args part (for argparse); malformed --ros-args raise CliError."""
+    from rclpy._rclpy_pybind11 import RCLError
+    from rclpy.utilities import remove_ros_args
+    try:
+        return remove_ros_args(argv)[1:]
+    except RCLError as exc:
+        raise CliError(f'bad --ros-args: {str(exc).splitlines()[0]}') from None
+
+
 def start_ros(prog: str, argv: list[str], node_name: str):
     """rclpy.init without rclpy's signal handlers (StopFlag handles them) + a node with the
     cmd_vel publisher. Bad --ros-args or remaps raise CliError (one line)."""
@@ -157,11 +167,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rclpy.utilities import remove_ros_args
-
     argv = list(sys.argv if argv is None else argv)
-    args = parse_args(remove_ros_args(argv)[1:])
     try:
+        args = parse_args(user_args(argv))
         cmd = check_velocity(args.vx, args.vy, args.wz)
         rate = check_number('--rate', args.rate, positive=True)
         duration = check_number('--duration', args.duration)

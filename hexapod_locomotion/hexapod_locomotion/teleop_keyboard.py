@@ -24,8 +24,8 @@ import sys
 import threading
 from dataclasses import dataclass
 
-from .cmd_vel_pub import (CliError, OneLineParser, StopFlag, check_number, finish_ros, start_ros,
-                          twist)
+from .cmd_vel_pub import (CliError, OneLineParser, StopFlag, check_number, finish_ros, start_ros, twist,
+                          user_args)
 from .controller import LocomotionParams, VelocityCommand
 from .gait import load_gaits
 
@@ -95,6 +95,26 @@ class Teleop:
         return f'vx {c.vx:+.3f} m/s   vy {c.vy:+.3f} m/s   wz {c.wz:+.3f} rad/s'
 
 
+def keys_from_bytes(data: bytes) -> list[str]:
+    """The key presses in one terminal read: escape sequences (arrows, function keys: CSI
+    ``ESC [ params final``, SS3 ``ESC O final``; Alt+key ``ESC key``) are dropped whole, so their
+    letters are not read as commands; the keys around them are kept."""
+    text = data.decode('utf-8', errors='ignore')
+    keys, i = [], 0
+    while i < len(text):
+        if text[i] != '\x1b':
+            keys.append(text[i])
+            i += 1
+            continue
+        i += 1
+        if i < len(text) and text[i] in '[O':
+            i += 1
+            while i < len(text) and not '\x40' <= text[i] <= '\x7e':     # parameter bytes
+                i += 1
+        i += 1                                                          # final byte / Alt'd key
+    return keys
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
     max_lin, max_ang = controller_limits()
     ap = OneLineParser(prog='teleop_keyboard', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -117,11 +137,9 @@ def _show(text: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rclpy.utilities import remove_ros_args
-
     argv = list(sys.argv if argv is None else argv)
-    args = parse_args(remove_ros_args(argv)[1:])
     try:
+        args = parse_args(user_args(argv))
         teleop = Teleop(args.lin_step, args.ang_step, args.max_lin, args.max_ang)
         rate = check_number('--rate', args.rate, positive=True)
     except CliError as exc:
@@ -178,9 +196,7 @@ def main(argv: list[str] | None = None) -> int:
             data = os.read(fd, 64)
             if not data:                       # terminal closed
                 break
-            if data.startswith(b'\x1b'):       # arrow / function keys: escape sequences, ignored
-                continue
-            for key in data.decode('utf-8', errors='ignore'):
+            for key in keys_from_bytes(data):
                 with lock:
                     running = teleop.press(key)
                 if not running:
