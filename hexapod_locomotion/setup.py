@@ -26,6 +26,8 @@ setup(
             'demo = hexapod_locomotion.demo:main',
             'experiment = hexapod_locomotion.experiments:main',
             'analyse = hexapod_locomotion.analyse:main',
+            'cmd_vel_pub = hexapod_locomotion.cmd_vel_pub:main',
+            'teleop_keyboard = hexapod_locomotion.teleop_keyboard:main',
         ],
     },
 )

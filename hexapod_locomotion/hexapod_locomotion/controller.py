@@ -69,6 +69,15 @@ class LocomotionParams:
             if getattr(self, f) <= 0:
                 raise LocomotionError(f'locomotion parameter {f} must be > 0')
 
+    def cycle_s(self, gait: Gait) -> float:
+        """Duration of one gait cycle (every group swings once) without waiting for ground."""
+        return gait.n_phases * (self.t_swing_up_s + self.t_swing_forward_s + self.t_des_s + self.t_level_s)
+
+    def saturating_velocity(self, gait: Gait) -> tuple[float, float]:
+        """(|v| [m/s], |wz| [rad/s]) beyond which step_phase clamps the stride / turn per cycle."""
+        c = self.cycle_s(gait)
+        return self.max_stride_m / c, self.max_turn_rad / c
+
 
 @dataclass(frozen=True)
 class VelocityCommand:
@@ -185,7 +194,7 @@ class GaitController:
         L = len(legs)
         warnings: list[str] = []
         t_start = bus.now()
-        cycle_s = self.gait.n_phases * (p.t_swing_up_s + p.t_swing_forward_s + p.t_des_s + p.t_level_s)
+        cycle_s = p.cycle_s(self.gait)
         d = np.array([cmd.vx, cmd.vy]) * cycle_s
         if np.linalg.norm(d) > p.max_stride_m:
             d *= p.max_stride_m / np.linalg.norm(d)
