@@ -123,14 +123,19 @@ def run_route(route: str, args, workdir: str) -> dict:
         cpu0 = {name: _cpu_s(p.pid) for name, p in procs}
         probe.measuring = True
         t0 = time.monotonic()
-        while time.monotonic() - t0 < args.seconds:
+        ended = None
+        cpu = {}
+        while time.monotonic() - t0 < args.seconds and ended is None:
             for name, p in procs:
-                if p.poll() is not None:
-                    raise RuntimeError(f'{route}: {name} ended with rc {p.returncode}; logs in {workdir}')
+                if p.poll() is None:
+                    cpu[name] = _cpu_s(p.pid) - cpu0[name]
+                else:                 # the route failed: report what it did until then, and why
+                    ended = f'{name} ended with rc {p.returncode} after {time.monotonic() - t0:.0f} s: ' + \
+                        _last_error(logs[[n for n, _ in procs].index(name)])
             time.sleep(0.5)
         probe.measuring = False
         wall = time.monotonic() - t0
-        cpu = {name: (_cpu_s(p.pid) - cpu0[name]) / wall for name, p in procs}
+        cpu = {name: v / wall for name, v in cpu.items()}
     finally:
         for _, p in procs:
             if p.poll() is None:
@@ -144,8 +149,16 @@ def run_route(route: str, args, workdir: str) -> dict:
         node.destroy_node()
         rclpy.shutdown(context=ctx)
     out = figures(probe, args.gait)
-    out.update(route=route, wall_s=wall, cpu=cpu)
+    out.update(route=route, wall_s=wall, cpu=cpu, ended=ended)
     return out
+
+
+def _last_error(log) -> str:
+    log.flush()
+    log.seek(0)
+    lines = [ln.strip() for ln in log if 'ERROR' in ln or 'Error' in ln]
+    return lines[-1] if lines else '(no error logged)'
+
 
 
 def figures(probe: _Probe, gait: str) -> dict:
@@ -244,6 +257,8 @@ def main(argv=None) -> int:
                           f'{per_min / ref_per_min:.0%}', f'{_pct(r["gaps_s"], 50) * 1e3:.2f}',
                           f'{_pct(r["gaps_s"], 95) * 1e3:.2f}', f'{r["t_con_nominal_s"] * 1e3:.1f}',
                           f'{dmed * 1e3:.0f}', f'{dmed / ref["delay_median_s"]:.2f}x', cpu]))
+        if r['ended']:
+            print(f'  {r["route"]}: {r["ended"]}')
     return 0
 
 

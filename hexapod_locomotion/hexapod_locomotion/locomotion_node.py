@@ -48,8 +48,8 @@ PARAMS = {
                                'this [s of bus time]; longer than the period of common publishers (ros2 topic pub: '
                                '1 s), so one late message does not stop the robot'),
     'default_vx': (0.0, 'forward speed [m/s] used when no /cmd_vel has been received'),
-    'read_timeout_s': (0.0, 'give up on a position read after this wall time [s]; 0 = 0.5 s, or 10 s in lockstep '
-                            '(a lock-stepped sim on a loaded machine answers late but surely)'),
+    'read_timeout_s': (0.0, 'give up on a position read after this wall time [s]; 0 = 2 s, or 10 s in lockstep '
+                            '(over DDS a loaded machine delivers reads late; a lock-stepped sim answers late but surely)'),
     'lockstep': (False, 'drive a lock-stepped bus master (sim_node lockstep:=true): advance it by publishing '
                         'commands instead of waiting for wall time; use with use_sim_time:=true'),
     'robot_description': ('', 'robot YAML path; empty = the packaged description'),
@@ -73,7 +73,7 @@ class LocomotionNode(Node):
             self.bus = bus
         else:
             t_com = g('t_com_s') or self.robot.bus.t_com_s
-            timeout = g('read_timeout_s') or (10.0 if g('lockstep') else 0.5)
+            timeout = g('read_timeout_s') or (10.0 if g('lockstep') else 2.0)
             self.bus = RosBus(self, t_com, read_timeout_s=timeout, lockstep=g('lockstep'))
         from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from geometry_msgs.msg import Twist

@@ -2,8 +2,8 @@
 
 ``ros2 run hexapod_locomotion robot`` starts, in one process and one executor,
 
-* the bus master: ``sim_node`` (``hardware:=sim``, the default: the MuJoCo hexapod) or
-  ``driver_node`` (``hardware:=dynamixel``: the AX-12A bus on a serial port),
+* the bus master: ``sim_node`` (``hardware:=sim``, the MuJoCo hexapod; the driver is not
+  composed yet: on the robot, ``driver_node`` and ``locomotion_node`` run as two processes),
 * ``model_node`` (the ``/predict_swing_down`` service),
 * ``locomotion_node``, whose controller calls the bus master's bus directly: Algorithm 1 reads the
   femurs, decides and writes at t_con = L x T_com, as on the paper's robot, where over DDS between
@@ -30,7 +30,7 @@ from .controller import LocomotionError
 from .detector import DetectorError
 from .gait import GaitError
 
-HARDWARE = ('sim', 'dynamixel')
+HARDWARE = ('sim',)
 
 
 def _hardware(context) -> str:
@@ -47,12 +47,8 @@ def _hardware(context) -> str:
 
 def _bus_master(hardware: str):
     """(node, its bus for the controller, cleanup)."""
-    if hardware == 'sim':
-        from hexapod_sim.sim_node import SimNode
-        node = SimNode()
-        return node, node.local_bus(), node.close
-    from hexapod_driver.driver_node import DriverNode
-    node = DriverNode()
+    from hexapod_sim.sim_node import SimNode
+    node = SimNode()
     return node, node.local_bus(), node.close
 
 
@@ -66,7 +62,8 @@ def main(args=None) -> None:
     try:
         hardware = _hardware(rclpy.get_default_context())
         if hardware not in HARDWARE:
-            raise SystemExit(f'robot: parameter hardware must be one of {", ".join(HARDWARE)}, got {hardware!r}')
+            raise SystemExit(f'robot: parameter hardware must be one of {", ".join(HARDWARE)}, got {hardware!r} '
+                             '(on the robot, run driver_node and locomotion_node: docs/architecture.md)')
         master, bus, cleanup = _bus_master(hardware)
         nodes.append(master)
         cleanups.append(cleanup)

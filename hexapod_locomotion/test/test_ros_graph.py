@@ -147,3 +147,12 @@ def test_composed_robot_walks_in_real_time_and_stops_cleanly(sig):
     assert procs[0].returncode == 0, outs
     assert 'Traceback' not in outs[0], outs[0][-3000:]
     assert 'serving /predict_swing_down' in outs[0]            # the model node is part of the graph
+
+
+@pytest.mark.parametrize('param,named', [('hardware:=dynamixel', 'hardware'), ('terrain:=moon', 'moon'),
+                                         ('gait:=bogus', 'bogus')])
+def test_composed_robot_refuses_bad_parameters_in_one_line(param, named):
+    p = _start('hexapod_locomotion', 'robot', param)
+    out = p.communicate(timeout=120)[0]
+    assert p.returncode != 0, out
+    assert named in out and 'Traceback' not in out, out
