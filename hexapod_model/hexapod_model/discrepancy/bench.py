@@ -170,7 +170,7 @@ def run(cases, legs, keep: Path | None, progress: bool = True) -> list[dict]:
             js = work / (bag.name + '.json')
             t0 = time.perf_counter()
             with contextlib.redirect_stdout(io.StringIO()) as text:
-                rc = tool([str(bag), '--json', str(js), '--quiet'])
+                rc = tool([str(bag), '--json', str(js), '--no-progress'])
             (work / (bag.name + '.txt')).write_text(text.getvalue())
             t_tool = time.perf_counter() - t0
             if rc != 0:
