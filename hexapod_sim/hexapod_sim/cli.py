@@ -55,7 +55,8 @@ def build_parser():
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    ap = build_parser()
+    args = ap.parse_args(argv)
     if args.render is None and args.video is None:
         from . import sim_node
         ros = ['sim', '--ros-args', '-p', f'terrain:={args.terrain}', '-p', f'seed:={args.seed}',
@@ -88,7 +89,7 @@ def main(argv=None) -> int:
             print(f'wrote {out} ({args.duration:g} s of a scripted tripod gait on {args.terrain}; '
                   f'trunk moved to x={pos[0]:.3f} m)')
     except (RenderError, SimError, DescriptionError, ValueError) as exc:
-        print(f'sim: error: {exc}', file=sys.stderr)
+        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 2
     return 0
 

@@ -20,7 +20,6 @@ one leg), three effects on a whole leg, three robot-wide, two pairs at once, two
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
@@ -253,7 +252,8 @@ def make_demo(out_dir: Path, seed: int) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='discrepancy_bench', description=__doc__.splitlines()[0])
+    from ..cli_common import make_parser
+    ap = make_parser('discrepancy_bench', __doc__.splitlines()[0])
     ap.add_argument('--seed', type=int, default=0, help='draws the magnitudes and joints of the cases')
     ap.add_argument('--cases', nargs='+', metavar='NAME', help='run only these cases (names as in the table)')
     ap.add_argument('--legs', nargs='+', type=int, default=list(LEGS), help='legs the routine moves (default all)')
