@@ -14,11 +14,13 @@ and checks the servo answers under its new ID afterwards. Library functions, no 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler
 from tqdm import tqdm
 
+from hexapod_model.cli_common import ArgumentParser, make_parser, nonnegative_int, positive_int
 from hexapod_model.description import load_robot
 
 from . import protocol as p
@@ -30,6 +32,8 @@ class ServoToolError(RuntimeError):
 
 
 def open_port(device: str, baud_rate: int, margin_ms: float = 10.0) -> LowLatencyPortHandler:
+    if not os.path.exists(device):
+        raise ServoToolError(f'{device}: no such device (is the USB adapter plugged in? see docs/real-robot.md)')
     port = LowLatencyPortHandler(device, latency_timer_ms=1.0, margin_ms=margin_ms)
     try:
         ok = port.setBaudRate(baud_rate)
@@ -90,16 +94,27 @@ def set_id(port, old: int, new: int) -> None:
 
 def main(argv=None) -> int:
     robot = load_robot()
-    ap = argparse.ArgumentParser(prog='servo_tool', description=__doc__.split('\n\n')[0])
-    ap.add_argument('--device', default='/dev/hexapod_dynamixel', help='serial device (default: the udev symlink)')
-    ap.add_argument('--baud', type=int, default=robot.bus.baud_rate, help='baud rate (default: robot description)')
-    sub = ap.add_subparsers(dest='cmd', required=True)
-    sc = sub.add_parser('scan', help='list the servos that answer')
-    sc.add_argument('--max-id', type=int, default=p.MAX_ID)
-    si = sub.add_parser('set-id', help='give the servo at --from a new ID')
-    si.add_argument('--from', dest='old', type=int, default=1, help='current ID (factory: 1)')
+    # the bus options are accepted before or after the sub-command (scan --device X) and listed in
+    # every sub-command's --help: one parent parser holds them
+    common = ArgumentParser(add_help=False)
+    common.add_argument('--device', default='/dev/hexapod_dynamixel', help='serial device (the udev symlink)')
+    common.add_argument('--baud', type=positive_int, default=robot.bus.baud_rate,
+                        help='baud rate (from the robot description)')
+    ap = make_parser('servo_tool', __doc__, parents=[common])
+    sub = ap.add_subparsers(dest='cmd', required=True, metavar='{scan,set-id}')
+    # SUPPRESS: a sub-command's defaults must not overwrite options given before the sub-command
+    quiet_common = ArgumentParser(add_help=False)
+    for a in common._actions:
+        quiet_common.add_argument(*a.option_strings, type=a.type, default=argparse.SUPPRESS,
+                                  help=f'{a.help} (default: {a.default})')
+    sc = sub.add_parser('scan', help='list the servos that answer', parents=[quiet_common],
+                        description='List the servos that answer a PING (IDs 0..--max-id).')
+    sc.add_argument('--max-id', type=nonnegative_int, default=p.MAX_ID, help='highest ID to ping')
+    si = sub.add_parser('set-id', help='give the servo at --from a new ID', parents=[quiet_common],
+                        description='Give the servo at --from a new ID (refused when the new ID already answers).')
+    si.add_argument('--from', dest='old', type=nonnegative_int, default=1, help='current ID (factory: 1)')
     g = si.add_mutually_exclusive_group(required=True)
-    g.add_argument('--to', type=int, help='new ID')
+    g.add_argument('--to', type=nonnegative_int, help='new ID')
     g.add_argument('--joint', help="joint whose ID (from the robot description) to give, e.g. leg3_femur")
     args = ap.parse_args(argv)
     try:
@@ -119,7 +134,7 @@ def main(argv=None) -> int:
             print(f'servo at ID {args.old} now has ID {new}' + (f' ({args.joint})' if args.joint else ''))
         port.closePort()
     except (ServoToolError, ValueError) as exc:
-        print(f'servo_tool: {exc}', file=sys.stderr)
+        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 1
     return 0
 

@@ -38,3 +38,15 @@ def test_command_line_names_the_joint_id_from_the_description(emu, capsys):
     assert 'now has ID 7 (leg3_coxa)' in capsys.readouterr().out
     assert main(['--device', emu.port, 'set-id', '--from', '18', '--to', '3']) == 1
     assert 'no servo answers at ID 18' in capsys.readouterr().err
+
+
+def test_bus_options_after_the_sub_command(emu, capsys):
+    """Issue 14 item 4: `scan --device X` works like `--device X scan`, and `scan --help` lists it."""
+    assert main(['scan', '--device', emu.port, '--max-id', '20']) == 0
+    after = capsys.readouterr().out
+    assert main(['--device', emu.port, 'scan', '--max-id', '20']) == 0
+    assert capsys.readouterr().out == after and 'servo(s) found' in after
+    with pytest.raises(SystemExit) as e:
+        main(['scan', '--help'])
+    text = capsys.readouterr().out
+    assert e.value.code == 0 and '--device' in text and '--baud' in text and 'default: 253' in text

@@ -11,17 +11,18 @@ power, body pose and IMU. Plots go to a PNG.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
+import warnings
 from collections import defaultdict
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.bagio import BagError, BagReader
+from hexapod_model.bagio import BagError, BagReader, BagWarning
+from hexapod_model.cli_common import add_no_progress_option, make_parser, output_file, plot_extensions
 from hexapod_model.contract import GROUND_DETECTION, IMU, JOINT_STATES, POWER, SIM_TRUTH_POSE, SWING_DOWN
 from hexapod_model.description import DescriptionError, load_robot, parse_joint_name
 from hexapod_model.swing_model import LegModel
@@ -59,11 +60,14 @@ class LegVerdict:
 class SwingTrace:
     legs: tuple
     t_start_s: float
+    detector: str                       # the detector the recording ran with
     traces: dict                        # detector -> leg -> list of (t_swing, err, threshold)
 
 
 def load_bag(path: str):
-    reader = BagReader(path)
+    with warnings.catch_warnings():      # the problems are returned (reader.warnings) and reported by the caller
+        warnings.simplefilter('ignore', BagWarning)
+        reader = BagReader(path)
     topics = reader.topics()
     if SWING_DOWN not in topics:
         raise AnalysisError(f'{path}: no {SWING_DOWN} topic - the swing-down inputs of Algorithm 1 were not '
@@ -73,7 +77,10 @@ def load_bag(path: str):
     swings, femur_reads, recorded = [], [], defaultdict(dict)
     power, pose, imu = [], [], []
     wanted = [t for t in (SWING_DOWN, JOINT_STATES, GROUND_DETECTION, POWER, SIM_TRUTH_POSE, IMU) if t in topics]
-    for topic, _type, t_ns, msg in reader.messages(topics=wanted):
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', BagWarning)
+        messages = list(reader.messages(topics=wanted))
+    for topic, _type, t_ns, msg in messages:
         if topic == SWING_DOWN:
             swings.append((_t(msg.header.stamp), msg))
         elif topic == JOINT_STATES:
@@ -103,7 +110,14 @@ def load_bag(path: str):
     return swings, femur_reads, recorded, power, pose, imu, reader.warnings if hasattr(reader, 'warnings') else []
 
 
-def analyse(path: str, robot=None, keep_traces: int = 6) -> dict:
+def analyse(path: str, robot=None, keep_traces: int = 6, progress: bool = False) -> dict:
+    """Re-run both detectors over the bag at ``path``.
+
+    A recording can end in the middle of a swing-down (a truncated bag, or a walk stopped at its
+    time limit): when the last swing-down has a leg without a recorded decision, that swing-down
+    is reported as ``incomplete`` and left out of every count, as the demo leaves out a gait
+    phase cut off by its time limit.
+    """
     robot = robot or load_robot()
     swings, femur_reads, recorded, power, pose, imu, bag_warnings = load_bag(path)
     models = {leg: LegModel(robot, leg) for leg in range(1, 7)}
@@ -112,9 +126,17 @@ def analyse(path: str, robot=None, keep_traces: int = 6) -> dict:
     traces: list[SwingTrace] = []
     intervals = []
     problems: list[str] = []
-    for i, (t0, msg) in enumerate(swings):
+    incomplete = []
+    from tqdm import tqdm
+    for i, (t0, msg) in enumerate(tqdm(swings, desc='re-running the detectors', unit='swing-down',
+                                       file=sys.stderr, disable=not progress, leave=False)):
         t_end = swings[i + 1][0] if i + 1 < len(swings) else math.inf
         legs = tuple(int(x) for x in msg.legs)
+        rec = recorded.get(round(t0, 6), {})
+        if i == len(swings) - 1 and any(leg not in rec for leg in legs):
+            incomplete.append({'swing_index': i, 't_start_s': t0, 'legs': list(legs),
+                               'legs_with_a_decision': sorted(rec)})
+            continue
         lo, hi = np.searchsorted(times, t0 - 1e-9), np.searchsorted(times, t_end - 1e-9)
         reads = [(leg, th, t) for t, leg, th in femur_reads[lo:hi] if leg in legs]
         kind = msg.detector
@@ -140,8 +162,7 @@ def analyse(path: str, robot=None, keep_traces: int = 6) -> dict:
                     end = max(done) + 1e-9
                     reads = [r for r in reads if r[2] <= end]
         if len(traces) < keep_traces:
-            traces.append(SwingTrace(legs, t0, tr))
-        rec = recorded.get(round(t0, 6), {})
+            traces.append(SwingTrace(legs, t0, kind, tr))
         for leg in legs:
             same = res[kind].state[leg]
             oth = res[other].state[leg]
@@ -165,7 +186,8 @@ def analyse(path: str, robot=None, keep_traces: int = 6) -> dict:
                                        oth.stop_reason if verdict in ('same', 'earlier') else None, verdict))
             if r_stop is not None:
                 intervals.append((t0, t0 + r_stop, leg))
-    out: dict = {'bag': str(path), 'swing_downs': len(swings), 'legs_evaluated': len(verdicts),
+    out: dict = {'bag': str(path), 'swing_downs': len(swings) - len(incomplete), 'legs_evaluated': len(verdicts),
+                 'incomplete_swing_downs': incomplete,
                  'recorded_detector': sorted({v.recorded_detector for v in verdicts}),
                  'reproduced': sum(v.reproduced for v in verdicts),
                  'not_reproduced': [asdict(v) for v in verdicts if not v.reproduced],
@@ -214,34 +236,44 @@ def plot(result: dict, path: Path) -> None:
     for ax, tr in zip(axes[:, 0], traces):
         for slot, leg in enumerate(tr.legs):
             c = colours[slot % len(colours)]
-            for det, style in (('adaptive', '--'), ('fixed', ':')):
+            for det, style, mark in (('adaptive', '--', 'o'), ('fixed', ':', 's')):
                 rows = tr.traces.get(det, {}).get(leg, [])
                 n = next((i + 1 for i, r in enumerate(rows) if r[3]), len(rows))   # up to the stop
                 a = np.array(rows[:n]) if n else np.zeros((0, 4))
                 if not len(a):
                     continue
-                if det == 'adaptive':
+                recorded = det == tr.detector
+                if recorded:
                     ax.plot(a[:, 0], a[:, 1], '-', color=c, lw=1, label=f'leg {leg}: measured error')
+                if det == 'adaptive':
                     ax.plot(a[:, 0], a[:, 2], style, color=c, lw=1, label=f'leg {leg}: adaptive threshold (Eq. 17)')
-                    ax.plot(a[-1, 0], a[-1, 1], 'o', color=c, ms=4)
                 else:
-                    ax.plot(a[:, 0], a[:, 2], style, color='0.5', lw=1,
-                            label='fixed threshold' if slot == 0 else None)
-        ax.set_title(f'swing-down at t={tr.t_start_s:.2f} s, legs {tr.legs} (dot: stop)', fontsize=9)
+                    ax.plot(a[:, 0], a[:, 2], style, color='0.5', lw=1, label='fixed threshold' if slot == 0 else None)
+                if rows[n - 1][3]:      # this detector stopped the leg here (filled: the recorded detector)
+                    ax.plot(a[-1, 0], a[-1, 1], mark, color=c, ms=5, mfc=c if recorded else 'none',
+                            label=f'{det} stop' + (' (recorded)' if recorded else '') if slot == 0 else None)
+        ax.set_title(f'swing-down at t={tr.t_start_s:.2f} s, legs {tr.legs} (o adaptive stop, s fixed stop; filled: recorded)', fontsize=9)
         ax.set_ylabel('lag [ticks]')
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel('time since swing-down start [s]')
-    axes[0, 0].legend(fontsize=6, ncol=4, loc='upper right')
+    axes[0, 0].legend(fontsize=6, ncol=4, loc='lower left', bbox_to_anchor=(0, 1.15))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
-def report_lines(r: dict) -> list[str]:
-    lines = [f'{r["bag"]}: {r["swing_downs"]} swing-downs, {r["legs_evaluated"]} leg decisions, recorded with the '
-             f'{"/".join(r["recorded_detector"])} detector']
+def report_lines(r: dict, json_path: str | None = None) -> list[str]:
+    """The text report; uses the demo's words: swing-down phases (one per leg group) and leg swing-downs."""
+    lines = [f'{r["bag"]}: {r["swing_downs"]} swing-down phases, {r["legs_evaluated"]} leg swing-downs, recorded '
+             f'with the {"/".join(r["recorded_detector"])} detector']
+    for inc in r.get('incomplete_swing_downs', []):
+        lines.append(f'  the recording ends during the swing-down at t={inc["t_start_s"]:.2f} s (legs {inc["legs"]}, '
+                     f'{len(inc["legs_with_a_decision"])} of {len(inc["legs"])} with a decision): incomplete, '
+                     'left out of the counts')
+    differ = len(r['not_reproduced'])
     lines.append(f'  re-running the recorded detector reproduces {r["reproduced"]} of {r["legs_evaluated"]} decisions'
-                 + ('' if r['reproduced'] == r['legs_evaluated'] else f' ({len(r["not_reproduced"])} differ; see JSON)'))
+                 + ('' if not differ else f' ({differ} differ' + (f'; see {json_path})' if json_path else
+                                                                  '; --json FILE lists them)')))
     o = r['other_detector']
     other = 'fixed' if r['recorded_detector'] == ['adaptive'] else 'adaptive'
     lines.append(f'  the {other} detector would have stopped: same read {o["same"]}, earlier {o["earlier"]}, '
@@ -251,7 +283,8 @@ def report_lines(r: dict) -> list[str]:
                      f'(max {r["other_earlier_by_s"]["max"] * 1e3:.0f} ms)')
     if r.get('cot'):
         c = r['cot']
-        lines.append(f'  speed {c["speed_mps"]:.3f} m/s, power {c["power_w"]:.1f} W, CoT {c["cot"]:.1f}')
+        lines.append(f'  speed {c["speed_mps"]:.3f} m/s, mean power {c["power_w"]:.1f} W, cost of transport '
+                     f'{c["cot"]:.1f} (Eq. 18, {c["windows"]} windows of 10 s)')
     elif r.get('cot_note'):
         lines.append(f'  CoT: {r["cot_note"]}')
     if r.get('stability'):
@@ -262,17 +295,21 @@ def report_lines(r: dict) -> list[str]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='analyse', description=__doc__.splitlines()[0])
+    ap = make_parser('analyse', __doc__)
     ap.add_argument('bag', help='rosbag2 directory or .mcap file')
-    ap.add_argument('--json', metavar='FILE', help='write the full analysis as JSON')
-    ap.add_argument('--plot', metavar='PNG', help='plot measured error and both thresholds of the first swing-downs')
+    ap.add_argument('--json', metavar='FILE', type=output_file(('.json',)), help='write the full analysis as JSON')
+    ap.add_argument('--plot', metavar='PNG', type=output_file(plot_extensions),
+                    help='plot measured error, both thresholds and both detectors\' stops of the first swing-downs')
+    add_no_progress_option(ap)
     args = ap.parse_args(argv)
     try:
-        r = analyse(args.bag)
+        r = analyse(args.bag, progress=args.progress)
     except (BagError, AnalysisError, DetectorError) as exc:
-        print(f'analyse: {exc}', file=sys.stderr)
+        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 2
-    for line in report_lines(r):
+    for w in r['bag_warnings']:
+        print(f'{ap.prog}: warning: {" ".join(str(w).split())}', file=sys.stderr)
+    for line in report_lines(r, args.json):
         print(line)
     if args.plot:
         plot(r, Path(args.plot))

@@ -61,13 +61,13 @@ class LocomotionParams:
     landing_preload: float = 1.0
 
     def __post_init__(self):
+        positive = ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_level_s', 'write_period_s')
         for f in self.__dataclass_fields__:
             v = getattr(self, f)
-            if isinstance(v, float) and (not math.isfinite(v) or v < 0):
+            if f in positive and not (math.isfinite(v) and v > 0):
+                raise LocomotionError(f'locomotion parameter {f} must be finite and > 0, got {v!r}')
+            if isinstance(v, float) and not (math.isfinite(v) and v >= 0):
                 raise LocomotionError(f'locomotion parameter {f} must be finite and >= 0, got {v!r}')
-        for f in ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_level_s', 'write_period_s'):
-            if getattr(self, f) <= 0:
-                raise LocomotionError(f'locomotion parameter {f} must be > 0')
 
     def cycle_s(self, gait: Gait) -> float:
         """Duration of one gait cycle (every group swings once) without waiting for ground."""

@@ -7,10 +7,12 @@ the ground-detection statistics. Deterministic for a seed.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
+
+from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, fail, finite_float, make_parser,
+                                      nonnegative_int, output_file, positive_float)
 
 from .sim_run import TrialConfig, run_trial
 
@@ -20,13 +22,13 @@ def summary_lines(res) -> list[str]:
     status = 'reached the end of the course' if res.reached_course_end else (
         'FELL' if res.fell else 'stopped at the time limit')
     lines.append(f'walked {res.distance_m:.2f} m in {res.sim_time_s:.1f} s of simulated time ({status}), '
-                 f'{res.phases} gait phases')
+                 f'{res.phases} swing-down phases')
     if res.cot:
         lines.append(f'speed {res.cot["speed_mps"]:.3f} m/s, mean power {res.cot["power_w"]:.1f} W, '
                      f'cost of transport {res.cot["cot"]:.1f} (Eq. 18, {res.cot["windows"]} windows of 10 s)')
     d = res.detection
     if d:
-        lines.append(f'ground detection: {d["swing_downs"]} swing-downs, {d["detected"]} contacts detected, '
+        lines.append(f'ground detection: {d["swing_downs"]} leg swing-downs, {d["detected"]} contacts detected, '
                      f'{d["premature_stops"]} premature stops, {d["missed_contacts"]} missed contacts, '
                      f'{d["no_ground"]} with no ground in reach')
         if d['delay_control_periods']:
@@ -41,33 +43,63 @@ def summary_lines(res) -> list[str]:
     return lines
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='demo', description=__doc__.splitlines()[0])
-    ap.add_argument('--gait', default='tripod', help='tripod | tetrapod | pentapod')
-    ap.add_argument('--detector', default='adaptive', choices=['adaptive', 'fixed'])
-    ap.add_argument('--t-des', type=float, default=1.0, help='swing-down duration [s]')
-    ap.add_argument('--terrain', default='mockup', help='flat | blocks | stairs | rough | mockup')
-    ap.add_argument('--seed', type=int, default=0)
-    ap.add_argument('--start-x', type=float, default=0.0, help='start position along the course [m]')
-    ap.add_argument('--duration', type=float, default=180.0, help='simulated time limit [s]')
-    ap.add_argument('--course-end', type=float, default=2.6, help='stop when the trunk passes this x [m]')
+def build_parser():
+    from hexapod_sim.render import VIDEO_EXTENSIONS
+    from hexapod_sim.terrain import MOCKUP_BLOCKS_X_M, MOCKUP_STAIRS_X_M, TERRAINS
+
+    from .detector import DETECTOR_KINDS
+    from .gait import load_gaits
+    ap = make_parser('demo', __doc__)
+    ap.add_argument('--gait', default='tripod', choices=sorted(load_gaits()), help='gait (data/gaits.yaml)')
+    ap.add_argument('--detector', default='adaptive', choices=DETECTOR_KINDS, help='ground detector')
+    ap.add_argument('--t-des', type=positive_float, default=1.0, help='swing-down duration t_des [s]')
+    ap.add_argument('--terrain', default='mockup', choices=list(TERRAINS), help='terrain')
+    ap.add_argument('--seed', type=nonnegative_int, default=0, help='seed of the random terrain parts')
+    ap.add_argument('--start-x', type=finite_float, default=0.0,
+                    help=f'start position along the course [m]; on the mockup the blocks begin at '
+                         f'{MOCKUP_BLOCKS_X_M[0]:g} m and the stairs at {MOCKUP_STAIRS_X_M:g} m, so a short demo '
+                         f'starts near them (e.g. --start-x 1.25 --duration 25)')
+    ap.add_argument('--duration', type=positive_float, default=180.0,
+                    help='simulated walking time limit [s]; checked every control period, so the walk stops '
+                         'within one control period (t_con) of it, mid-phase if need be')
+    ap.add_argument('--course-end', type=finite_float, default=2.6, help='stop when the trunk passes this x [m]')
     ap.add_argument('--record', default='auto',
                     help="bag directory; 'auto' = bags/demo_<UTC time>; '' = do not record")
-    ap.add_argument('--json', metavar='FILE', help='also write the full results as JSON')
-    ap.add_argument('--video', metavar='GIF', help='also render an animated GIF of the walk (offscreen, CPU)')
-    args = ap.parse_args(argv)
+    add_overlay_option(ap)
+    ap.add_argument('--json', metavar='FILE', type=output_file(('.json',)), help='also write the full results as JSON')
+    ap.add_argument('--video', metavar='GIF', type=output_file(VIDEO_EXTENSIONS),
+                    help='also render an animated GIF of the walk (offscreen, CPU)')
+    add_no_progress_option(ap)
+    return ap
 
-    from hexapod_sim.recorder import resolve_bag_dir
-    bag = str(resolve_bag_dir(args.record, prefix='demo')) if args.record else None
+
+def main(argv=None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if args.course_end <= args.start_x:
+        fail(ap, f'--course-end {args.course_end} must lie beyond --start-x {args.start_x}')
+    # everything the run needs is checked before anything (the bag directory) is created
+    from hexapod_model.description import DescriptionError, load_robot
+    try:
+        load_robot(overlays=args.overlay)
+    except DescriptionError as exc:
+        fail(ap, str(exc))
+    from hexapod_sim.recorder import RecorderError, check_bag_dir, resolve_bag_dir
+    bag = None
+    if args.record:
+        try:
+            bag = str(check_bag_dir(resolve_bag_dir(args.record, prefix='demo')))
+        except RecorderError as exc:
+            fail(ap, str(exc))
     cfg = TrialConfig(gait=args.gait, detector=args.detector, t_des_s=args.t_des, terrain=args.terrain,
                       seed=args.seed, duration_s=args.duration, course_end_m=args.course_end, record=bag,
-                      start_x_m=args.start_x, video=args.video)
+                      start_x_m=args.start_x, video=args.video, overlays=tuple(args.overlay))
     print(f'hexapod demo: {cfg.gait} gait, {cfg.detector} ground detection, t_des={cfg.t_des_s} s, '
           f'terrain "{cfg.terrain}" (seed {cfg.seed}), simulated AX-12A bus with T_com='
           f'{"description default" if cfg.t_com_s is None else cfg.t_com_s}', flush=True)
     from tqdm import tqdm
     total = round(max(args.course_end - args.start_x, 0.01), 2)
-    bar = tqdm(total=total, unit='m', desc='walking', file=sys.stdout, mininterval=1.0,
+    bar = tqdm(total=total, unit='m', desc='walking', file=sys.stderr, mininterval=1.0, disable=not args.progress,
                bar_format='{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.2f} m [{elapsed}{postfix}]')
     t0 = time.monotonic()
 
@@ -75,7 +107,11 @@ def main(argv=None) -> int:
         bar.n = round(max(0.0, min(dist, total)), 2)
         bar.set_postfix_str(f'sim {t_sim:.0f} s')
 
-    res = run_trial(cfg, progress=progress)
+    def on_video(n_frames):
+        bar.clear()
+        print(f'writing GIF {args.video} ({n_frames} frames)...', file=sys.stderr, flush=True)
+
+    res = run_trial(cfg, progress=progress, on_video_write=on_video)
     bar.close()
     print(f'done in {time.monotonic() - t0:.0f} s of wall time')
     for line in summary_lines(res):

@@ -30,6 +30,9 @@ from hexapod_model.swing_model import LegModel, SwingDownPrediction, interpolate
 STOP_NONE, STOP_CONTACT, STOP_THETA_FIN = 0, 1, 2     # as in hexapod_msgs/LegGroundDetection
 
 
+DETECTOR_KINDS = ('adaptive', 'fixed')              # Eq. 17, and the fixed threshold of the earlier work
+
+
 class DetectorError(ValueError):
     """Bad detector configuration or input."""
 
@@ -48,8 +51,8 @@ class DetectorConfig:
     stop_mode: str = 'hold'
 
     def __post_init__(self):
-        if self.kind not in ('adaptive', 'fixed'):
-            raise DetectorError(f"detector kind must be 'adaptive' or 'fixed', got {self.kind!r}")
+        if self.kind not in DETECTOR_KINDS:
+            raise DetectorError(f"detector kind must be one of {DETECTOR_KINDS}, got {self.kind!r}")
         for name in ('epsilon_tick', 'fixed_threshold_tick', 'min_descent_m'):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0:

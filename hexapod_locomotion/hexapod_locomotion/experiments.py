@@ -12,7 +12,6 @@ Sub-commands (each deterministic for its seeds, lock-stepped, trials in parallel
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -21,6 +20,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
+
+from hexapod_model.cli_common import add_no_progress_option, make_parser, positive_float, positive_int
 
 from .sim_run import TrialConfig, run_trial
 
@@ -41,17 +42,20 @@ def _trial_job(cfg: TrialConfig) -> dict:
     return run_trial(cfg).to_dict()
 
 
+PROGRESS = {'disable': False}          # --no-progress; bars go to stderr
+
+
 def run_many(configs: list[TrialConfig], jobs: int, desc: str) -> list[dict]:
     """Run trials in parallel processes with a progress bar; results in the order of ``configs``."""
     from tqdm import tqdm
     out: list[dict | None] = [None] * len(configs)
     if jobs <= 1:
-        for i, c in enumerate(tqdm(configs, desc=desc, unit='trial', file=sys.stdout)):
+        for i, c in enumerate(tqdm(configs, desc=desc, unit='trial', file=sys.stderr, **PROGRESS)):
             out[i] = _trial_job(c)
         return out  # type: ignore[return-value]
     with ProcessPoolExecutor(max_workers=jobs) as ex:
         futs = {ex.submit(_trial_job, c): i for i, c in enumerate(configs)}
-        for f in tqdm(as_completed(futs), total=len(futs), desc=desc, unit='trial', file=sys.stdout):
+        for f in tqdm(as_completed(futs), total=len(futs), desc=desc, unit='trial', file=sys.stderr, **PROGRESS):
             out[futs[f]] = f.result()
     return out  # type: ignore[return-value]
 
@@ -181,11 +185,15 @@ def free_swing_quality(t_des_values=(0.5, 1.0, 2.0), phases_per_gait: int = 6) -
     from .controller import GaitController, LocomotionParams, VelocityCommand
     from .detector import STOP_CONTACT, DetectorConfig
     from .gait import get_gait
+    from tqdm import tqdm
     robot = load_robot()
     out = []
+    bar = tqdm(total=len(GAITS) * len(t_des_values) * len(DETECTORS), desc='free swing on a stand', unit='cell',
+               file=sys.stderr, **PROGRESS)
     for g in GAITS:
         for t in t_des_values:
             for d in DETECTORS:
+                bar.update()
                 sim = HexapodSim(robot, terrain='flat', fixed_base=True)
                 c = GaitController(robot, get_gait(g), LocomotionParams(t_des_s=t), DetectorConfig(kind=d),
                                    t_com_s=sim.t_com_s)
@@ -198,6 +206,7 @@ def free_swing_quality(t_des_values=(0.5, 1.0, 2.0), phases_per_gait: int = 6) -
                 out.append({'gait': g, 't_des_s': t, 'detector': d, 'swing_downs': len(stops),
                             'premature_stops': premature,
                             'median_stop_time_s': float(np.median([o.stop_time_s for o in stops]))})
+    bar.close()
     return out
 
 
@@ -218,16 +227,22 @@ def format_quality(results: list[dict]) -> str:
             for d in DETECTORS:
                 rs = [r['detection'] for r in results if r['detection'] and (r['config']['gait'], r['config']['t_des_s'],
                                                                              r['config']['detector']) == (g, t, d)]
-                rs = [x for x in rs if x['delay_s']]
                 if not rs:
                     continue
-                m = lambda k, s='median': float(np.mean([x[k][s] for x in rs]))  # noqa: E731
-                fl = [x['blocked_leg_floor_periods']['median'] for x in rs if x.get('blocked_leg_floor_periods')]
+                detected = sum(x['detected'] for x in rs)
+                timed = [x for x in rs if x['delay_s']]
+                if not timed:       # no contact detected after a true contact: the failing cell, shown
+                    lines.append(f'{g:9} {t:5.1f} {d:9} | {"-":>8} {"-":>7} {"-":>5} | {"-":>11} {"-":>11} | '
+                                 f'{"-":>12} | {sum(x["premature_stops"] for x in rs):5d} '
+                                 f'{sum(x["missed_contacts"] for x in rs):6d}   ({detected} contacts detected)')
+                    continue
+                m = lambda k, s='median': float(np.mean([x[k][s] for x in timed]))  # noqa: E731
+                fl = [x['blocked_leg_floor_periods']['median'] for x in timed if x.get('blocked_leg_floor_periods')]
                 floor = f'{np.mean(fl):5.1f}' if fl else '    -'
                 lines.append(f'{g:9} {t:5.1f} {d:9} | {m("delay_s") * 1e3:8.1f} {m("delay_control_periods"):7.1f} {floor} | '
                              f'{m("femur_torque_at_stop_nm"):11.2f} {m("peak_femur_torque_nm"):11.2f} | '
                              f'{m("command_overshoot_m") * 1e3:12.1f} | {sum(x["premature_stops"] for x in rs):5d} '
-                             f'{sum(x["missed_contacts"] for x in rs):6d}')
+                             f'{sum(x["missed_contacts"] for x in rs):6d}   ({detected} contacts detected)')
     lines.append('periods = control periods t_con from the first true contact to the stop; floor = epsilon / femur '
                  'goal step (Eq. 15), the fewest periods in which even a rigidly blocked leg crosses Eq. 17')
     return '\n'.join(lines)
@@ -235,20 +250,24 @@ def format_quality(results: list[dict]) -> str:
 
 # ----------------------------------------------------------------------------- CLI
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='experiment', description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    ap.add_argument('which', choices=['table4', 'fig11', 'fig12', 'quality', 'all'])
-    ap.add_argument('--trials', type=int, default=3, help='trials per cell (seeds 0..N-1)')
-    ap.add_argument('--duration', type=float, default=60.0, help='simulated walking time per trial [s]')
-    ap.add_argument('--fig12-duration', type=float, default=600.0, help='simulated time of the Fig. 12 walk [s]')
-    ap.add_argument('--terrain', default='mockup')
-    ap.add_argument('--fixed-threshold', type=float, default=21.0,
+    from hexapod_sim.terrain import TERRAINS
+    ap = make_parser('experiment', __doc__)
+    ap.add_argument('which', choices=['table4', 'fig11', 'fig12', 'quality', 'all'], help='what to run (see above)')
+    ap.add_argument('--trials', type=positive_int, default=3, help='trials per cell (seeds 0..N-1)')
+    ap.add_argument('--duration', type=positive_float, default=60.0, help='simulated walking time per trial [s]')
+    ap.add_argument('--fig12-duration', type=positive_float, default=600.0, help='simulated time of the Fig. 12 walk [s]')
+    ap.add_argument('--terrain', default='mockup', choices=list(TERRAINS), help='terrain of the mockup trials')
+    ap.add_argument('--fixed-threshold', type=positive_float, default=21.0,
                     help="threshold of the fixed detector [ticks] (paper: 21, found for the authors' robot)")
-    ap.add_argument('--jobs', type=int, default=max(1, os.cpu_count() or 1), help='parallel processes')
-    ap.add_argument('--out', default='out/experiments', help='folder for PNGs and the JSON')
+    ap.add_argument('--jobs', type=positive_int, default=max(1, os.cpu_count() or 1), help='parallel processes')
+    ap.add_argument('--out', default='out/experiments', help='folder for PNGs and the JSON (created)')
     ap.add_argument('--json', metavar='FILE', help='JSON results (default: OUT/<which>.json)')
+    add_no_progress_option(ap)
     args = ap.parse_args(argv)
+    PROGRESS['disable'] = not args.progress
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        ap.error(f'--out {out} exists and is not a directory')
     out.mkdir(parents=True, exist_ok=True)
     report: dict = {'which': args.which, 'trials': args.trials, 'duration_s': args.duration, 'terrain': args.terrain,
                     'fixed_threshold_tick': args.fixed_threshold}

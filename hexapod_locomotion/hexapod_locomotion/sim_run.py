@@ -60,8 +60,19 @@ def joint_state_msg(t_s: float, names, positions) -> dict:
     return {'header': {'stamp': _stamp(t_s)}, 'name': list(names), 'position': [float(p) for p in positions]}
 
 
+class TimeLimitReached(Exception):
+    """Raised by :class:`ProbeBus` once the simulated time passes its deadline (mid-phase)."""
+
+
 class ProbeBus:
-    """ServoBus wrapper around a HexapodSim: samples truth and records, transparently."""
+    """ServoBus wrapper around a HexapodSim: samples truth and records, transparently.
+
+    With ``deadline_s`` set, the first bus call at or after that simulated time raises
+    :class:`TimeLimitReached`: a time limit is honoured within one control period, not only
+    between gait phases.
+    """
+
+    deadline_s: float = math.inf
 
     def __init__(self, sim, probe_period_s: float = 0.05, recorder=None, on_probe=None):
         self.sim = sim
@@ -85,7 +96,12 @@ class ProbeBus:
     def now(self) -> float:
         return self.sim.now()
 
+    def _check_deadline(self) -> None:
+        if self.sim.now() >= self.deadline_s - 1e-12:
+            raise TimeLimitReached(self.deadline_s)
+
     def sync_write(self, goals_rad) -> float:
+        self._check_deadline()
         t = self.sim.sync_write(goals_rad)
         if self.recorder is not None:
             self.recorder.write(JOINT_COMMANDS, MSG_TYPES[JOINT_COMMANDS],
@@ -93,6 +109,7 @@ class ProbeBus:
         return t
 
     def read_position(self, joint: str):
+        self._check_deadline()
         theta, stamp = self.sim.read_position(joint)
         leg, role = parse_joint_name(joint)
         if role == 'femur':
@@ -107,8 +124,11 @@ class ProbeBus:
 
     def wait_until(self, t: float) -> None:
         while self.sim.now() < t - 1e-12:
-            self.sim.wait_until(min(t, self._next_probe) if self._next_probe > self.sim.now() else t)
+            self._check_deadline()
+            step_to = min(t, self._next_probe) if self._next_probe > self.sim.now() else t
+            self.sim.wait_until(min(step_to, self.deadline_s))
             self._maybe_probe()
+        self._check_deadline()
 
     # -- truth sampling and recording of sensor streams
     def _maybe_probe(self) -> None:
@@ -228,8 +248,12 @@ def _detection_events(robot: Robot, probe: ProbeBus, rep: PhaseReport, controlle
     return out
 
 
-def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
-    """Walk one trial; ``progress(sim_time_s, distance_m)`` is called after every phase."""
+def run_trial(cfg: TrialConfig, progress=None, on_video_write=None) -> TrialResult:
+    """Walk one trial; ``progress(sim_time_s, distance_m)`` is called after every phase,
+    ``on_video_write(n_frames)`` before the GIF is written.
+
+    The walk ends at ``cfg.duration_s`` of simulated walking time within one control period (the
+    phase in progress is cut off and not counted), at the course end, or when the robot falls."""
     from hexapod_sim.sim import HexapodSim
     robot = load_robot(overlays=cfg.overlays)
     sim = HexapodSim(robot, terrain=cfg.terrain, seed=cfg.seed, t_com_s=cfg.t_com_s, start_xy_m=(cfg.start_x_m, 0.0))
@@ -264,11 +288,16 @@ def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
         controller.startup(probe)
         x0 = float(probe.pose_xyz[-1][0])
         walk_start = sim.now()
+        probe.deadline_s = walk_start + cfg.duration_s
         while sim.now() - walk_start < cfg.duration_s:
             try:
                 rep = controller.step_phase(probe, VelocityCommand(cfg.vx_mps, 0.0, cfg.wz_rad_s))
             except LocomotionError as exc:
                 warnings.append(f'controller stopped: {exc}')
+                break
+            except TimeLimitReached:
+                warnings.append(f'time limit {cfg.duration_s:g} s reached within a gait phase; '
+                                'that phase is not counted')
                 break
             warnings.extend(rep.warnings)
             events.extend(_detection_events(robot, probe, rep, controller, det))
@@ -284,11 +313,14 @@ def run_trial(cfg: TrialConfig, progress=None) -> TrialResult:
                 reached = True
                 break
     finally:
+        probe.deadline_s = math.inf
         if recorder is not None:
             recorder.close()
         if renderer is not None:
             renderer.close()
             if frames:
+                if on_video_write is not None:
+                    on_video_write(len(frames))
                 Path(cfg.video).parent.mkdir(parents=True, exist_ok=True)
                 frames[0].save(cfg.video, save_all=True, append_images=frames[1:], loop=0,
                                duration=int(round(1000 / cfg.video_fps)))

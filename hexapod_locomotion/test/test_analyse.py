@@ -49,3 +49,40 @@ def test_garbage_gives_clear_error(tmp_path, capsys):
         analyse(str(p))
     assert main([str(p)]) == 2
     assert 'analyse:' in capsys.readouterr().err
+
+
+def test_truncated_bag_reports_the_cut_off_swing_down_as_incomplete(walk_bag, tmp_path, capsys):
+    """Issue 14 item 6: a bag cut in the middle of a swing-down; the cut-off legs are 'incomplete',
+    not 'differing decisions'; no 'see JSON' without --json; the bag warning is one clean line."""
+    bag, _ = walk_bag
+    mcap = next(bag.glob('*.mcap'))
+    data = mcap.read_bytes()
+    full = analyse(str(bag))
+    for frac in (0.5, 0.6, 0.7, 0.8):
+        cut = tmp_path / f'cut{frac}.mcap'
+        cut.write_bytes(data[:int(len(data) * frac)])
+        r = analyse(str(cut))
+        if r['incomplete_swing_downs']:
+            break
+    else:
+        pytest.fail('no truncation cut a swing-down')
+    assert r['not_reproduced'] == [] and r['reproduced'] == r['legs_evaluated']
+    assert r['swing_downs'] < full['swing_downs'] and r['bag_warnings']
+    assert main([str(cut), '--no-progress']) == 0
+    out, err = capsys.readouterr()
+    assert 'incomplete' in out and 'differ' not in out and 'JSON' not in out
+    assert err.count('\n') == len(r['bag_warnings']) and err.startswith('analyse: warning: ')
+    assert 'warnings.warn' not in err and 'BagWarning' not in err
+
+
+def test_demo_and_analyse_use_the_same_words_and_counts(walk_bag):
+    """Issue 14 item 13: 'swing-down phases' and 'leg swing-downs' with the same numbers."""
+    from hexapod_locomotion.analyse import report_lines
+    from hexapod_locomotion.demo import summary_lines
+    bag, res = walk_bag
+    demo_text = '\n'.join(summary_lines(res))
+    text = '\n'.join(report_lines(analyse(str(bag))))
+    phases = f'{res.phases} swing-down phases'
+    legs = f'{res.detection["swing_downs"]} leg swing-downs'
+    assert phases in demo_text and phases in text
+    assert legs in demo_text and legs in text

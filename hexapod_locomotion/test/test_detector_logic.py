@@ -79,7 +79,7 @@ def test_premature_error_spike_needs_confirmation(robot):
 
 
 def test_bad_detector_input(robot):
-    with pytest.raises(DetectorError, match="'adaptive' or 'fixed'"):
+    with pytest.raises(DetectorError, match="must be one of \\('adaptive', 'fixed'\\)"):
         DetectorConfig(kind='psychic')
     ph = _phase(robot, 'fixed', legs=(2,))
     ph.goals(0)

@@ -5,7 +5,6 @@ fits inside one bus read. Run: ``./hexapod run hexapod_model bench_model``.
 """
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
@@ -15,7 +14,8 @@ from .swing_model import LegModel, predict_swing_down
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from .cli_common import make_parser
+    ap = make_parser('bench_model', __doc__.splitlines()[0])
     ap.add_argument('--repeats', type=int, default=500)
     ap.add_argument('--t-des', type=float, default=2.0, help='swing-down duration [s]')
     args = ap.parse_args(argv)

@@ -333,8 +333,56 @@ def _parse_effects(raw: Any, where: str = 'effects') -> tuple[Effect, ...]:
     return tuple(out)
 
 
+# Keys a description (or an overlay) may hold, at every level: a misspelt key is refused, not
+# silently ignored (an overlay's ``efects:`` would otherwise drop the user's effect). Built from
+# the dataclasses above, so a new field is allowed here by adding it there.
+_ROLE_MAP = 'roles'            # a mapping whose keys are JOINT_ROLES
+_JOINT_MAP = 'joints'          # a mapping whose keys are joint names (ALL_JOINTS)
+SCHEMA: dict[str, Any] = {
+    'name': None, 'gravity_mps2': None, 'total_mass_kg': None, 'electronics_idle_power_w': None,
+    'dh': (_ROLE_MAP, {f.name: None for f in fields(DHLink)}),
+    'legs': [{f.name: None for f in fields(LegMount)}],
+    'links': (_ROLE_MAP, {f.name: None for f in fields(LinkInertial)}),
+    'servo': {f.name: None for f in fields(ServoParams)},
+    'joint_limits_rad': (_ROLE_MAP, None),
+    'default_stance': {f'{r}_rad': None for r in JOINT_ROLES},
+    'bus': {'baud_rate': None, 't_com_s': None,
+            'joints': (_JOINT_MAP, {f.name: None for f in fields(BusJoint) if f.name != 'joint'})},
+    'effects': [{'effect': None, 'joints': None, 'params': None}],   # params: checked per effect
+}
+
+
+def check_keys(data: Any, schema: Any = SCHEMA, where: str = '') -> None:
+    """Refuse any key ``data`` holds that :data:`SCHEMA` does not know, naming it (dotted path)."""
+    if schema is None or data is None:
+        return
+    if isinstance(schema, tuple):                      # (roles | joints, value schema)
+        kind, sub = schema
+        allowed = JOINT_ROLES if kind == _ROLE_MAP else ALL_JOINTS
+        schema = {k: sub for k in allowed}
+    if isinstance(schema, list):
+        if isinstance(data, list):
+            for i, item in enumerate(data):
+                check_keys(item, schema[0], f'{where}[{i}]')
+        return                                         # a wrong type is reported by robot_from_dict
+    if not isinstance(data, Mapping):
+        return
+    unknown = [k for k in data if k not in schema]
+    if unknown:
+        import difflib
+        k = unknown[0]
+        hint = difflib.get_close_matches(str(k), [str(x) for x in schema], n=1)
+        more = f' (and {len(unknown) - 1} more: {sorted(map(str, unknown[1:]))})' if len(unknown) > 1 else ''
+        raise DescriptionError(f'{where + ": " if where else ""}unknown key {k!r}'
+                               + (f' (did you mean {hint[0]!r}?)' if hint else f'; expected one of {sorted(map(str, schema))}')
+                               + more)
+    for k, v in data.items():
+        check_keys(v, schema[k], f'{where}.{k}' if where else str(k))
+
+
 def robot_from_dict(d: Mapping[str, Any]) -> Robot:
     """Validate a description mapping and build the frozen :class:`Robot`."""
+    check_keys(d)
     dh = {r: _build(DHLink, _require(_require(d, 'dh', 'robot'), r, 'dh'), f'dh.{r}',
                     nonneg=('a_m',)) for r in JOINT_ROLES}
     legs_raw = _require(d, 'legs', 'robot')
@@ -432,15 +480,27 @@ def merge_overlay(base: Mapping[str, Any], overlay: Mapping[str, Any]) -> dict[s
     return out
 
 
+def source_path(path: str | Path) -> Path:
+    """The file a user edits: ``path`` with symlinks resolved (a ``--symlink-install`` build holds
+    links to the source tree; messages name the source, not the copy under build/ or install/)."""
+    p = Path(path)
+    try:
+        return p.resolve() if p.is_symlink() or any(q.is_symlink() for q in p.parents) else p
+    except OSError:
+        return p
+
+
 def _read_yaml(path: Path) -> dict[str, Any]:
     try:
         text = Path(path).read_text()
+    except FileNotFoundError:
+        raise DescriptionError(f'{path}: no such file') from None
     except OSError as exc:
-        raise DescriptionError(f'cannot read robot description {path}: {exc}') from exc
+        raise DescriptionError(f'{path}: cannot read: {exc.strerror or exc}') from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise DescriptionError(f'{path}: not valid YAML: {exc}') from exc
+        raise DescriptionError(f'{path}: not valid YAML: {" ".join(str(exc).split())}') from None
     if not isinstance(data, Mapping):
         raise DescriptionError(f'{path}: expected a YAML mapping at the top level')
     return dict(data)
@@ -451,15 +511,39 @@ def default_description_path() -> Path:
 
 
 def load_robot(path: str | Path | None = None, overlays: Iterable[str | Path] = ()) -> Robot:
-    """Load the robot description (default: the packaged ``robot.yaml``) plus overlay files."""
-    data = _read_yaml(Path(path) if path else default_description_path())
+    """Load the robot description (default: the packaged ``robot.yaml``) plus overlay files.
+
+    Every file is checked for unknown keys on its own, and an error names the one file that
+    causes it (the base description, or the first overlay after whose merge it appears), once.
+    """
+    base = source_path(path if path else default_description_path())
+    data = _read_yaml(base)
+    layers = [(base, data)]
     for ov in overlays:
-        data = merge_overlay(data, _read_yaml(Path(ov)))
+        ov = source_path(ov)
+        layers.append((ov, _read_yaml(ov)))
+    for src, layer in layers:
+        try:
+            check_keys(layer)
+        except DescriptionError as exc:
+            raise DescriptionError(f'{src}: {exc}') from None
+    merged = data
+    for _src, layer in layers[1:]:
+        merged = merge_overlay(merged, layer)
     try:
-        return robot_from_dict(data)
+        return robot_from_dict(merged)
     except DescriptionError as exc:
-        where = ' + '.join([str(path or default_description_path())] + [str(o) for o in overlays])
-        raise DescriptionError(f'{where}: {exc}') from None
+        error = exc
+    # name the file that causes the error: the base, or the first overlay after whose merge it appears
+    merged = data
+    for src, layer in layers:
+        if layer is not data:
+            merged = merge_overlay(merged, layer)
+        try:
+            robot_from_dict(merged)
+        except DescriptionError as exc:
+            raise DescriptionError(f'{src}: {exc}' + (f' (merged over {base})' if src != base else '')) from None
+    raise DescriptionError(f'{" + ".join(str(s) for s, _ in layers)}: {error}') from None
 
 
 def effects_to_overlay(effects: Iterable[Effect]) -> dict[str, Any]:

@@ -1,11 +1,13 @@
 """The robot description: paper values, validation with named errors, overlays."""
 import math
+from pathlib import Path
 
 import pytest
 import yaml
 
 from hexapod_model.description import (ALL_JOINTS, DescriptionError, Effect, effects_to_overlay,
-                                       load_robot, parse_joint_name, default_description_path)
+                                       load_robot, parse_joint_name, default_description_path,
+                                       robot_from_dict)
 
 
 @pytest.fixture(scope='module')
@@ -64,7 +66,7 @@ def _base():
      "unknown effect 'warp_drive'"),
     (lambda d: d.update(effects=[{'effect': 'backlash', 'joints': ['leg1_femur'], 'params': {'w': 1}}]),
      "takes exactly \\['width_rad'\\]"),
-    (lambda d: d['servo'].update(typo_key=1), "unknown key\\(s\\) \\['typo_key'\\]"),
+    (lambda d: d['servo'].update(typo_key=1), "servo: unknown key 'typo_key'"),
 ])
 def test_bad_description_is_named(tmp_path, mutate, message):
     d = _base()
@@ -74,8 +76,9 @@ def test_bad_description_is_named(tmp_path, mutate, message):
 
 
 def test_unreadable_and_non_yaml(tmp_path):
-    with pytest.raises(DescriptionError, match='cannot read'):
+    with pytest.raises(DescriptionError, match='missing.yaml: no such file$') as info:
         load_robot(tmp_path / 'missing.yaml')
+    assert str(info.value).count('missing.yaml') == 1          # the path once, not two or three times
     p = tmp_path / 'bad.yaml'
     p.write_text('servo: [unclosed')
     with pytest.raises(DescriptionError, match='not valid YAML'):
@@ -97,3 +100,49 @@ def test_overlay_merges_and_resolves_effects(tmp_path, robot):
     assert r2.joint_effects('leg5_coxa').torque_max_nm == 1.1
     assert r2.leg_payload_kg(2) == pytest.approx(0.05) and r2.leg_payload_kg(1) == 0.0
     assert robot.effects == ()
+
+
+# Item 1 of issue 14: a misspelt key at ANY level of a description or an overlay is refused, named
+# (dotted path), and the message names the overlay file the user edits, once.
+@pytest.mark.parametrize('overlay, key', [
+    ({'efects': []}, "unknown key 'efects' (did you mean 'effects'?)"),
+    ({'total_mas_kg': 2.5}, "unknown key 'total_mas_kg' (did you mean 'total_mass_kg'?)"),
+    ({'bus': {'baudrate': 57600}}, "bus: unknown key 'baudrate'"),
+    ({'bus': {'joints': {'leg1_coxa': {'servoid': 3}}}}, "bus.joints.leg1_coxa: unknown key 'servoid'"),
+    ({'bus': {'joints': {'leg7_coxa': {'servo_id': 3}}}}, "bus.joints: unknown key 'leg7_coxa'"),
+    ({'dh': {'femr': {'a_m': 0.07}}}, "dh: unknown key 'femr'"),
+    ({'dh': {'femur': {'am': 0.07}}}, "dh.femur: unknown key 'am'"),
+    ({'links': {'tibia': {'mas_kg': 0.1}}}, "links.tibia: unknown key 'mas_kg'"),
+    ({'servo': {'gear_ration': 200}}, "servo: unknown key 'gear_ration'"),
+    ({'joint_limits_rad': {'tibiaa': [0, 1]}}, "joint_limits_rad: unknown key 'tibiaa'"),
+    ({'default_stance': {'femur': 0.4}}, "default_stance: unknown key 'femur'"),
+    ({'effects': [{'effect': 'backlash', 'joint': ['leg1_femur'], 'params': {'width_rad': 0.01}}]},
+     "effects[0]: unknown key 'joint'"),
+])
+def test_unknown_key_in_overlay_is_refused_at_every_level(tmp_path, overlay, key):
+    ov = tmp_path / 'my_overlay.yaml'
+    ov.write_text(yaml.safe_dump(overlay))
+    with pytest.raises(DescriptionError) as info:
+        load_robot(overlays=[ov])
+    msg = str(info.value)
+    assert key in msg and msg.startswith(f'{ov}: ')
+    assert msg.count(str(ov)) == 1 and 'build/' not in msg and 'install/' not in msg
+
+
+def test_unknown_top_level_key_in_a_description_dict_is_refused():
+    d = _base()
+    d['legss'] = d['legs']
+    with pytest.raises(DescriptionError, match="unknown key 'legss'"):
+        robot_from_dict(d)
+
+
+def test_error_after_merge_names_the_overlay_and_the_source_description(tmp_path):
+    ov = tmp_path / 'heavy.yaml'
+    ov.write_text('links:\n  tibia: {mass_kg: -1}\n')
+    with pytest.raises(DescriptionError) as info:
+        load_robot(overlays=[ov])
+    msg = str(info.value)
+    assert msg.startswith(f'{ov}: links.tibia.mass_kg: must be > 0')
+    # the packaged description is named by its source file, not the copy under build/ or install/
+    src = Path(__file__).resolve().parents[1] / 'hexapod_model' / 'data' / 'robot.yaml'
+    assert f'merged over {src}' in msg and '/build/' not in msg and '/install/' not in msg

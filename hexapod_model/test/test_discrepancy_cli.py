@@ -45,8 +45,8 @@ def test_bag_round_trip_keeps_every_write_and_read(bag):
 def test_cli_writes_json_plot_overlay_and_the_overlay_closes_the_loop(bag, tmp_path, capsys):
     path, _ = bag
     out_json, out_png, out_yaml = tmp_path / 'r.json', tmp_path / 'r.png', tmp_path / 'fit.yaml'
-    assert main([str(path), '--json', str(out_json), '--plot', str(out_png), '--overlay', str(out_yaml),
-                 '--quiet']) == 0
+    assert main([str(path), '--json', str(out_json), '--plot', str(out_png), '--write-overlay', str(out_yaml),
+                 '--no-progress']) == 0
     text = capsys.readouterr().out
     assert 'leg 5 tibia: the simulation left out gear backlash of about' in text
     doc = json.loads(out_json.read_text())
@@ -63,27 +63,27 @@ def test_cli_writes_json_plot_overlay_and_the_overlay_closes_the_loop(bag, tmp_p
     fitted = load_robot(overlays=[out_yaml])
     assert fitted.joint_effects('leg5_tibia').backlash_width_rad == pytest.approx(eff['params']['width_rad'])
     # ... and with it the same recording has nothing left to explain
-    assert main([str(path), '--robot-overlay', str(out_yaml), '--json', str(out_json), '--quiet']) == 0
+    assert main([str(path), '--overlay', str(out_yaml), '--json', str(out_json), '--no-progress']) == 0
     assert json.loads(out_json.read_text())['effects'] == []
     assert 'No missing physics found' in capsys.readouterr().out
 
 
 def test_cli_names_bad_input(bag, tmp_path, capsys):
     path, _ = bag
-    assert main([str(tmp_path / 'nope'), '--quiet']) == 2
+    assert main([str(tmp_path / 'nope'), '--no-progress']) == 2
     assert 'no such bag' in capsys.readouterr().err
-    assert main([str(path), '--joints', 'leg9_femur', '--quiet']) == 2
+    assert main([str(path), '--joints', 'leg9_femur', '--no-progress']) == 2
     assert 'unknown joint' in capsys.readouterr().err
-    assert main([str(path), '--joints', 'leg1_femur', '--quiet']) == 2
+    assert main([str(path), '--joints', 'leg1_femur', '--no-progress']) == 2
     assert 'not read' in capsys.readouterr().err
-    assert main([str(path), '--time', '5', '--quiet']) == 2
+    assert main([str(path), '--time', '5', '--no-progress']) == 2
     assert 'START:END' in capsys.readouterr().err
     only_states = tmp_path / 'states_only'
     with BagWriter(str(only_states)) as w:
         w.write('/joint_states', 'sensor_msgs/msg/JointState',
                 {'header': {'stamp': {'sec': 1, 'nanosec': 0}, 'frame_id': ''}, 'name': ['leg1_femur'],
                  'position': [0.1], 'velocity': [], 'effort': []}, 1_000_000_000)
-    assert main([str(only_states), '--quiet']) == 2
+    assert main([str(only_states), '--no-progress']) == 2
     assert 'no /joint_commands' in capsys.readouterr().err
 
 

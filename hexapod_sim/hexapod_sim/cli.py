@@ -18,40 +18,45 @@ if os.environ['MUJOCO_GL'] == 'osmesa':
 import argparse  # noqa: E402
 import sys  # noqa: E402
 
+from hexapod_model.cli_common import (add_overlay_option, finite_float, make_parser, nonnegative_float,  # noqa: E402
+                                      nonnegative_int, output_file, positive_float, positive_int)
 from hexapod_model.description import DescriptionError, load_robot  # noqa: E402
 
 from .terrain import TERRAINS  # noqa: E402
 
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog='sim', description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    ap.add_argument('--terrain', default='flat', choices=list(TERRAINS), help='terrain (default flat)')
-    ap.add_argument('--seed', type=int, default=0, help='seed of the random terrains')
-    ap.add_argument('--render', metavar='PNG', help='write a picture of the robot standing on the terrain')
-    ap.add_argument('--video', metavar='GIF', help='write a clip of the robot doing a scripted tripod gait')
-    ap.add_argument('--duration', type=float, default=4.0, help='clip length in simulated seconds (default 4)')
-    ap.add_argument('--settle', type=float, default=1.0,
-                    help='simulated seconds to stand before the picture is taken (default 1)')
-    ap.add_argument('--start-x', type=float, default=0.0, help='start position along x [m]')
-    ap.add_argument('--start-y', type=float, default=0.0, help='start position along y [m]')
-    ap.add_argument('--overlay', action='append', default=[], metavar='YAML',
-                    help='robot description overlay (injected effects); repeatable')
-    ap.add_argument('--width', type=int, default=None, help='image width in pixels')
-    ap.add_argument('--height', type=int, default=None, help='image height in pixels')
-    ap.add_argument('--azimuth', type=float, default=140.0, help='camera azimuth [deg]')
-    ap.add_argument('--elevation', type=float, default=-25.0, help='camera elevation [deg]')
-    ap.add_argument('--distance', type=float, default=0.9, help='camera distance from the trunk [m]')
+def build_parser():
+    from .render import VIDEO_EXTENSIONS
+    ap = make_parser('sim', __doc__)
+    ap.add_argument('--terrain', default='flat', choices=list(TERRAINS), help='terrain')
+    ap.add_argument('--seed', type=nonnegative_int, default=0, help='seed of the random terrains')
+    ap.add_argument('--render', metavar='PNG', type=output_file(('.png',)),
+                    help='write a picture of the robot standing on the terrain')
+    ap.add_argument('--video', metavar='GIF', type=output_file(VIDEO_EXTENSIONS),
+                    help='write a clip of the robot doing a scripted tripod gait')
+    ap.add_argument('--duration', type=positive_float, default=4.0, help='clip length in simulated seconds')
+    ap.add_argument('--settle', type=nonnegative_float, default=1.0,
+                    help='simulated seconds to stand before the picture is taken')
+    ap.add_argument('--start-x', type=finite_float, default=0.0, help='start position along x [m]')
+    ap.add_argument('--start-y', type=finite_float, default=0.0, help='start position along y [m]')
+    add_overlay_option(ap)
+    ap.add_argument('--width', type=positive_int, default=None, help='image width in pixels (default: 960 PNG, 480 GIF)')
+    ap.add_argument('--height', type=positive_int, default=None, help='image height in pixels (default: 720 PNG, 360 GIF)')
+    ap.add_argument('--azimuth', type=finite_float, default=140.0, help='camera azimuth [deg]')
+    ap.add_argument('--elevation', type=finite_float, default=-25.0, help='camera elevation [deg]')
+    ap.add_argument('--distance', type=positive_float, default=0.9, help='camera distance from the trunk [m]')
     node = ap.add_argument_group('sim node (when neither --render nor --video is given)')
-    node.add_argument('--rtf', type=float, default=1.0, help='real-time factor, 0 = as fast as possible')
+    node.add_argument('--rtf', type=nonnegative_float, default=1.0, help='real-time factor, 0 = as fast as possible')
     node.add_argument('--lockstep', action='store_true', help='one read cycle per /joint_commands message')
-    node.add_argument('--record', default='', help="bag: 'auto', a name under bags/, or a path")
-    node.add_argument('--t-com', type=float, default=None, help='duration of one read [s] (0.016 stock USB)')
+    node.add_argument('--record', default='', help="bag: 'auto', a name under bags/, or a path (default: no bag)")
+    node.add_argument('--t-com', type=positive_float, default=None,
+                      help='duration of one read [s] (default: the description\'s bus.t_com_s; 0.016 stock USB)')
     return ap
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    ap = build_parser()
+    args = ap.parse_args(argv)
     if args.render is None and args.video is None:
         from . import sim_node
         ros = ['sim', '--ros-args', '-p', f'terrain:={args.terrain}', '-p', f'seed:={args.seed}',
@@ -84,7 +89,7 @@ def main(argv=None) -> int:
             print(f'wrote {out} ({args.duration:g} s of a scripted tripod gait on {args.terrain}; '
                   f'trunk moved to x={pos[0]:.3f} m)')
     except (RenderError, SimError, DescriptionError, ValueError) as exc:
-        print(f'sim: error: {exc}', file=sys.stderr)
+        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 2
     return 0
 

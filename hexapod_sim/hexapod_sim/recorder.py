@@ -56,6 +56,24 @@ def resolve_bag_dir(spec: str, prefix: str = 'sim') -> Path:
     return Path(spec)
 
 
+class RecorderError(ValueError):
+    """A bag cannot be recorded at the requested place (the message says why)."""
+
+
+def check_bag_dir(path: str | os.PathLike) -> Path:
+    """``path`` if a new bag can be recorded there (what :class:`Recorder` would refuse, checked
+    before a run starts, without creating anything)."""
+    p = Path(path)
+    if p.suffix == '.mcap':
+        raise RecorderError(f'{p}: a bag is a directory; give a path without the .mcap suffix')
+    if p.exists() and (not p.is_dir() or any(p.iterdir())):
+        raise RecorderError(f'{p} already exists and is not an empty directory; refusing to overwrite a recording')
+    anc = next((a for a in [p, *p.parents] if a.exists()), Path('.'))
+    if not anc.is_dir() or not os.access(anc, os.W_OK):
+        raise RecorderError(f'{p}: cannot create it ({anc} is not a writable directory)')
+    return p
+
+
 def ros_to_plain(msg: Any) -> Any:
     """A ROS message instance (rosidl Python class) as nested dicts/lists of plain values."""
     fields = getattr(type(msg), 'get_fields_and_field_types', None)

@@ -74,6 +74,9 @@ def render_png(sim: HexapodSim, path: str | Path, width: int = 960, height: int 
     return path
 
 
+VIDEO_EXTENSIONS = ('.gif',)      # what record_video and the demo's --video write (animated GIF, Pillow)
+
+
 def record_video(sim: HexapodSim, path: str | Path, duration_s: float,
                  goals_at: Callable[[float], Mapping[str, float]] | None = None, fps: float = 25.0,
                  width: int = 480, height: int = 360, **camera) -> Path:

@@ -238,8 +238,9 @@ class BagPlayer(Node):
 # -------------------------------------------------------------------------------------- main --
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog='replay', description='Replay a recorded rosbag2/MCAP bag on ROS 2 '
-                                'with its recorded timing (like ros2 bag play).')
+    from hexapod_model.cli_common import make_parser
+    p = make_parser('replay', 'Replay a recorded rosbag2/MCAP bag on ROS 2 with its recorded timing '
+                              '(like ros2 bag play).')
     p.add_argument('bag', help='rosbag2 directory or .mcap file')
     p.add_argument('--rate', type=float, default=1.0, help='playback speed factor (> 0; 2 = twice as fast)')
     p.add_argument('--loop', action='store_true', help='start over at the end until Ctrl-C')
@@ -253,20 +254,21 @@ def _parser() -> argparse.ArgumentParser:
                    help='wait up to S seconds for every replayed topic to have a subscriber')
     p.add_argument('--qos-depth', type=int, default=100, help='publisher history depth')
     p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
-                   help='progress bar (default: when stderr is a terminal)')
+                   help='progress bar on stderr (default: when stderr is a terminal)')
     return p
 
 
 def main(args=None) -> int:
     argv = remove_ros_args(args if args is not None else sys.argv)[1:]
-    opts = _parser().parse_args(argv)
+    parser = _parser()
+    opts = parser.parse_args(argv)
     try:
         reader = BagReader(opts.bag)
     except BagError as exc:
-        print(f'replay: error: {exc}', file=sys.stderr)
+        print(f'{parser.prog}: error: {exc}', file=sys.stderr)
         return 2
     for w in reader.warnings:
-        print(f'replay: warning: {w}', file=sys.stderr)
+        print(f'{parser.prog}: warning: {w}', file=sys.stderr)
     rclpy.init(args=args)
     node = None
     rc = 0
@@ -287,7 +289,7 @@ def main(args=None) -> int:
         print(f'replay: published {stats.total} message(s) in {stats.wall_s:.2f} s, {stats.loops} loop(s), '
               f'median lateness {late:.2f} ms; per topic: {stats.published}', flush=True)
     except ValueError as exc:
-        print(f'replay: error: {exc}', file=sys.stderr)
+        print(f'{parser.prog}: error: {exc}', file=sys.stderr)
         rc = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         print('replay: interrupted', file=sys.stderr)

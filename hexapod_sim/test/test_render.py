@@ -66,5 +66,6 @@ def test_cli_reports_bad_input(capsys):
     with pytest.raises(SystemExit) as e:
         cli.main(['--render', 'x.png', '--terrain', 'lava'])
     assert e.value.code == 2 and 'lava' in capsys.readouterr().err
-    assert cli.main(['--render', 'x.png', '--overlay', '/nonexistent/overlay.yaml']) == 2
-    assert 'overlay.yaml' in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        cli.main(['--render', 'x.png', '--overlay', '/nonexistent/overlay.yaml'])
+    assert e.value.code == 2 and 'overlay.yaml' in capsys.readouterr().err

@@ -20,7 +20,6 @@ one leg), three effects on a whole leg, three robot-wide, two pairs at once, two
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
@@ -170,7 +169,7 @@ def run(cases, legs, keep: Path | None, progress: bool = True) -> list[dict]:
             js = work / (bag.name + '.json')
             t0 = time.perf_counter()
             with contextlib.redirect_stdout(io.StringIO()) as text:
-                rc = tool([str(bag), '--json', str(js), '--quiet'])
+                rc = tool([str(bag), '--json', str(js), '--no-progress'])
             (work / (bag.name + '.txt')).write_text(text.getvalue())
             t_tool = time.perf_counter() - t0
             if rc != 0:
@@ -253,7 +252,8 @@ def make_demo(out_dir: Path, seed: int) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='discrepancy_bench', description=__doc__.splitlines()[0])
+    from ..cli_common import make_parser
+    ap = make_parser('discrepancy_bench', __doc__.splitlines()[0])
     ap.add_argument('--seed', type=int, default=0, help='draws the magnitudes and joints of the cases')
     ap.add_argument('--cases', nargs='+', metavar='NAME', help='run only these cases (names as in the table)')
     ap.add_argument('--legs', nargs='+', type=int, default=list(LEGS), help='legs the routine moves (default all)')

@@ -1,0 +1,188 @@
+"""What every command-line tool of the workspace shares, so that the commands agree with each other.
+
+* :func:`make_parser`: usage lines name the command the user typed (``./hexapod demo`` when run
+  through the ``./hexapod`` script, which exports :data:`PROG_ENV` / :data:`EXE_ENV`), every
+  ``--help`` shows the defaults, and a usage error is ONE line on stderr (exit status 2).
+* argparse ``type=`` validators with one wording (``must be finite and > 0, got -1``), so bad
+  values are refused while the arguments are parsed, before anything is created.
+* :data:`OVERLAY_FLAG` / :data:`NO_PROGRESS_FLAG`: one spelling of "read a robot overlay" and of
+  "no progress bar" in every tool.
+
+Plain argparse; no ROS.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+from typing import Callable, Iterable
+
+PROG_ENV = 'HEXAPOD_PROG'      # e.g. "./hexapod demo", set by the ./hexapod script
+EXE_ENV = 'HEXAPOD_EXE'        # the console script it runs, e.g. "demo"
+OVERLAY_FLAG = '--overlay'
+NO_PROGRESS_FLAG = '--no-progress'
+
+
+def prog_name(exe: str) -> str:
+    """``./hexapod NAME`` when the ./hexapod script started console script ``exe``, else ``exe``."""
+    if os.environ.get(EXE_ENV) == exe and os.environ.get(PROG_ENV):
+        return os.environ[PROG_ENV]
+    return exe
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the description's line breaks and appends ``(default: X)`` to every option with a default."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ''
+        d = action.default
+        if ('default' in text or d is None or d is False or d is argparse.SUPPRESS or d == '' or d == []
+                or isinstance(action, (argparse._HelpAction, argparse._VersionAction))):
+            return text
+        if action.option_strings or action.nargs in (argparse.OPTIONAL, argparse.ZERO_OR_MORE):
+            if isinstance(d, (list, tuple)):
+                return f'{text} (default: {" ".join(str(x) for x in d)})'
+            return text + ' (default: %(default)s)'
+        return text
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """An argparse parser whose usage errors are one line: ``PROG: error: MESSAGE (see PROG --help)``."""
+
+    def __init__(self, *args, **kw):
+        kw.setdefault('formatter_class', HelpFormatter)
+        super().__init__(*args, **kw)
+
+    def error(self, message: str):   # noqa: D102 - argparse API
+        self.exit(2, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
+
+
+def make_parser(exe: str, doc: str | None, **kw) -> ArgumentParser:
+    """The parser of console script ``exe``; ``doc`` (a module docstring) is its description, printed once."""
+    return ArgumentParser(prog=prog_name(exe), description=(doc or '').strip() or None, **kw)
+
+
+def fail(parser: argparse.ArgumentParser, message: str):
+    """Refuse the arguments after parsing (cross-argument checks): one line, exit status 2."""
+    parser.error(message)
+
+
+# ----------------------------------------------------------------------------- value validators
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a number, got {text!r}') from None
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    v = _float(text)
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f'must be finite and > 0, got {text}')
+    return v
+
+
+def nonnegative_float(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    v = _float(text)
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f'must be finite and >= 0, got {text}')
+    return v
+
+
+def finite_float(text: str) -> float:
+    """argparse type: any finite number."""
+    v = _float(text)
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f'must be finite, got {text}')
+    return v
+
+
+def ratio_at_least_one(text: str) -> float:
+    """argparse type: a finite number >= 1 (an improvement factor)."""
+    v = _float(text)
+    if not (math.isfinite(v) and v >= 1):
+        raise argparse.ArgumentTypeError(f'must be finite and >= 1, got {text}')
+    return v
+
+
+def _int(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected an integer, got {text!r}') from None
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    v = _int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {text}')
+    return v
+
+
+def nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    v = _int(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f'must be >= 0, got {text}')
+    return v
+
+
+def existing_file(text: str) -> str:
+    """argparse type: a file that exists (e.g. an overlay to read)."""
+    if not Path(text).is_file():
+        raise argparse.ArgumentTypeError(f'no such file: {text}')
+    return text
+
+
+def existing_path(text: str) -> str:
+    """argparse type: a file or directory that exists (e.g. a bag)."""
+    if not Path(text).exists():
+        raise argparse.ArgumentTypeError(f'no such file or directory: {text}')
+    return text
+
+
+def output_file(extensions: Iterable[str] | Callable[[], Iterable[str]] | None = None):
+    """argparse type: a file to write, in an existing directory, with one of ``extensions``.
+
+    ``extensions`` may be a callable (e.g. matplotlib's registry, imported only when the option is
+    given). Checked while parsing, so a run is not lost to a typo in an output name at its end.
+    """
+    def check(text: str) -> str:
+        p = Path(text)
+        if extensions is not None:
+            exts = tuple(extensions() if callable(extensions) else extensions)
+            if p.suffix.lower() not in exts:
+                raise argparse.ArgumentTypeError(
+                    f'{text}: unsupported file extension {p.suffix or "(none)"!r}; use one of {", ".join(exts)}')
+        if p.is_dir():
+            raise argparse.ArgumentTypeError(f'{text} is a directory, expected a file name')
+        parent = p.parent if str(p.parent) else Path('.')
+        if not parent.is_dir():
+            raise argparse.ArgumentTypeError(f'{text}: directory {parent} does not exist')
+        if not os.access(parent, os.W_OK):
+            raise argparse.ArgumentTypeError(f'{text}: directory {parent} is not writable')
+        return text
+    return check
+
+
+def plot_extensions() -> tuple[str, ...]:
+    """File extensions matplotlib can save a figure to (its own registry)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+    return tuple(sorted('.' + e for e in FigureCanvasBase.get_supported_filetypes()))
+
+
+def add_overlay_option(parser: argparse.ArgumentParser, help_text: str | None = None) -> None:
+    """``--overlay YAML`` (repeatable): robot-description overlays to read, applied in order."""
+    parser.add_argument(OVERLAY_FLAG, action='append', default=[], metavar='YAML', type=existing_file,
+                        help=help_text or 'robot-description overlay to apply (e.g. injected effects or a '
+                                          'fitted discrepancy result); repeatable, applied in order')
+
+
+def add_no_progress_option(parser: argparse.ArgumentParser) -> None:
+    """``--no-progress``: no progress bar (they go to stderr)."""
+    parser.add_argument(NO_PROGRESS_FLAG, dest='progress', action='store_false',
+                        help='no progress bar (progress bars go to stderr)')
