@@ -200,28 +200,25 @@ def _pct(a, q):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='bench_graph', description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    from hexapod_model.cli_common import fail, finite_float, make_parser, positive_float
+    ap = make_parser('bench_graph', __doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument('--route', choices=ROUTES + ('all',), default='all', help='which graph to run')
-    ap.add_argument('--seconds', type=float, default=60.0, help='wall time per route, from the first swing-down')
+    ap.add_argument('--seconds', type=positive_float, default=60.0,
+                    help='wall time per route, from the first swing-down')
     ap.add_argument('--gait', default='tripod', help='gait of the controller')
     ap.add_argument('--terrain', default='mockup', help='terrain of the sim')
     ap.add_argument('--seed', type=int, default=0, help='terrain seed (the in-process reference uses it too)')
-    ap.add_argument('--vx', type=float, default=0.05, help='/cmd_vel forward speed [m/s]')
+    ap.add_argument('--vx', type=finite_float, default=0.05, help='/cmd_vel forward speed [m/s]')
     ap.add_argument('--domain-id', type=int, default=86, help='ROS_DOMAIN_ID of the graph (loopback only)')
     ap.add_argument('--truth-rate', type=float, default=1000.0,
                     help='rate of the sim truth topics [Hz]: the resolution of the true contact times')
     ap.add_argument('--keep', metavar='DIR', help='keep the node logs in DIR')
     args = ap.parse_args(argv)
-    if not (math.isfinite(args.seconds) and args.seconds > 0):
-        ap.error(f'--seconds must be a positive number, got {args.seconds}')
-    if not math.isfinite(args.vx):
-        ap.error(f'--vx must be finite, got {args.vx}')
     from .gait import GaitError, get_gait
     try:
         get_gait(args.gait)
     except GaitError as exc:
-        ap.error(str(exc))
+        fail(ap, str(exc))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     workdir = args.keep or tempfile.mkdtemp(prefix='bench_graph_')
     os.makedirs(workdir, exist_ok=True)
