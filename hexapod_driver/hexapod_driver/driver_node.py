@@ -14,6 +14,7 @@ Out: /joint_states (one message per read, stamped at the start of the read trans
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import threading
 import traceback
@@ -44,9 +45,10 @@ EXIT_OK = 0                 # clean shutdown (Ctrl-C, SIGTERM)
 EXIT_STARTUP = 1            # bad parameter or start-up failure (nothing enabled, or torque turned off)
 EXIT_BUS_LOOP_CRASH = 3     # unexpected exception in the bus loop: torque turned off, ERROR on diagnostics
 
-# Test hook, not a parameter: with this environment variable set to N, the bus loop raises a
-# RuntimeError after N steps, so the tests can prove the crash path through the real process.
-TEST_HOOK_RAISE_ENV = 'HEXAPOD_DRIVER_TEST_RAISE_AFTER_STEPS'
+# Test hook, not a parameter: with this environment variable set to 1, SIGUSR1 makes the bus loop
+# raise a RuntimeError at its next step, so the tests can prove the crash path through the real
+# process at a moment they choose (after their subscriptions have matched, say).
+TEST_HOOK_RAISE_ENV = 'HEXAPOD_DRIVER_TEST_RAISE_ON_SIGUSR1'
 
 
 def parameter_table(robot) -> list[tuple[str, object, str]]:
@@ -112,10 +114,11 @@ class DriverNode(Node):
         if not self.watchdog_s >= 0:
             raise ValueError(f'driver parameter watchdog_timeout_s: must be >= 0, got {self.watchdog_s}')
         hook = os.environ.get(TEST_HOOK_RAISE_ENV, '')
-        try:
-            self._raise_after_steps = int(hook) if hook else None
-        except ValueError:
-            raise ValueError(f'{TEST_HOOK_RAISE_ENV} (test hook) must be an integer, got {hook!r}') from None
+        if hook not in ('', '0', '1'):
+            raise ValueError(f'{TEST_HOOK_RAISE_ENV} (test hook) must be 0 or 1, got {hook!r}')
+        self._forced_raise = threading.Event()
+        if hook == '1':
+            signal.signal(signal.SIGUSR1, lambda *_: self._forced_raise.set())
         self.exit_code: int | None = None
         self.core = DynamixelBus(robot, cfg, clock=lambda: self.get_clock().now().nanoseconds * 1e-9)
         try:
@@ -234,9 +237,9 @@ class DriverNode(Node):
         steps = 0
         try:
             while self._running.is_set() and self.context.ok():
-                if self._raise_after_steps is not None and steps >= self._raise_after_steps:
-                    raise RuntimeError(f'{TEST_HOOK_RAISE_ENV}={self._raise_after_steps}: exception forced '
-                                       f'inside the bus loop (test hook)')
+                if self._forced_raise.is_set():
+                    raise RuntimeError(f'{TEST_HOOK_RAISE_ENV}=1 and SIGUSR1 after {steps} steps: exception '
+                                       f'forced inside the bus loop (test hook)')
                 res = self.core.step()
                 steps += 1
                 try:

@@ -424,9 +424,12 @@ def test_late_replies_are_never_paired_with_the_wrong_request_and_the_cause_is_n
 def test_exception_in_the_bus_loop_turns_torque_off_and_exits_non_zero(robot, ros):
     node, ex = ros
     with BusEmulator(robot) as emu:
-        proc, out = start_node_env(emu.port, env_extra={'HEXAPOD_DRIVER_TEST_RAISE_AFTER_STEPS': '300'})
+        proc, out = start_node_env(emu.port, env_extra={'HEXAPOD_DRIVER_TEST_RAISE_ON_SIGUSR1': '1'})
         inbox = Inbox(node)
         try:
+            # crash only once diagnostics arrive here, so the ERROR cannot be lost to discovery
+            wait_for(ex, lambda: len(inbox.diag) > 0 and len(inbox.states) > 20, 60.0, proc, 'diagnostics')
+            proc.send_signal(signal.SIGUSR1)
             wait_for(ex, lambda: proc.poll() is not None and any(
                 'bus loop crashed' in s.message for d in inbox.diag for s in d.servos), 60.0, proc,
                 'exit after the forced exception')
