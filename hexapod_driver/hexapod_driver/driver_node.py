@@ -35,6 +35,7 @@ from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoSta
 from hexapod_msgs.srv import SetReadSchedule
 
 from .bus import FAULT_POLICIES, LIMIT_POLICIES, CommandError, DriverConfig, DynamixelBus
+from .local_bus import LocalDriverBus
 
 
 def _stamp(t: float):
@@ -133,8 +134,9 @@ class DriverNode(Node):
         self.pub_states = self.create_publisher(JointState, contract.JOINT_STATES, QoSProfile(depth=200))
         self.pub_diag = self.create_publisher(ServoDiagnostics, contract.SERVO_DIAGNOSTICS, 10)
         self.pub_timing = self.create_publisher(BusTiming, contract.BUS_TIMING, 10)
-        self.create_subscription(JointState, contract.JOINT_COMMANDS, self.on_command, 10)
-        self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self.on_schedule, 10)
+        self._subs = [self.create_subscription(JointState, contract.JOINT_COMMANDS, self.on_command, 10),
+                      self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self.on_schedule, 10)]
+        self._local: LocalDriverBus | None = None
         self.create_service(SetReadSchedule, contract.SET_READ_SCHEDULE, self.on_set_schedule)
         self.create_service(Trigger, contract.EMERGENCY_STOP, self.on_emergency_stop)
         self.create_timer(timing_period, self.on_timing)
@@ -145,6 +147,38 @@ class DriverNode(Node):
         self._running.set()
         self._thread = threading.Thread(target=self._bus_loop, name='bus-loop', daemon=True)
         self._thread.start()
+
+    def local_bus(self) -> LocalDriverBus:
+        """Hand the bus to a controller in this process (the ``robot`` executable): the bus-loop
+        thread ends and the controller's thread runs the bus (reads, writes, and between them the
+        loop's own reads and diagnostics). ``/joint_commands`` and ``/read_schedule`` are no longer
+        taken from topics (two masters would fight over the bus); the controller's writes are
+        published on ``/joint_commands`` instead, so the graph and its recordings look the same."""
+        if self._local is not None:
+            return self._local
+        self._running.clear()
+        self._thread.join()
+        for sub in self._subs:
+            self.destroy_subscription(sub)
+        self._subs = []
+        pub_cmd = self.create_publisher(JointState, contract.JOINT_COMMANDS, QoSProfile(depth=200))
+
+        def on_read(joint, theta, stamp):
+            js = JointState()
+            js.header.stamp = _stamp(stamp)
+            js.name, js.position = [joint], [theta]
+            self.pub_states.publish(js)
+
+        def on_write(stamp, goals):
+            js = JointState()
+            js.header.stamp = _stamp(stamp)
+            js.name, js.position = list(goals), [float(v) for v in goals.values()]
+            pub_cmd.publish(js)
+
+        self._local = LocalDriverBus(self.core, on_read, on_write, self._publish)
+        for level, text in self.core.take_events():
+            self._log(level, text)
+        return self._local
 
     def _log(self, level: str, text: str) -> None:
         """Log at a level chosen at run time: one call site per severity (rclpy refuses a call
@@ -194,6 +228,8 @@ class DriverNode(Node):
         return response
 
     def _set_schedule(self, names) -> tuple[bool, str]:
+        if self._local is not None:
+            return False, 'the read schedule belongs to the controller composed with this driver'
         try:
             now = self.core.set_schedule(names)
         except CommandError as exc:
@@ -210,7 +246,7 @@ class DriverNode(Node):
         if self.exit_code is not None:
             return
         idle = self.core.clock() - self.core.last_ok_t
-        alive = self._thread.is_alive()
+        alive = self._thread.is_alive() or self._local is not None   # composed: the controller runs the bus
         if idle > self.watchdog_s or not alive:
             why = 'the bus loop thread has ended' if not alive else (
                 'port lost' if not self.core.port_ok else self.core.last_failure or 'no answer')
@@ -313,6 +349,8 @@ class DriverNode(Node):
 
     def shutdown_bus(self) -> None:
         """Stop the loop thread, torque off, close the port; log only what the driver knows."""
+        if self._local is not None:
+            self._local.stopped.set()
         self._running.clear()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)

@@ -56,6 +56,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping, Protocol
 
+import numpy as np
+
 from hexapod_model.bus import ServoBus
 from hexapod_model.description import ALL_JOINTS, Robot, load_robot
 from hexapod_model.servo import servo_theta, servo_tick
@@ -147,15 +149,20 @@ class ServoBusBackend:
     Emulator time ``t`` maps to bus time ``t0 + t`` (``t0`` = the bus's ``now()`` when the adapter
     was made). A goal write is ``wait_until`` + ``sync_write``; a sample is ``wait_until`` +
     ``read_position``, which costs the bus its ``t_com_s`` (so a fast reader pushes a simulated
-    bus ahead of wall time; it never runs behind). Torque enable is forwarded when the bus has
+    bus ahead of wall time). With ``max_catch_up_s`` set (the CLI sets it), a request never waits
+    for more than that much physics:
+    a real servo answers within microseconds, so when the host is too busy for the physics to keep
+    up with the wall clock, the reply comes from slightly older physics (which catches up while
+    the bus idles, or ``max_catch_up_s`` per request) rather than after the driver's timeout. Torque enable is forwarded when the bus has
     ``set_torque_enabled(enabled, joints)`` (HexapodSim); otherwise the simulated servos stay
     powered. When the bus has ``servo_state()`` (HexapodSim), its temperatures and loads are what
     the emulated servos report, so the sim's thermal model can raise the overheating alarm.
     """
 
-    def __init__(self, bus: ServoBus, robot: Robot):
+    def __init__(self, bus: ServoBus, robot: Robot, max_catch_up_s: float | None = None):
         self.bus = bus
         self.robot = robot
+        self.max_catch_up_s = math.inf if max_catch_up_s is None else float(max_catch_up_s)
         # Warm up before the clock starts: a JIT-compiled sim compiles on its first read/state
         # call, which must not happen while a driver waits for a reply.
         bus.read_position(ALL_JOINTS[0])
@@ -166,19 +173,42 @@ class ServoBusBackend:
         self._mount = [robot.bus.by_joint(j) for j in self._joints]
         self._last: dict[int, tuple[float, float]] = {}
 
+    def _catch_up(self, t: float, slices: int = 1) -> None:
+        self.bus.wait_until(min(self.t0 + t, self.bus.now() + slices * self.max_catch_up_s))
+        if self.truth is not None and self.bus.now() - self._truth_t >= self.TRUTH_PERIOD_S:
+            self._truth_t = self.bus.now()
+            pos, _ = self.bus.body_pose()
+            self.truth.append((time.time(), self._truth_t, *pos, *self.bus.foot_contacts().in_contact))
+
+    TRUTH_PERIOD_S = 0.001
+
+    def record_truth(self) -> None:
+        """Keep (wall time, sim time, body x, y, z, six foot contacts) per millisecond of physics, for
+        benchmarks that compare what the driver saw with what happened (a HexapodSim bus)."""
+        self.truth, self._truth_t = [], -math.inf
+
+    truth: list | None = None
+
+    def save_truth(self, path: str) -> None:
+        """Write the recorded truth as .npz (array ``truth``, columns as in :meth:`record_truth`)."""
+        tmp = f'{path}.part.npz'
+        np.savez(tmp, truth=np.array(self.truth if self.truth else np.zeros((0, 11))))
+        os.replace(tmp, path)
+
     def goals(self, t: float, goals: Mapping[int, int]) -> None:
-        self.bus.wait_until(self.t0 + t)
+        self._catch_up(t)
         self.bus.sync_write({self._joints[s]: float(servo_theta(tick, self.robot.servo, self._mount[s]))
                              for s, tick in goals.items()})
 
     def idle(self, t: float) -> None:
-        """Keep the simulated bus in step with the emulator's clock while nobody talks to it."""
-        self.bus.wait_until(self.t0 + t)
+        """Keep the simulated bus in step with the emulator's clock while nobody talks to it (in
+        slices, so that a request arriving meanwhile is not kept waiting)."""
+        self._catch_up(t, slices=5)
 
     def torque(self, t: float, slot: int, enabled: bool) -> None:
         setter = getattr(self.bus, 'set_torque_enabled', None)
         if setter is not None:
-            self.bus.wait_until(self.t0 + t)
+            self._catch_up(t)
             setter(bool(enabled), [self._joints[slot]])
 
     def status(self, slot: int) -> tuple[float | None, float | None]:
@@ -189,7 +219,7 @@ class ServoBusBackend:
         return float(st.temperature_c[slot]), float(st.load_fraction[slot])
 
     def sample(self, t: float, slot: int) -> tuple[float, float]:
-        self.bus.wait_until(self.t0 + t)
+        self._catch_up(t)
         theta, ts = self.bus.read_position(self._joints[slot])
         tick = float(servo_tick(theta, self.robot.servo, self._mount[slot]))
         speed = 0.0
@@ -881,6 +911,7 @@ def main(argv=None) -> int:
                     help='ideal: servos move straight to their goals; sim: the MuJoCo hexapod '
                          '(hexapod_sim.sim.HexapodSim) moves them, in step with wall-clock time')
     ap.add_argument('--terrain', default='flat', help='sim backend: terrain name')
+    ap.add_argument('--terrain-seed', type=int, default=0, help='sim backend: seed of a random terrain')
     ap.add_argument('--fixed-base', action='store_true', help='sim backend: trunk fixed in the air')
     ap.add_argument('--wire-time', action='store_true',
                     help='delay replies by the 1 Mbps wire time of both packets (10 bits/byte)')
@@ -895,6 +926,12 @@ def main(argv=None) -> int:
                          'only when the port is opened at its rate')
     ap.add_argument('--status-return-level', type=int, choices=[0, 1, 2], default=None,
                     help='status return level (address 16) of every servo: 0 PING only, 1 reads only, 2 all')
+    ap.add_argument('--max-catch-up-ms', type=float, default=2.0,
+                    help='sim backend: at most this much physics is run before a reply (an overloaded host '
+                         'answers from slightly older physics instead of after the driver\'s timeout)')
+    ap.add_argument('--truth-out', default=None,
+                    help='sim backend: at exit, write body position and foot contacts per ms (wall and sim '
+                         'time) to this .npz (for benchmarks)')
     ap.add_argument('--seed', type=int, default=0, help='seed of the random faults')
     ap.add_argument('--verbose', action='store_true', help='print every instruction packet (slow)')
     args = ap.parse_args(argv)
@@ -902,11 +939,20 @@ def main(argv=None) -> int:
         v = getattr(args, name)
         if not 0.0 <= v <= 1.0:
             ap.error(f'--{name.replace("_", "-")} must be within 0..1, got {v}')
+    if not args.max_catch_up_ms > 0:
+        ap.error(f'--max-catch-up-ms must be > 0, got {args.max_catch_up_ms}')
+    if args.truth_out is not None and args.backend != 'sim':
+        ap.error('--truth-out needs --backend sim (the ideal backend has no body)')
+    if args.truth_out is not None and not os.path.isdir(os.path.dirname(os.path.abspath(args.truth_out))):
+        ap.error(f'--truth-out: directory of {args.truth_out} does not exist')
     robot = load_robot(args.robot)
     backend = None
     if args.backend == 'sim':
         from hexapod_sim.sim import HexapodSim     # optional: only this backend needs MuJoCo
-        backend = ServoBusBackend(HexapodSim(robot, terrain=args.terrain, fixed_base=args.fixed_base), robot)
+        backend = ServoBusBackend(HexapodSim(robot, terrain=args.terrain, seed=args.terrain_seed, fixed_base=args.fixed_base), robot,
+                                  max_catch_up_s=args.max_catch_up_ms / 1000.0)
+        if args.truth_out is not None:
+            backend.record_truth()
     emu = BusEmulator(robot, backend, link_path=args.link, wire_time=args.wire_time, absent_ids=tuple(args.absent),
                       seed=args.seed)
     if args.drop_probability:
@@ -943,6 +989,8 @@ def main(argv=None) -> int:
     finally:
         emu.stop()
         print(f'served {emu.packets} packets', file=sys.stderr)
+        if args.truth_out is not None:
+            backend.save_truth(args.truth_out)
     return 0
 
 

@@ -6,6 +6,10 @@ Routes (``--route``):
             controller owning the bus (the real-time route)
   dds       ``sim_node`` and ``locomotion_node`` as two processes, every parameter at its default,
             the reads and commands over DDS
+  driver    ``robot hardware:=driver`` (driver + model + locomotion in one process, the controller
+            running the AX-12A bus) against ``bus_emulator --backend sim`` (MuJoCo physics behind
+            a pseudo-terminal, in real time): the hardware path; the truth (body position, foot
+            contacts) comes from the emulator's ``--truth-out`` file
 
 Each route runs ``--seconds`` of wall time from the first swing-down, the sim publishing its truth
 topics at ``--truth-rate`` (1 kHz: true contact times to the millisecond); nothing is recorded.
@@ -31,7 +35,7 @@ import time
 
 import numpy as np
 
-ROUTES = ('composed', 'dds')
+ROUTES = ('composed', 'dds', 'driver')
 
 
 def _exe(pkg: str, name: str) -> str:
@@ -46,10 +50,17 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def _processes(route: str, args) -> list[tuple[str, list[str]]]:
+def _processes(route: str, args, workdir: str) -> list[tuple[str, list[str]]]:
     sim_params = [f'terrain:={args.terrain}', f'seed:={args.seed}', f'truth_rate_hz:={args.truth_rate}']
     loco_params = [f'gait:={args.gait}']
     p = lambda params: [a for x in params for a in ('-p', x)]  # noqa: E731
+    if route == 'driver':
+        link = os.path.join(workdir, 'ttyHEX')
+        return [('bus_emulator (sim)', [_exe('hexapod_driver', 'bus_emulator'), '--backend', 'sim',
+                                        '--terrain', args.terrain, '--terrain-seed', str(args.seed), '--link', link,
+                                        '--truth-out', os.path.join(workdir, 'truth.npz')]),
+                ('robot (driver+model+locomotion)', [_exe('hexapod_locomotion', 'robot'), '--ros-args',
+                                                     *p(['hardware:=driver', f'device:={link}'] + loco_params)])]
     if route == 'composed':
         return [('robot (sim+model+locomotion)', [_exe('hexapod_locomotion', 'robot'), '--ros-args',
                                                   *p(sim_params + loco_params)])]
@@ -104,8 +115,13 @@ def run_route(route: str, args, workdir: str) -> dict:
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(args.domain_id),
                PYTHONUNBUFFERED='1')
     logs = [open(os.path.join(workdir, f'{route}_{i}.log'), 'w+') for i in range(2)]
-    procs = [(name, subprocess.Popen(cmd, env=env, stdout=logs[i], stderr=subprocess.STDOUT))
-             for i, (name, cmd) in enumerate(_processes(route, args))]
+    procs = []
+    for i, (name, cmd) in enumerate(_processes(route, args, workdir)):
+        procs.append((name, subprocess.Popen(cmd, env=env, stdout=logs[i], stderr=subprocess.STDOUT)))
+        if route == 'driver' and i == 0:                 # the robot opens the emulator's port at start
+            t_end = time.monotonic() + 60
+            while not os.path.exists(os.path.join(workdir, 'ttyHEX')) and time.monotonic() < t_end:
+                time.sleep(0.1)
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx, domain_id=args.domain_id)
     node = rclpy.create_node('bench_graph', context=ctx)
@@ -122,6 +138,7 @@ def run_route(route: str, args, workdir: str) -> dict:
             raise RuntimeError(f'{route}: no swing-down within 120 s; logs in {workdir}')
         cpu0 = {name: _cpu_s(p.pid) for name, p in procs}
         probe.measuring = True
+        window = [time.time(), math.nan]
         t0 = time.monotonic()
         ended = None
         cpu = {}
@@ -134,13 +151,13 @@ def run_route(route: str, args, workdir: str) -> dict:
                         _last_error(logs[[n for n, _ in procs].index(name)])
             time.sleep(0.5)
         probe.measuring = False
+        window[1] = time.time()
         wall = time.monotonic() - t0
         cpu = {name: v / wall for name, v in cpu.items()}
     finally:
-        for _, p in procs:
+        for _, p in reversed(procs):        # the controller before the bus it drives (torque off)
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
-        for _, p in procs:
             try:
                 p.wait(30)
             except subprocess.TimeoutExpired:
@@ -148,9 +165,28 @@ def run_route(route: str, args, workdir: str) -> dict:
         ex.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
+    sim_s = None
+    if route == 'driver':
+        sim_s = _truth_from_emulator(probe, os.path.join(workdir, 'truth.npz'), window)
     out = figures(probe, args.gait)
+    if sim_s is not None:
+        out['sim_s'] = sim_s
     out.update(route=route, wall_s=wall, cpu=cpu, ended=ended)
     return out
+
+
+def _truth_from_emulator(probe: _Probe, path: str, window) -> float:
+    """Fill the probe's pose and contacts from the emulator's truth file, on the wall clock the
+    driver stamps its reads with; returns the simulated seconds within the window."""
+    if not os.path.exists(path):
+        raise RuntimeError(f'driver: the bus emulator wrote no truth file ({path})')
+    truth = np.load(path)['truth']
+    sel = truth[(truth[:, 0] >= window[0]) & (truth[:, 0] <= window[1])]
+    if len(sel) < 2:
+        raise RuntimeError(f'driver: the emulator\'s truth holds {len(sel)} samples in the measured window')
+    probe.pose = [(row[0], row[2]) for row in sel]
+    probe.contacts = [(row[0], [bool(c) for c in row[5:11]]) for row in sel]
+    return float(sel[-1, 1] - sel[0, 1])
 
 
 def _last_error(log) -> str:

@@ -2,8 +2,8 @@
 
 ``ros2 run hexapod_locomotion robot`` starts, in one process and one executor,
 
-* the bus master: ``sim_node`` (``hardware:=sim``, the MuJoCo hexapod; the driver is not
-  composed yet: on the robot, ``driver_node`` and ``locomotion_node`` run as two processes),
+* the bus master: ``sim_node`` (``hardware:=sim``, the MuJoCo hexapod) or ``driver_node``
+  (``hardware:=driver``, the AX-12A bus on ``device``: the robot, or the bus emulator),
 * ``model_node`` (the ``/predict_swing_down`` service),
 * ``locomotion_node``, whose controller calls the bus master's bus directly: Algorithm 1 reads the
   femurs, decides and writes at t_con = L x T_com, as on the paper's robot, where over DDS between
@@ -24,13 +24,14 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
+from hexapod_model.bus import BusError
 from hexapod_model.description import DescriptionError
 
 from .controller import LocomotionError
 from .detector import DetectorError
 from .gait import GaitError
 
-HARDWARE = ('sim',)
+HARDWARE = ('sim', 'driver')
 
 
 def _hardware(context) -> str:
@@ -47,6 +48,10 @@ def _hardware(context) -> str:
 
 def _bus_master(hardware: str):
     """(node, its bus for the controller, cleanup)."""
+    if hardware == 'driver':
+        from hexapod_driver.driver_node import DriverNode
+        node = DriverNode()
+        return node, node.local_bus(), node.shutdown_bus
     from hexapod_sim.sim_node import SimNode
     node = SimNode()
     return node, node.local_bus(), node.close
@@ -62,8 +67,7 @@ def main(args=None) -> None:
     try:
         hardware = _hardware(rclpy.get_default_context())
         if hardware not in HARDWARE:
-            raise SystemExit(f'robot: parameter hardware must be one of {", ".join(HARDWARE)}, got {hardware!r} '
-                             '(on the robot, run driver_node and locomotion_node: docs/architecture.md)')
+            raise SystemExit(f'robot: parameter hardware must be one of {", ".join(HARDWARE)}, got {hardware!r}')
         master, bus, cleanup = _bus_master(hardware)
         nodes.append(master)
         cleanups.append(cleanup)
@@ -82,6 +86,9 @@ def main(args=None) -> None:
     except (DescriptionError, GaitError, DetectorError, LocomotionError, SimError) as exc:
         print(f'robot: {exc}', file=sys.stderr)
         raise SystemExit(2)
+    except (BusError, ValueError) as exc:          # the driver's start-up: nothing left enabled
+        print(f'robot: start-up failed: {exc}', file=sys.stderr)
+        raise SystemExit(1)
     finally:
         if loco is not None:            # the controller first: it stops using the bus
             loco.destroy_node()

@@ -156,3 +156,37 @@ def test_composed_robot_refuses_bad_parameters_in_one_line(param, named):
     out = p.communicate(timeout=120)[0]
     assert p.returncode != 0, out
     assert named in out and 'Traceback' not in out, out
+
+
+def test_composed_robot_with_the_driver_walks_the_emulated_robot(tmp_path):
+    """``robot hardware:=driver``: driver + model + locomotion in one process, the controller's thread
+    running the AX-12A bus (the hardware path) against the bus emulator with MuJoCo physics in
+    real time. Finds ground, walks (the emulator's physics says how far), Ctrl-C turns torque off."""
+    np = pytest.importorskip('numpy')
+    link, truth = tmp_path / 'ttyHEX', tmp_path / 'truth.npz'
+    env = dict(os.environ, PYTHONUNBUFFERED='1')
+    emu = subprocess.Popen([_exe('hexapod_driver', 'bus_emulator'), '--backend', 'sim', '--terrain', 'flat',
+                            '--link', str(link), '--truth-out', str(truth)],
+                           env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert 'on ' in emu.stdout.readline(), 'the emulator did not start'
+        procs = [_start('hexapod_locomotion', 'robot', 'hardware:=driver', f'device:={link}')]
+        probe = Probe(vx=0.05)
+        try:
+            probe.wait(lambda p: len(p.swings) >= 5 and sum(r.stopped and r.stop_reason == 1 for r in p.reads) >= 6,
+                       procs)
+        finally:
+            outs = _stop(procs)
+            probe.close()
+    finally:
+        emu.send_signal(signal.SIGTERM)
+        emu_out = emu.communicate(timeout=60)[0]
+    assert procs[0].returncode == 0, outs[0][-3000:]
+    assert 'Traceback' not in outs[0], outs[0][-3000:]
+    # torque off broadcast at the end; read back from every servo unless the emulator, starved of CPU,
+    # missed a reply (then the driver says which it could not confirm)
+    assert 'torque off on all servos (read back)' in outs[0] or 'torque off confirmed for' in outs[0], outs[0][-3000:]
+    assert sum(r.stopped and r.stop_reason == 1 for r in probe.reads) >= 6, outs[0][-3000:]
+    body = np.load(truth)['truth']
+    assert body.shape[0] > 100, emu_out
+    assert body[-1, 2] - body[0, 2] > 0.02, (body[0, :5], body[-1, :5], outs[0][-3000:])    # x walked
