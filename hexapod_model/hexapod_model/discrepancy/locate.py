@@ -49,13 +49,17 @@ HIGH_SPEED_RAD_S = 0.8
 HOLD_SPEED_RAD_S = 0.05
 
 
+WINDOW_S = 0.12        # sliding window of the residual RMS [s]
+
+
 @dataclass(frozen=True)
 class Mismatch:
     joint: str
     t_start: float
     t_end: float
     condition: str
-    rmse_ticks: float
+    rmse_ticks: float               # over the whole (merged) window
+    peak_rmse_ticks: float = float('nan')   # the largest sliding-window RMS in it: what flagged it
 
 
 def _forward_fill_nonzero(d: np.ndarray) -> np.ndarray:
@@ -152,7 +156,7 @@ def read_conditions(replay: Replay, robot: Robot, trajectories) -> dict[str, np.
 
 
 def mismatch_windows(replay: Replay, residuals: dict[str, np.ndarray], conditions: dict[str, np.ndarray],
-                     threshold_ticks: float = 0.75, window_s: float = 0.12, merge_gap_s: float = 0.25,
+                     threshold_ticks: float = 0.75, window_s: float = WINDOW_S, merge_gap_s: float = 0.25,
                      min_reads: int = 3) -> list[Mismatch]:
     """Time windows per joint whose residual RMS exceeds ``threshold_ticks`` (see module docstring)."""
     out: list[Mismatch] = []
@@ -188,8 +192,9 @@ def mismatch_windows(replay: Replay, residuals: dict[str, np.ndarray], condition
                 continue
             rr = r[m]
             excess = np.maximum(rr * rr - 1.0 / 12.0, 0.0)
+            in_run = flag & (t >= a) & (t <= b)
             out.append(Mismatch(j, float(a), float(b), _most_telling(conditions[j][m], excess),
-                                float(np.sqrt(np.mean(rr * rr)))))
+                                float(np.sqrt(np.mean(rr * rr))), float(np.max(rms[in_run]))))
     return out
 
 
