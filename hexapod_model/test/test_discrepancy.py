@@ -16,6 +16,7 @@ from hexapod_model.description import Effect, load_robot
 from hexapod_model.discrepancy import analyse
 from hexapod_model.discrepancy.effects import CANDIDATES
 from hexapod_model.discrepancy.locate import Mismatch
+from hexapod_model.discrepancy.plot import _mark_clipped, save_plot
 from hexapod_model.discrepancy.report import text_report, to_json
 from hexapod_model.discrepancy.synthetic import model_recording
 
@@ -58,7 +59,7 @@ def test_single_effect_recovered_on_the_right_joint(robot, effect, joints, value
     assert found.heldout_rmse_ticks_after < 0.45          # back at the tick-rounding floor (0.29)
 
 
-def test_clean_recording_gives_no_effect(robot):
+def test_clean_recording_gives_no_effect(robot, tmp_path):
     rec = model_recording(robot, calibration_plan(robot, legs=(1, 4), phases=('coxa', 'tibia')))
     a = analyse(rec, robot, workers=1)
     assert a.effects == []
@@ -76,6 +77,25 @@ def test_clean_recording_gives_no_effect(robot):
     text = text_report(blip)
     assert 'No missing physics found' in text and 'short stretch(es)' in text and 'mismatch window' not in text
     assert '0.81 /  0.69' in text
+    png = save_plot(blip, tmp_path / 'clean.png')
+    assert png.stat().st_size > 10_000
+
+
+def test_plot_marks_values_beyond_the_axis():
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    t = np.linspace(0, 1, 50)
+    y = np.zeros(50)
+    y[10], y[30] = 80.0, -55.0
+    ax.set_ylim(-5, 5)
+    _mark_clipped(ax, t, y, 'k')
+    texts = [x.get_text() for x in ax.texts]
+    assert texts == ['2 read(s) beyond the axis (triangles; extreme +80 ticks)']
+    edges = sorted(float(v) for line in ax.lines for v in line.get_ydata())
+    assert edges == [-5.0, 5.0]                         # one triangle on each edge
+    plt.close(fig)
 
 
 def test_two_effects_at_once_are_both_found(robot):

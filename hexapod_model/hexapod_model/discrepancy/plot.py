@@ -20,13 +20,42 @@ def pick_joints(a: Analysis, limit: int = 4) -> list[str]:
     return order[:limit]
 
 
+def _mark_clipped(ax, t: np.ndarray, y: np.ndarray, color: str) -> None:
+    """Values beyond the y limits: a triangle on the edge they leave by, and a count with the extreme
+    in the corner, so a spike cut off by the zoom is never silently lost."""
+    lo, hi = ax.get_ylim()
+    above, below = y > hi, y < lo
+    if np.any(above):
+        ax.plot(t[above], np.full(np.count_nonzero(above), hi), '^', ms=4, color=color, clip_on=False)
+    if np.any(below):
+        ax.plot(t[below], np.full(np.count_nonzero(below), lo), 'v', ms=4, color=color, clip_on=False)
+    n = int(np.count_nonzero(above | below))
+    if n:
+        ext = y[above | below][np.argmax(np.abs(y[above | below]))]
+        ax.text(0.005, 0.97, f'{n} read(s) beyond the axis (triangles; extreme {ext:+.0f} ticks)',
+                transform=ax.transAxes, va='top', fontsize=7, color=color)
+
+
+def _runs(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
+    """(first, last) time of each run of consecutive True in ``mask``."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    edges = np.flatnonzero(np.diff(m.astype(np.int8)))
+    return [(float(t[a]), float(t[b - 1])) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def _legend(ax) -> None:
+    """Beside the axes, never over the data."""
+    ax.legend(loc='upper left', bbox_to_anchor=(1.005, 1.0), fontsize=7, borderaxespad=0.0)
+
+
 def save_plot(a: Analysis, path: str | Path, joints=None) -> Path:
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
     joints = list(joints) if joints else pick_joints(a)
-    fig, axes = plt.subplots(2 * len(joints), 1, figsize=(12, 3.2 * len(joints)), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(2 * len(joints), 1, figsize=(14, 3.2 * len(joints)), sharex=True, squeeze=False,
+                             layout='constrained')
     axes = axes[:, 0]
     rep = a.replay
     for i, j in enumerate(joints):
@@ -46,8 +75,9 @@ def save_plot(a: Analysis, path: str | Path, joints=None) -> Path:
         lo, hi = np.percentile(goal - r.tick, [1, 99])
         pad = max(0.3 * (hi - lo), 2.0)
         ax.set_ylim(lo - pad, hi + pad)
+        _mark_clipped(ax, r.t_s, goal - r.tick, 'k')
         ax.set_ylabel(f'{j}\nerror [ticks]')
-        ax.legend(loc='upper right', fontsize=7, ncol=3)
+        _legend(ax)
         ax2 = axes[2 * i + 1]
         hold = a.split.hold[j]
         jf = a.joints[j]
@@ -60,18 +90,19 @@ def save_plot(a: Analysis, path: str | Path, joints=None) -> Path:
         for m in a.mismatches:
             if m.joint == j:
                 ax2.axvspan(m.t_start, m.t_end, color='orange', alpha=0.25, lw=0)
+        label = 'held-out reads (judged, not fitted)'
+        for t0, t1 in _runs(r.t_s, hold):
+            ax2.axvspan(t0, t1, color='tab:green', alpha=0.12, lw=0, label=label)
+            label = None
         both = np.concatenate([a.residual_before[j], a.residual_after[j]])
         lo, hi = np.percentile(both, [0.5, 99.5])
         ax2.set_ylim(min(lo, -0.6) - 0.3, max(hi, 0.6) + 0.3)
-        if np.any(hold):   # held-out reads marked along the bottom edge
-            ax2.plot(r.t_s[hold], np.full(np.count_nonzero(hold), ax2.get_ylim()[0]), '|', ms=3, color='0.5')
+        _mark_clipped(ax2, r.t_s, a.residual_before[j], 'tab:red')
         ax2.set_ylabel('read - model\n[ticks]')
-        ax2.legend(loc='upper right', fontsize=7, ncol=3)
-    axes[-1].set_xlabel('time [s]   (orange: mismatch windows of the nominal replay; grey ticks at the bottom: '
-                        'held-out reads)')
+        _legend(ax2)
+    axes[-1].set_xlabel('time [s]   (orange: mismatch windows of the nominal replay; green bands: held-out reads)')
     title = '; '.join(f'{f.scope}: {f.effect.effect}' for f in a.effects) or 'no missing physics found'
     fig.suptitle(f'{Path(a.source).name}: {title}', fontsize=10)
-    fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=90)
     plt.close(fig)
