@@ -22,8 +22,6 @@ setup(
         'console_scripts': [
             'model_node = hexapod_model.model_node:main',
             'bench_model = hexapod_model.bench_model:main',
-            'discrepancy = hexapod_model.discrepancy.cli:main',
-            'discrepancy_bench = hexapod_model.discrepancy.bench:main',
         ],
     },
 )

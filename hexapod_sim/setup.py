@@ -25,6 +25,8 @@ setup(
             'sim = hexapod_sim.cli:main',
             'sim_node = hexapod_sim.sim_node:main',
             'bench_sim = hexapod_sim.bench_sim:main',
+            'discrepancy = hexapod_sim.discrepancy.cli:main',
+            'discrepancy_bench = hexapod_sim.discrepancy.bench:main',
         ],
     },
 )

@@ -1,6 +1,6 @@
 """Walk the simulated robot with the gait controller, lock-stepped and without ROS. No rclpy.
 
-The controller drives :class:`hexapod_sim.sim.HexapodSim` through :class:`ProbeBus`, a transparent
+The controller drives :class:`hexapod_sim.plant.HexapodSim` through :class:`ProbeBus`, a transparent
 :class:`~hexapod_model.bus.ServoBus` wrapper that (a) samples evaluation-only truth (body pose,
 battery energy, foot contacts, femur torques, IMU) for the metrics and (b) optionally records every
 bus transaction and sensor stream to a rosbag2 MCAP bag per the recording contract. The controller
@@ -254,7 +254,7 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None) -> TrialResu
 
     The walk ends at ``cfg.duration_s`` of simulated walking time within one control period (the
     phase in progress is cut off and not counted), at the course end, or when the robot falls."""
-    from hexapod_sim.sim import HexapodSim
+    from hexapod_sim.plant import HexapodSim
     robot = load_robot(overlays=cfg.overlays)
     sim = HexapodSim(robot, terrain=cfg.terrain, seed=cfg.seed, t_com_s=cfg.t_com_s, start_xy_m=(cfg.start_x_m, 0.0))
     recorder = None

@@ -12,11 +12,11 @@ import pytest
 from hexapod_locomotion.controller import GaitController, LocomotionParams, VelocityCommand
 from hexapod_locomotion.detector import STOP_CONTACT, STOP_THETA_FIN, DetectorConfig
 from hexapod_locomotion.gait import get_gait
-from hexapod_locomotion.sim_run import ProbeBus, TrialConfig, _detection_events, run_trial
+from hexapod_locomotion.trial_runner import ProbeBus, TrialConfig, _detection_events, run_trial
 from hexapod_model.description import load_robot
 from hexapod_model.kinematics import stance_feet
 from hexapod_sim.mjcf import FOOT_RADIUS_M
-from hexapod_sim.sim import HexapodSim
+from hexapod_sim.plant import HexapodSim
 from hexapod_sim.terrain import Box, Terrain
 
 BLOCK_TOP_M = 0.035

@@ -427,7 +427,7 @@ class BagWriter:
         self._lock = threading.RLock()
         self._file = open(self.mcap_path, 'wb')
         self._mcap = McapWriter(self._file, chunk_size=chunk_size, compression=comp)
-        self._mcap.start(profile='ros2', library='hexapod_model.bagio (mcap-python)')
+        self._mcap.start(profile='ros2', library='hexapod_sim.bagio (mcap-python)')
         self._schemas: dict[str, int] = {}
         self._topics: dict[str, _WTopic] = {}
         self._t_min = self._t_max = None            # over all written messages

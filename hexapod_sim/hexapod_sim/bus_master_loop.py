@@ -2,13 +2,13 @@
 
 The real driver owns the bus and runs a loop: sync-write goals when a command arrives, then read
 positions one servo at a time in the order of the read schedule, cyclically. :class:`SimBusLoop`
-does the same against :class:`hexapod_sim.sim.HexapodSim` and returns, for every read, the
+does the same against :class:`hexapod_sim.plant.HexapodSim` and returns, for every read, the
 outputs due by the new simulated time, each with its simulated stamp:
 
 * :class:`JointSample` per read (the ``/joint_states`` message; stamp = sample time),
-* :class:`~hexapod_sim.sim.ImuSample` at the IMU rate,
+* :class:`~hexapod_sim.plant.ImuSample` at the IMU rate,
 * :class:`PowerSample` (battery voltage, current and power averaged over the period),
-* :class:`~hexapod_sim.sim.ServoState` (diagnostics), :class:`BusTimingSample`,
+* :class:`~hexapod_sim.plant.ServoTelemetry` (diagnostics), :class:`BusTimingSample`,
 * :class:`TruthSample` (evaluation-only foot contacts/forces and body pose),
 * :class:`ClockTick` (``/clock``).
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from hexapod_model.description import ALL_JOINTS, LEGS
 
-from .sim import FootContacts, HexapodSim, ImuSample, ServoState, SimError
+from .plant import FootContacts, HexapodSim, ImuSample, ServoTelemetry, SimError
 
 
 @dataclass(frozen=True)
@@ -213,4 +213,4 @@ def truth_vector(contacts: FootContacts) -> list[float]:
 
 TRUTH_LAYOUT = (('contact', len(LEGS)), ('force_xyz', 3 * len(LEGS)))
 __all__ = ['SimBusLoop', 'JointSample', 'PowerSample', 'BusTimingSample', 'TruthSample', 'ClockTick',
-           'ImuSample', 'ServoState', 'truth_vector', 'TRUTH_LAYOUT']
+           'ImuSample', 'ServoTelemetry', 'truth_vector', 'TRUTH_LAYOUT']

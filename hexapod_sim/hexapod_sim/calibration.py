@@ -1,7 +1,7 @@
 """Calibration motion for a robot on a stand (fixed base, feet in the air), for the discrepancy tool.
 
 The routine moves every joint through the conditions in which each candidate effect of
-:mod:`hexapod_model.discrepancy.effects` shows, and reads the moving joints as fast as the bus
+:mod:`hexapod_sim.discrepancy.effects` shows, and reads the moving joints as fast as the bus
 allows, so one recording of about a minute lets the tool name what the model leaves out:
 
 ========================  ==================================================================
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .description import JOINT_ROLES, LEGS, Robot, joint_name
+from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
 
 PHASES = ('settle', 'coxa', 'femur', 'tibia', 'femur_reversal', 'swing')
 
@@ -266,7 +266,7 @@ def calibration_plan(robot: Robot, legs=LEGS, phases=PHASES, repeats: int = 1, s
 
 def run_calibration(bus, plan: CalibrationPlan, progress: bool = True, robot: Robot | None = None):
     """Execute ``plan`` on a :class:`~hexapod_model.bus.ServoBus`; returns the recorded
-    :class:`~hexapod_model.discrepancy.recording.Recording` (every write and read, bus time stamps).
+    :class:`~hexapod_sim.discrepancy.recording.Recording` (every write and read, bus time stamps).
 
     Each cycle: one sync write of the goals at the current plan time, then the phase's reads one
     after the other. The plan time is the bus time since the start, so a slower bus just gets
@@ -275,8 +275,8 @@ def run_calibration(bus, plan: CalibrationPlan, progress: bool = True, robot: Ro
     tick size (default: the packaged description).
     """
     from .discrepancy.recording import Recording
-    from .description import load_robot
-    from .servo import theta_to_tick
+    from hexapod_model.description import load_robot
+    from hexapod_model.servo import theta_to_tick
     servo = (robot or load_robot()).servo
     last_ticks = None
     commands, reads = [], []

@@ -24,7 +24,7 @@ a second hinge ``leg{l}_{role}_backlash`` with range ``+-width/2`` (a hard-ish j
 the gear teeth). MuJoCo handles a joint limit robustly with the implicit integrator; the servo's
 potentiometer sits on the output shaft, so the position the firmware sees is motor + play.
 Effects that act in the firmware or on the bus (static friction, torque saturation, dead-band,
-readout delay) are applied by :mod:`hexapod_sim.sim`.
+readout delay) are applied by :mod:`hexapod_sim.plant`.
 
 Sim-only geometry and contact values (not in the robot description, so named once here) are
 project nominal values [N].

@@ -84,7 +84,7 @@ class BatteryReading:
 
 
 @dataclass(frozen=True)
-class ServoState:
+class ServoTelemetry:
     """What each servo's control table would report (arrays in ``ALL_JOINTS`` order)."""
 
     t_s: float
@@ -522,11 +522,11 @@ class HexapodSim:
     def temperatures_c(self) -> np.ndarray:
         return np.array(self._window_state()[2])
 
-    def servo_state(self) -> ServoState:
+    def servo_state(self) -> ServoTelemetry:
         temp = np.array(self._window_state()[2])
         n = len(ALL_JOINTS)
         load = self._tau * self._dir / self._servo.stall_torque_nm     # in the servo's own direction
-        return ServoState(self.now(), temp, np.full(n, self.robot.servo.supply_voltage_v),
+        return ServoTelemetry(self.now(), temp, np.full(n, self.robot.servo.supply_voltage_v),
                           load, self._error_bits.copy(), self.torque_enabled)
 
     @property

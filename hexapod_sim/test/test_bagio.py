@@ -21,8 +21,9 @@ from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.stream_reader import StreamReader
 
-from hexapod_model import bagio, contract
-from hexapod_model.bagio import BagError, BagReader, BagWarning, BagWriter, MessageEncodeError
+from hexapod_model import contract
+from hexapod_sim import bagio
+from hexapod_sim.bagio import BagError, BagReader, BagWarning, BagWriter, MessageEncodeError
 
 T0 = 1_700_000_000_000_000_000
 JS = 'sensor_msgs/msg/JointState'
@@ -185,7 +186,7 @@ def test_definitions_work_without_ros(tmp_path):
                 raise ImportError(name)
             return real_import(name, *a, **k)
         builtins.__import__ = no_ros
-        from hexapod_model.bagio import BagWriter, BagReader
+        from hexapod_sim.bagio import BagWriter, BagReader
         with BagWriter({str(tmp_path / 'noros')!r}) as w:
             w.write('/joint_states', 'sensor_msgs/msg/JointState', {{'name': ['a'], 'position': [1.5]}}, 5)
             w.write('/read_schedule', 'hexapod_msgs/msg/ReadSchedule', {{'joint_names': ['leg1_femur']}}, 6)
@@ -281,7 +282,7 @@ def test_killed_recorder_leaves_a_readable_bag(tmp_path):
     bag = tmp_path / 'crash'
     script = textwrap.dedent(f'''
         import os, signal
-        from hexapod_model.bagio import BagWriter
+        from hexapod_sim.bagio import BagWriter
         w = BagWriter({str(bag)!r}, flush_period_s=1.0)
         for i in range(3500):              # 3.5 s of message time at 1 kHz
             w.write('/joint_states', 'sensor_msgs/msg/JointState', {{'position': [float(i)]}}, {T0} + i * 1_000_000)

@@ -10,12 +10,12 @@ import math
 import numpy as np
 import pytest
 
-from hexapod_model.calibration import calibration_plan
+from hexapod_sim.calibration import calibration_plan
 from hexapod_model.description import Effect, load_robot
-from hexapod_model.discrepancy import analyse
-from hexapod_model.discrepancy.effects import CANDIDATES
-from hexapod_model.discrepancy.report import text_report, to_json
-from hexapod_model.discrepancy.synthetic import model_recording
+from hexapod_sim.discrepancy import analyse
+from hexapod_sim.discrepancy.effects import CANDIDATES
+from hexapod_sim.discrepancy.report import text_report, to_json
+from hexapod_sim.discrepancy.synthetic import model_recording
 
 LEG2 = ('leg2_coxa', 'leg2_femur', 'leg2_tibia')
 

@@ -6,14 +6,14 @@ import math
 import numpy as np
 import pytest
 
-from hexapod_model.bagio import BagWriter
-from hexapod_model.calibration import calibration_plan
+from hexapod_sim.bagio import BagWriter
+from hexapod_sim.calibration import calibration_plan
 from hexapod_model.description import Effect, load_robot
-from hexapod_model.discrepancy.cli import main
-from hexapod_model.discrepancy.recording import Recording, RecordingError, load_recording
-from hexapod_model.discrepancy.segments import looks_like_walk, parse_windows, swing_segments
-from hexapod_model.discrepancy.simulate import Replay
-from hexapod_model.discrepancy.synthetic import model_recording
+from hexapod_sim.discrepancy.cli import main
+from hexapod_sim.discrepancy.recording import Recording, RecordingError, load_recording
+from hexapod_sim.discrepancy.segments import looks_like_walk, parse_windows, swing_segments
+from hexapod_sim.discrepancy.simulate import Replay
+from hexapod_sim.discrepancy.synthetic import model_recording
 
 WIDTH = math.radians(1.3)
 
@@ -88,7 +88,7 @@ def test_cli_names_bad_input(bag, tmp_path, capsys):
 
 
 def test_time_windows_restrict_the_analysis(bag, robot):
-    from hexapod_model.discrepancy import analyse
+    from hexapod_sim.discrepancy import analyse
     _, rec = bag
     a = analyse(rec, robot, windows=parse_windows(['2:6', '9:12']), workers=1)
     t = a.replay.reads['leg5_tibia'].t_s

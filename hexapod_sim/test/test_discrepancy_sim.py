@@ -5,12 +5,12 @@ import math
 
 import pytest
 
-from hexapod_model.calibration import calibration_plan, run_calibration
+from hexapod_sim.calibration import calibration_plan, run_calibration
 from hexapod_model.description import JOINT_ROLES, Effect, joint_name, load_robot
-from hexapod_model.discrepancy import analyse
-from hexapod_model.discrepancy.report import text_report
+from hexapod_sim.discrepancy import analyse
+from hexapod_sim.discrepancy.report import text_report
 
-sim_mod = pytest.importorskip('hexapod_sim.sim', reason='the MuJoCo sim package is not importable')
+sim_mod = pytest.importorskip('hexapod_sim.plant', reason='the MuJoCo sim package is not importable')
 
 
 def _record(robot_truth, plan):

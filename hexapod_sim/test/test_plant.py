@@ -9,7 +9,7 @@ from hexapod_model.description import ALL_JOINTS, Effect, joint_name, load_robot
 from hexapod_model.servo import firmware_torque_nm, quantize_tick, theta_to_tick, winding_loss_w
 from hexapod_model.swing_model import interpolated_goals, predict_swing_down
 from hexapod_sim.mjcf import FOOT_RADIUS_M
-from hexapod_sim.sim import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, SimError
+from hexapod_sim.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, SimError
 
 RAISED = [0.45, 0.1]     # femur, tibia at the end of swing-forward [rad] (as in the model's tests)
 BELOW = [-0.15, -0.05]   # theta_fin below the (absent) ground

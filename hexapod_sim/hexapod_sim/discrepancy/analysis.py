@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..description import Effect, Robot, load_robot, parse_joint_name
+from hexapod_model.description import Effect, Robot, load_robot, parse_joint_name
 from .effects import scope_name
 from .fit import FitSettings, Hypothesis, Namer, make_split
 from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions

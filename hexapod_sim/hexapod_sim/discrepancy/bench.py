@@ -1,8 +1,8 @@
 """Benchmark of the discrepancy tool on concealed data (not a test): ``./hexapod discrepancy-bench``.
 
 Every case injects effects at realistic AX-12A magnitudes into the robot description, runs the
-stand calibration routine (:mod:`hexapod_model.calibration`) on the MuJoCo sim
-(:class:`hexapod_sim.sim.HexapodSim`, ``fixed_base=True``), writes the recording as a bag, and
+stand calibration routine (:mod:`hexapod_sim.calibration`) on the MuJoCo sim
+(:class:`hexapod_sim.plant.HexapodSim`, ``fixed_base=True``), writes the recording as a bag, and
 hands the tool only that bag path (the command-line entry point, in process). The tool never
 sees the truth or the sim's model. The result is scored against the hidden truth:
 
@@ -33,8 +33,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from hexapod_model.description import Effect, JOINT_ROLES, LEGS, effects_to_overlay, joint_name, load_robot, parse_joint_name
+
 from ..calibration import calibration_plan, run_calibration
-from ..description import Effect, JOINT_ROLES, LEGS, effects_to_overlay, joint_name, load_robot, parse_joint_name
 from .effects import BY_NAME
 
 # Realistic AX-12A magnitudes (joint side) for the injected effects.
@@ -108,7 +109,7 @@ def make_cases(seed: int, legs=LEGS) -> list[Case]:
 
 def record_case(case: Case, out_dir: Path, legs=LEGS, robot=None, progress: bool = False) -> tuple[Path, float]:
     """Run the calibration routine on the MuJoCo sim with the case's effects; write the bag. -> (bag, duration)."""
-    from hexapod_sim.sim import HexapodSim
+    from ..plant import HexapodSim
     base = robot or load_robot()
     truth = base.with_effects(case.effects)
     plan = calibration_plan(base, legs=legs, speed_scale=case.speed_scale)
@@ -252,7 +253,7 @@ def make_demo(out_dir: Path, seed: int) -> None:
 
 
 def main(argv=None) -> int:
-    from ..cli_common import make_parser
+    from hexapod_model.cli_common import make_parser
     ap = make_parser('discrepancy_bench', __doc__.splitlines()[0])
     ap.add_argument('--seed', type=int, default=0, help='draws the magnitudes and joints of the cases')
     ap.add_argument('--cases', nargs='+', metavar='NAME', help='run only these cases (names as in the table)')

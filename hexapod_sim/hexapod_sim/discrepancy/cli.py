@@ -11,9 +11,9 @@ import json
 import sys
 from pathlib import Path
 
-from ..cli_common import (add_no_progress_option, add_overlay_option, existing_file, make_parser,
+from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, make_parser,
                           output_file, plot_extensions, positive_float, ratio_at_least_one)
-from ..description import ALL_JOINTS, DescriptionError, load_robot
+from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
 from .analysis import MODES, analyse
 from .effects import BY_NAME
 from .fit import FitSettings

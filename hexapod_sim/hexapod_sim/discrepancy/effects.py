@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..description import EFFECT_PARAMS, Effect, Robot, joint_name, parse_joint_name, JOINT_ROLES
+from hexapod_model.description import EFFECT_PARAMS, Effect, Robot, joint_name, parse_joint_name, JOINT_ROLES
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from ..description import Effect, Robot, joint_name, parse_joint_name
+from hexapod_model.description import Effect, Robot, joint_name, parse_joint_name
 from .effects import BY_NAME, CANDIDATES, Candidate, leg_joints
 from .simulate import Replay
 

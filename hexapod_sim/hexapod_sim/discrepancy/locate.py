@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..description import Robot, joint_name, parse_joint_name
-from ..swing_model import LegModel
+from hexapod_model.description import Robot, joint_name, parse_joint_name
+from hexapod_model.swing_model import LegModel
 from .simulate import Replay
 
 CONDITIONS = ('load_reversal', 'direction_reversal', 'start_from_rest', 'large_error', 'high_speed',

@@ -8,7 +8,7 @@ the time the position was sampled. Times are seconds since ``t0_ns`` (the earlie
 to a whole millisecond, so the 1 kHz firmware grid of the sim stays aligned).
 
 :func:`load_recording` reads a rosbag2 directory or a single ``.mcap`` file through
-:mod:`hexapod_model.bagio`; :meth:`Recording.write_bag` writes one back (tests, benchmark).
+:mod:`hexapod_sim.bagio`; :meth:`Recording.write_bag` writes one back (tests, benchmark).
 """
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from ..contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES
-from ..description import ALL_JOINTS, DescriptionError, parse_joint_name
+from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES
+from hexapod_model.description import ALL_JOINTS, DescriptionError, parse_joint_name
 
 
 class RecordingError(ValueError):

@@ -5,7 +5,7 @@ import math
 
 import yaml
 
-from ..description import effects_to_overlay
+from hexapod_model.description import effects_to_overlay
 from .analysis import Analysis
 from .effects import BY_NAME
 from .locate import CONDITION_WORDS

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..description import joint_name
+from hexapod_model.description import joint_name
 from .recording import Recording, RecordingError
 
 

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..description import JOINT_ROLES, Robot, joint_name, parse_joint_name
-from ..servo import quantize_tick, servo_tick, theta_to_tick
-from ..swing_model import CoxaModel, LegModel
+from hexapod_model.description import JOINT_ROLES, Robot, joint_name, parse_joint_name
+from hexapod_model.servo import quantize_tick, servo_tick, theta_to_tick
+from hexapod_model.swing_model import CoxaModel, LegModel
 from .recording import Recording, RecordingError
 
 

@@ -1,7 +1,7 @@
 """Model-generated recordings: the calibration plan replayed through the model itself.
 
 For tests and for developing without the MuJoCo sim: the plan's goal writes and sequential reads
-are laid out on the bus timeline of :func:`hexapod_model.calibration.run_calibration` (one sync
+are laid out on the bus timeline of :func:`hexapod_sim.calibration.run_calibration` (one sync
 write, then ``T_com`` per read), the model with the given effects is rolled out, and every read
 reports the rounded tick, as a servo does. The concealed-data benchmark uses the MuJoCo sim
 instead, so the tool never sees the generator's model there.
@@ -11,9 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 
+from hexapod_model.description import Robot
+from hexapod_model.servo import quantize_tick, theta_to_tick, tick_to_theta
+
 from ..calibration import CalibrationPlan
-from ..description import Robot
-from ..servo import quantize_tick, theta_to_tick, tick_to_theta
 from .recording import Recording
 from .simulate import Replay
 
