@@ -28,5 +28,9 @@ setup(
             'discrepancy = hexapod_sim.discrepancy.cli:main',
             'discrepancy_bench = hexapod_sim.discrepancy.bench:main',
         ],
+        # The MuJoCo hexapod as a backend of the driver's bus emulator (bus_emulator --backend sim).
+        'hexapod_driver.emulator_backends': [
+            'sim = hexapod_sim.emulator_backend:SimBackend',
+        ],
     },
 )
