@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import collections
 import heapq
-import math
 import os
 import select
 import termios
