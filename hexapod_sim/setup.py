@@ -15,7 +15,7 @@ setup(
     zip_safe=True,
     maintainer='hexapod maintainers',
     maintainer_email='hexapod@example.org',
-    description='MuJoCo hexapod standing in for the hardware: same topics as the driver, terrain mockup, MCAP recording.',
+    description='MuJoCo hexapod standing in for the hardware: same topics as the driver, terrain mockup, bag I/O and MCAP recording, replay, the stand calibration routine and the sim-vs-real discrepancy tool.',
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
