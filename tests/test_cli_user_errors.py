@@ -1,4 +1,4 @@
-"""Issue 14 items 2/10/12: every command, run as its console script with bad input, fails at once
+"""Every command, run as its console script with bad input, fails at once
 with ONE line on stderr (no traceback), a non-zero exit status, and leaves nothing behind; its
 usage line names the ./hexapod command when started through ./hexapod."""
 import os

@@ -294,7 +294,7 @@ def test_emulator_over_a_servobus_serves_reads_from_it(robot):
     assert math.isfinite(fake.t)
 
 
-# ----------------------------------------------------------------------------- issue 11 faults
+# ----------------------------------------------------------------------------- status level, baud, adapter latency
 def _open(port, baud):
     import serial
     return serial.Serial(port, baud, timeout=0.2)

@@ -52,7 +52,7 @@ def test_garbage_gives_clear_error(tmp_path, capsys):
 
 
 def test_truncated_bag_reports_the_cut_off_swing_down_as_incomplete(walk_bag, tmp_path, capsys):
-    """Issue 14 item 6: a bag cut in the middle of a swing-down; the cut-off legs are 'incomplete',
+    """A bag cut in the middle of a swing-down; the cut-off legs are 'incomplete',
     not 'differing decisions'; no 'see JSON' without --json; the bag warning is one clean line."""
     bag, _ = walk_bag
     mcap = next(bag.glob('*.mcap'))
@@ -76,7 +76,7 @@ def test_truncated_bag_reports_the_cut_off_swing_down_as_incomplete(walk_bag, tm
 
 
 def test_demo_and_analyse_use_the_same_words_and_counts(walk_bag):
-    """Issue 14 item 13: 'swing-down phases' and 'leg swing-downs' with the same numbers."""
+    """The report names 'swing-down phases' and 'leg swing-downs' with the same numbers."""
     from hexapod_locomotion.analyse import report_lines
     from hexapod_locomotion.demo import summary_lines
     bag, res = walk_bag

@@ -116,7 +116,7 @@ class _SupportProbe:
 def test_support_feet_stay_down_at_every_tick_on_flat_ground(robot, gait, feet):
     """In MuJoCo, not only in the gait table: 3 / 4 / 5 feet on the ground at every read while
     walking. Needs the landing preload: a leg held at its contact pose takes no load after
-    leveling and lifts off when the next group swings (tetrapod: leg 3 was up 22 % of the time)."""
+    leveling and lifts off when the next group swings."""
     sim = HexapodSim(robot, terrain='flat')
     probe = _SupportProbe(sim)
     c = GaitController(robot, get_gait(gait), LocomotionParams(t_des_s=0.5), DetectorConfig(), t_com_s=sim.t_com_s)

@@ -11,7 +11,7 @@ emulated at 1 kHz.
 3. the ROS ``sim_node`` running as fast as possible (real_time_factor 0), publishing every topic on
    loopback in its own ROS domain, without and with recording to a bag.
 
-Target (issue 3): raw simulation >= 20x real time on one core. The machine is shared: each figure
+Target: raw simulation >= 20x real time on one core. The machine is shared: each figure
 is the best of ``--repeats`` runs (wall clock), and the CPU time of the process is shown too.
 Run: ``./hexapod run hexapod_sim bench_sim``.
 """

@@ -42,7 +42,7 @@ from hexapod_model.kinematics import forward
 from .terrain import Terrain, make_terrain, _mat_to_quat
 
 # ----------------------------------------------------------------------------- sim nominal values [N]
-TIMESTEP_S = 0.001             # physics step = the firmware period (the issue allows 1 ms or finer)
+TIMESTEP_S = 0.001             # physics step = the firmware period (1 ms or finer keeps the firmware grid)
 FOOT_RADIUS_M = 0.008          # rubber foot-tip sphere
 FOOT_FRICTION = 1.0            # rubber on wood
 LINK_RADIUS_M = 0.007          # link capsules (visual; the tibia capsule also collides)
