@@ -21,8 +21,8 @@ Message definitions come from the installed interface packages (``share/<pkg>/ms
 under ``AMENT_PREFIX_PATH``), then from this workspace's source tree (hexapod_msgs), then from an
 embedded copy of the standard types the project records (``data/ros_msg_definitions.json``).
 
-No rclpy import at module level: rclpy is used only, when importable, to serialize ROS message
-instances handed to :meth:`BagWriter.write`.
+No rclpy import: a ROS message instance handed to :meth:`BagWriter.write` is recognised by its
+class and encoded field by field like a dict.
 
 The package by job: :mod:`.common` (errors, records, constants), :mod:`.definitions` (message
 definition lookup and type hashes), :mod:`.cdr` (message conversion and CDR encoding/decoding),
