@@ -21,7 +21,7 @@ setup(
     entry_points={
         'console_scripts': [
             'driver_node = hexapod_driver.driver_node:main',
-            'bus_emulator = hexapod_driver.emulator:main',
+            'bus_emulator = hexapod_driver.emulator.cli:main',
             'bench_driver = hexapod_driver.bench_driver:main',
             'servo_tool = hexapod_driver.servo_tool:main',
         ],

@@ -15,15 +15,13 @@ setup(
     zip_safe=True,
     maintainer='hexapod maintainers',
     maintainer_email='hexapod@example.org',
-    description='Robot description, kinematics, body leveling, the swing-down dynamic model of leg + AX-12A servo controller (Faigl & Cizek Eq. 11-17), the model node and the sim-vs-real discrepancy tool.',
+    description='Robot description, kinematics, body leveling, the AX-12A servo law, the swing-down dynamic model of leg + servo controller (Faigl & Cizek Eq. 11-17), the ROS contract, the ServoBus interface and the model node.',
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
             'model_node = hexapod_model.model_node:main',
             'bench_model = hexapod_model.bench_model:main',
-            'discrepancy = hexapod_model.discrepancy.cli:main',
-            'discrepancy_bench = hexapod_model.discrepancy.bench:main',
         ],
     },
 )

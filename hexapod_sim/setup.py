@@ -15,7 +15,7 @@ setup(
     zip_safe=True,
     maintainer='hexapod maintainers',
     maintainer_email='hexapod@example.org',
-    description='MuJoCo hexapod standing in for the hardware: same topics as the driver, terrain mockup, MCAP recording.',
+    description='MuJoCo hexapod standing in for the hardware: same topics as the driver, terrain mockup, bag I/O and MCAP recording, replay, the stand calibration routine and the sim-vs-real discrepancy tool.',
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
@@ -25,6 +25,12 @@ setup(
             'sim = hexapod_sim.cli:main',
             'sim_node = hexapod_sim.sim_node:main',
             'bench_sim = hexapod_sim.bench_sim:main',
+            'discrepancy = hexapod_sim.discrepancy.cli:main',
+            'discrepancy_bench = hexapod_sim.discrepancy.bench:main',
+        ],
+        # The MuJoCo hexapod as a backend of the driver's bus emulator (bus_emulator --backend sim).
+        'hexapod_driver.emulator_backends': [
+            'sim = hexapod_sim.emulator_backend:SimBackend',
         ],
     },
 )

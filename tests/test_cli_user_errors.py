@@ -1,4 +1,4 @@
-"""Issue 14 items 2/10/12: every command, run as its console script with bad input, fails at once
+"""Every command, run as its console script with bad input, fails at once
 with ONE line on stderr (no traceback), a non-zero exit status, and leaves nothing behind; its
 usage line names the ./hexapod command when started through ./hexapod."""
 import os
@@ -25,10 +25,10 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_locomotion', 'experiment', ['quality', '--duration', 'inf']),
     ('hexapod_locomotion', 'analyse', ['nonexistent_bag']),
     ('hexapod_locomotion', 'analyse', ['BAG', '--plot', 'p.xyz']),
-    ('hexapod_model', 'discrepancy', ['nonexistent_bag']),
-    ('hexapod_model', 'discrepancy', ['BAG', '--overlay', 'OVERLAY']),
-    ('hexapod_model', 'discrepancy', ['BAG', '--min-ratio', '0.5']),
-    ('hexapod_model', 'discrepancy_bench', ['--seed', 'x']),
+    ('hexapod_sim', 'discrepancy', ['nonexistent_bag']),
+    ('hexapod_sim', 'discrepancy', ['BAG', '--overlay', 'OVERLAY']),
+    ('hexapod_sim', 'discrepancy', ['BAG', '--min-ratio', '0.5']),
+    ('hexapod_sim', 'discrepancy_bench', ['--seed', 'x']),
     ('hexapod_sim', 'replay', ['nonexistent_bag']),
     ('hexapod_driver', 'servo_tool', ['scan', '--device', '/dev/nonexistent_tty']),
     ('hexapod_driver', 'servo_tool', ['set-id', '--to', '-3']),

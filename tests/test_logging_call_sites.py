@@ -2,7 +2,7 @@
 
 rclpy remembers the severity of each logging call site and raises ``ValueError: Logger severity
 cannot be changed between calls`` the second time a site is hit with another level; in a worker
-thread that kills the thread (issue 11: the driver's bus loop died on its first fault). The
+thread that kills the thread (the driver's bus loop once died on its first fault that way). The
 patterns ``getattr(logger, level)(text)`` and ``(logger.warn if ok else logger.error)(text)`` are
 therefore forbidden in every package's Python files.
 """

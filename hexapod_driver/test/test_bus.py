@@ -360,37 +360,6 @@ def test_close_turns_torque_off(robot, emu):
     assert b.close() == []                                         # idempotent
 
 
-def test_driver_runs_the_mujoco_sim_through_the_emulator(robot):
-    sim_mod = pytest.importorskip('hexapod_sim.sim')
-    from hexapod_driver.emulator import ServoBusBackend
-    sim = sim_mod.HexapodSim(robot, fixed_base=True)
-    with BusEmulator(robot, ServoBusBackend(sim, robot)) as emu:
-        b = DynamixelBus(robot, DriverConfig(device=emu.port, **{**BASE, 'diagnostics_period_s': 0.2}))
-        b.start()
-        try:
-            assert b.set_command(['leg1_femur'], [0.4]) == []
-            b.set_schedule(['leg1_femur'])
-            goal = b.to_tick('leg1_femur', 0.4)
-            settled = sim.now() + 1.0                                   # 1 s of simulated time to settle
-            diag, last = None, None
-            t_end = time.monotonic() + 10.0
-            while time.monotonic() < t_end and (diag is None or last is None):
-                r = b.step()
-                if sim.now() > settled:
-                    last = r.samples[-1] if r.samples else last
-                    diag = r.diagnostics or diag
-            assert sim.goal_ticks()[ALL_JOINTS.index('leg1_femur')] == goal
-            # the femur holds the leg against gravity a few ticks short of its goal (firmware P law)
-            assert 0 <= goal - last.tick <= 4
-            femur = {d.joint: d for d in diag}['leg1_femur']
-            assert femur.load_fraction == pytest.approx((goal - femur.present_tick) / robot.servo.compliance_slope_ticks,
-                                                        abs=0.05)
-            assert femur.temperature_c == pytest.approx(float(sim.temperatures_c()[1]), abs=1.0)
-        finally:
-            b.close()
-        assert not sim.torque_enabled.any()
-
-
 def test_reads_are_paced_and_goals_do_not_wait_for_the_read_slot(robot, emu):
     import threading
     b = make_bus(robot, emu, read_period_s=0.1)     # long periods: scheduling jitter on a loaded machine is far smaller

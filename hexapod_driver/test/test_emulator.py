@@ -294,7 +294,7 @@ def test_emulator_over_a_servobus_serves_reads_from_it(robot):
     assert math.isfinite(fake.t)
 
 
-# ----------------------------------------------------------------------------- issue 11 faults
+# ----------------------------------------------------------------------------- status level, baud, adapter latency
 def _open(port, baud):
     import serial
     return serial.Serial(port, baud, timeout=0.2)
@@ -348,3 +348,16 @@ def test_reply_latency_holds_replies_back_without_blocking_instructions(robot):
         ser.timeout = 5.0
         assert ser.read(12) == p.encode_status(1, 0) * 2          # both replies, late, in order
         ser.close()
+
+
+def test_a_backend_that_is_not_installed_is_named_in_one_error_line(monkeypatch, capsys):
+    """bus_emulator finds backends through an entry-point group; without hexapod_sim there is no `sim`."""
+    from hexapod_driver.emulator import cli
+    monkeypatch.setattr(cli, 'backend_plugins', lambda: {})
+    with pytest.raises(SystemExit) as exc:
+        cli.main(['--backend', 'sim', '--terrain', 'mockup'])
+    assert exc.value.code == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if 'error:' in line]
+    assert len(err) == 1
+    assert "--backend sim: no such backend installed (installed: ideal)" in err[0]
+    assert 'hexapod_driver.emulator_backends' in err[0] and 'hexapod_sim' in err[0]

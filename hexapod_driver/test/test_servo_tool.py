@@ -41,7 +41,7 @@ def test_command_line_names_the_joint_id_from_the_description(emu, capsys):
 
 
 def test_bus_options_after_the_sub_command(emu, capsys):
-    """Issue 14 item 4: `scan --device X` works like `--device X scan`, and `scan --help` lists it."""
+    """`scan --device X` works like `--device X scan`, and `scan --help` lists it."""
     assert main(['scan', '--device', emu.port, '--max-id', '20']) == 0
     after = capsys.readouterr().out
     assert main(['--device', emu.port, 'scan', '--max-id', '20']) == 0

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.bagio import BagError, BagReader, BagWarning
+from hexapod_sim.bagio import BagError, BagReader, BagWarning
 from hexapod_model.cli_common import add_no_progress_option, make_parser, output_file, plot_extensions
 from hexapod_model.contract import GROUND_DETECTION, IMU, JOINT_STATES, POWER, SIM_TRUTH_POSE, SWING_DOWN
 from hexapod_model.description import DescriptionError, load_robot, parse_joint_name
@@ -110,7 +110,7 @@ def load_bag(path: str):
     return swings, femur_reads, recorded, power, pose, imu, reader.warnings if hasattr(reader, 'warnings') else []
 
 
-def analyse(path: str, robot=None, keep_traces: int = 6, progress: bool = False) -> dict:
+def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool = False) -> dict:
     """Re-run both detectors over the bag at ``path``.
 
     A recording can end in the middle of a swing-down (a truncated bag, or a walk stopped at its
@@ -303,7 +303,7 @@ def main(argv=None) -> int:
     add_no_progress_option(ap)
     args = ap.parse_args(argv)
     try:
-        r = analyse(args.bag, progress=args.progress)
+        r = rerun_detectors(args.bag, progress=args.progress)
     except (BagError, AnalysisError, DetectorError) as exc:
         print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 2

@@ -223,7 +223,7 @@ def figures(probe: _Probe, gait: str) -> dict:
 
 
 def in_process(args, sim_s: float) -> dict:
-    from .sim_run import TrialConfig, run_trial
+    from .trial_runner import TrialConfig, run_trial
     res = run_trial(TrialConfig(gait=args.gait, terrain=args.terrain, seed=args.seed, duration_s=sim_s,
                                 vx_mps=args.vx))
     d = res.detection or {}

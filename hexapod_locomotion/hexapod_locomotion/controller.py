@@ -292,8 +292,8 @@ class GaitController:
         A loaded stance leg's goals sit below its real pose by the servos' compliance deflection
         (about 8 femur ticks for a sixth of the weight); a leg stopped at contact has goals at its
         unloaded pose. Leveling all commanded feet onto one plane would leave that leg
-        under-preloaded, and it is the first to lift off when the next group swings (tetrapod:
-        a stance leg was in the air 22 % of the time). ``n_support`` legs share the weight. Only
+        under-preloaded, and it is the first to lift off when the next group swings (in tetrapod, without
+        this preload, a stance leg was often in the air). ``n_support`` legs share the weight. Only
         needed where the support is statically indeterminate (more than three legs).
         Static balance: gain * (goal - theta) = -J^T f with f the ground reaction on the foot."""
         th = self.leg_angles(leg)

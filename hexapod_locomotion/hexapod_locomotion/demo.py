@@ -14,7 +14,7 @@ import time
 from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, fail, finite_float, make_parser,
                                       nonnegative_int, output_file, positive_float)
 
-from .sim_run import TrialConfig, run_trial
+from .trial_runner import TrialConfig, run_trial
 
 
 def summary_lines(res) -> list[str]:

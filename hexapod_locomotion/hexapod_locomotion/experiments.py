@@ -23,7 +23,7 @@ import numpy as np
 
 from hexapod_model.cli_common import add_no_progress_option, make_parser, positive_float, positive_int
 
-from .sim_run import TrialConfig, run_trial
+from .trial_runner import TrialConfig, run_trial
 
 GAITS = ('tripod', 'tetrapod', 'pentapod')
 DETECTORS = ('fixed', 'adaptive')
@@ -180,7 +180,7 @@ def plot_fig12(results: list[dict], path: Path) -> None:
 def free_swing_quality(t_des_values=(0.5, 1.0, 2.0), phases_per_gait: int = 6) -> list[dict]:
     """Robot on a stand (no ground): every swing-down must run to theta_fin; a contact stop is premature."""
     from hexapod_model.description import load_robot
-    from hexapod_sim.sim import HexapodSim
+    from hexapod_sim.plant import HexapodSim
 
     from .controller import GaitController, LocomotionParams, VelocityCommand
     from .detector import STOP_CONTACT, DetectorConfig

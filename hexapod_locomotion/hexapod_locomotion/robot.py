@@ -59,7 +59,7 @@ def _bus_master(hardware: str):
 
 def main(args=None) -> None:
     from hexapod_model.model_node import ModelNode
-    from hexapod_sim.sim import SimError
+    from hexapod_sim.plant import SimError
 
     from .locomotion_node import LocomotionNode, spin_while_walking
     rclpy.init(args=args)

@@ -1,9 +1,9 @@
 """Offline re-evaluation of recorded walks (./hexapod analyse)."""
 import pytest
 
-from hexapod_locomotion.analyse import AnalysisError, analyse, main
-from hexapod_locomotion.sim_run import TrialConfig, run_trial
-from hexapod_model.bagio import BagError, BagWriter
+from hexapod_locomotion.analyse import AnalysisError, main, rerun_detectors
+from hexapod_locomotion.trial_runner import TrialConfig, run_trial
+from hexapod_sim.bagio import BagError, BagWriter
 
 
 @pytest.fixture(scope='module')
@@ -17,7 +17,7 @@ def walk_bag(tmp_path_factory):
 
 def test_offline_analysis_reproduces_online_decisions(walk_bag):
     bag, res = walk_bag
-    r = analyse(str(bag))
+    r = rerun_detectors(str(bag))
     assert r['swing_downs'] == res.phases
     assert r['legs_evaluated'] == 2 * res.phases
     assert r['reproduced'] == r['legs_evaluated'], r['not_reproduced'][:3]
@@ -39,29 +39,31 @@ def test_bag_without_swing_downs_is_refused(tmp_path):
     with BagWriter(tmp_path / 'js') as w:
         w.write('/joint_states', 'sensor_msgs/msg/JointState', {'name': ['leg1_femur'], 'position': [0.1]}, 1000)
     with pytest.raises(AnalysisError, match='/swing_down'):
-        analyse(str(tmp_path / 'js'))
+        rerun_detectors(str(tmp_path / 'js'))
 
 
 def test_garbage_gives_clear_error(tmp_path, capsys):
     p = tmp_path / 'junk.mcap'
     p.write_bytes(b'this is not an mcap file at all' * 10)
     with pytest.raises(BagError):
-        analyse(str(p))
+        rerun_detectors(str(p))
     assert main([str(p)]) == 2
     assert 'analyse:' in capsys.readouterr().err
 
 
 def test_truncated_bag_reports_the_cut_off_swing_down_as_incomplete(walk_bag, tmp_path, capsys):
-    """Issue 14 item 6: a bag cut in the middle of a swing-down; the cut-off legs are 'incomplete',
+    """A bag cut in the middle of a swing-down; the cut-off legs are 'incomplete',
     not 'differing decisions'; no 'see JSON' without --json; the bag warning is one clean line."""
     bag, _ = walk_bag
     mcap = next(bag.glob('*.mcap'))
     data = mcap.read_bytes()
-    full = analyse(str(bag))
-    for frac in (0.5, 0.6, 0.7, 0.8):
+    full = rerun_detectors(str(bag))
+    # Steps of a quarter of a swing-down's share of the file: steps of 0.1 (about one gait cycle of this
+    # 12 s walk) can all land between swing-downs.
+    for frac in [0.5 + 0.025 * k for k in range(16)]:
         cut = tmp_path / f'cut{frac}.mcap'
         cut.write_bytes(data[:int(len(data) * frac)])
-        r = analyse(str(cut))
+        r = rerun_detectors(str(cut))
         if r['incomplete_swing_downs']:
             break
     else:
@@ -76,12 +78,12 @@ def test_truncated_bag_reports_the_cut_off_swing_down_as_incomplete(walk_bag, tm
 
 
 def test_demo_and_analyse_use_the_same_words_and_counts(walk_bag):
-    """Issue 14 item 13: 'swing-down phases' and 'leg swing-downs' with the same numbers."""
+    """The report names 'swing-down phases' and 'leg swing-downs' with the same numbers."""
     from hexapod_locomotion.analyse import report_lines
     from hexapod_locomotion.demo import summary_lines
     bag, res = walk_bag
     demo_text = '\n'.join(summary_lines(res))
-    text = '\n'.join(report_lines(analyse(str(bag))))
+    text = '\n'.join(report_lines(rerun_detectors(str(bag))))
     phases = f'{res.phases} swing-down phases'
     legs = f'{res.detection["swing_downs"]} leg swing-downs'
     assert phases in demo_text and phases in text

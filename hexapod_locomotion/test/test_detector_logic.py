@@ -1,5 +1,5 @@
 """Algorithm 1 logic on a kinematic bus with a flat virtual ground (no physics; the MuJoCo
-contact tests live in test_sim_detection.py)."""
+contact tests live in test_sim_locomotion.py)."""
 import numpy as np
 import pytest
 

@@ -1,4 +1,4 @@
-"""./hexapod experiment: the quality table keeps the failing cells (issue 14 item 11)."""
+"""./hexapod experiment: the quality table keeps the failing cells."""
 from hexapod_locomotion.experiments import format_quality
 
 

@@ -12,11 +12,11 @@ import pytest
 from hexapod_locomotion.controller import GaitController, LocomotionParams, VelocityCommand
 from hexapod_locomotion.detector import STOP_CONTACT, STOP_THETA_FIN, DetectorConfig
 from hexapod_locomotion.gait import get_gait
-from hexapod_locomotion.sim_run import ProbeBus, TrialConfig, _detection_events, run_trial
+from hexapod_locomotion.trial_runner import ProbeBus, TrialConfig, _detection_events, run_trial
 from hexapod_model.description import load_robot
 from hexapod_model.kinematics import stance_feet
 from hexapod_sim.mjcf import FOOT_RADIUS_M
-from hexapod_sim.sim import HexapodSim
+from hexapod_sim.plant import HexapodSim
 from hexapod_sim.terrain import Box, Terrain
 
 BLOCK_TOP_M = 0.035
@@ -116,7 +116,7 @@ class _SupportProbe:
 def test_support_feet_stay_down_at_every_tick_on_flat_ground(robot, gait, feet):
     """In MuJoCo, not only in the gait table: 3 / 4 / 5 feet on the ground at every read while
     walking. Needs the landing preload: a leg held at its contact pose takes no load after
-    leveling and lifts off when the next group swings (tetrapod: leg 3 was up 22 % of the time)."""
+    leveling and lifts off when the next group swings."""
     sim = HexapodSim(robot, terrain='flat')
     probe = _SupportProbe(sim)
     c = GaitController(robot, get_gait(gait), LocomotionParams(t_des_s=0.5), DetectorConfig(), t_com_s=sim.t_com_s)

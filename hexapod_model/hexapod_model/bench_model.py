@@ -1,6 +1,6 @@
 """Benchmark: time to predict a full 2 s swing-down at 1 kHz for three legs (not a test).
 
-Target (foundation issue): median at most 1 ms on the project's 2-core machine, so a prediction
+Target: median at most 1 ms on the project's 2-core machine, so a prediction
 fits inside one bus read. Run: ``./hexapod run hexapod_model bench_model``.
 """
 from __future__ import annotations

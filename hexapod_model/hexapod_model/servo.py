@@ -1,6 +1,6 @@
 """AX-12A position units and the servo firmware's control law. Pure numpy.
 
-The firmware is modelled as the project's servo contract (issue "foundation"): every control
+The firmware is modelled as the project's servo contract: every control
 period (1 ms) it reads the integer present tick and the integer goal tick and outputs, at the
 joint, ``clip((stall / slope) * (goal - present), -stall, stall)`` (paper Eq. 13 in output
 units). A compliance margin (dead-band) removes the first ``margin`` ticks of error. The swing-down

@@ -102,7 +102,7 @@ def test_overlay_merges_and_resolves_effects(tmp_path, robot):
     assert robot.effects == ()
 
 
-# Item 1 of issue 14: a misspelt key at ANY level of a description or an overlay is refused, named
+# A misspelt key at ANY level of a description or an overlay is refused, named
 # (dotted path), and the message names the overlay file the user edits, once.
 @pytest.mark.parametrize('overlay, key', [
     ({'efects': []}, "unknown key 'efects' (did you mean 'effects'?)"),

@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 from hexapod_model import contract
-from hexapod_model.bagio import BagReader, BagWriter
+from hexapod_sim.bagio import BagReader, BagWriter
 from hexapod_model.description import ALL_JOINTS
 
 try:

@@ -11,7 +11,7 @@ emulated at 1 kHz.
 3. the ROS ``sim_node`` running as fast as possible (real_time_factor 0), publishing every topic on
    loopback in its own ROS domain, without and with recording to a bag.
 
-Target (issue 3): raw simulation >= 20x real time on one core. The machine is shared: each figure
+Target: raw simulation >= 20x real time on one core. The machine is shared: each figure
 is the best of ``--repeats`` runs (wall clock), and the CPU time of the process is shown too.
 Run: ``./hexapod run hexapod_sim bench_sim``.
 """
@@ -32,7 +32,7 @@ GOAL_PERIOD_S = 0.01
 
 
 def _sim(robot):
-    from .sim import HexapodSim
+    from .plant import HexapodSim
     return HexapodSim(robot, terrain='blocks', start_xy_m=(0.8, 0.0))
 
 
@@ -59,7 +59,7 @@ def _run_raw(robot, goals, sim_s: float) -> tuple[float, float]:
 
 def _run_bus(robot, goals, sim_s: float) -> tuple[float, float]:
     """One run through the bus (SimBusLoop, the sim node's loop without ROS)."""
-    from .sim_loop import SimBusLoop
+    from .bus_master_loop import SimBusLoop
     sim = _sim(robot)
     loop = SimBusLoop(sim, clock_period_s=0.0)
     w0, c0 = time.perf_counter(), time.process_time()

@@ -72,7 +72,7 @@ def main(argv=None) -> int:
         return 0
 
     from .render import RenderError, record_video, render_png
-    from .sim import HexapodSim, SimError
+    from .plant import HexapodSim, SimError
     try:
         robot = load_robot(overlays=args.overlay)
         camera = dict(distance=args.distance, azimuth=args.azimuth, elevation=args.elevation)

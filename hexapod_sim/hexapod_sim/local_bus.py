@@ -4,7 +4,7 @@ Over DDS, the controller cannot keep Algorithm 1's cadence: every read is a mess
 process to another, and a command only takes effect after its own trip back (measured in
 docs/architecture.md). On the robot, the loop that reads the femurs, compares and writes runs on
 the computer that owns the serial bus; :class:`LocalSimBus` is the same arrangement for the
-simulated robot: the controller calls the :class:`~hexapod_sim.sim_loop.SimBusLoop` directly (one
+simulated robot: the controller calls the :class:`~hexapod_sim.bus_master_loop.SimBusLoop` directly (one
 read = one transaction of ``t_com_s``), and every transaction's outputs (``/joint_states`` per read,
 ``/joint_commands`` per write, ``/clock``, IMU, power, diagnostics, truth) go to ``emit``, which
 the sim node publishes and records as if a remote controller had driven it.
@@ -26,8 +26,8 @@ from typing import Callable, Mapping, Sequence
 
 from hexapod_model.bus import BusError
 
-from .sim import SimError
-from .sim_loop import JointSample, SimBusLoop
+from .plant import SimError
+from .bus_master_loop import JointSample, SimBusLoop
 
 IDLE_CHUNK_S = 0.002          # background reads are run in slices this long (sim time), lock released between
 

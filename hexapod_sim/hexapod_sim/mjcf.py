@@ -24,7 +24,7 @@ a second hinge ``leg{l}_{role}_backlash`` with range ``+-width/2`` (a hard-ish j
 the gear teeth). MuJoCo handles a joint limit robustly with the implicit integrator; the servo's
 potentiometer sits on the output shaft, so the position the firmware sees is motor + play.
 Effects that act in the firmware or on the bus (static friction, torque saturation, dead-band,
-readout delay) are applied by :mod:`hexapod_sim.sim`.
+readout delay) are applied by :mod:`hexapod_sim.plant`.
 
 Sim-only geometry and contact values (not in the robot description, so named once here) are
 project nominal values [N].
@@ -42,7 +42,7 @@ from hexapod_model.kinematics import forward
 from .terrain import Terrain, make_terrain, _mat_to_quat
 
 # ----------------------------------------------------------------------------- sim nominal values [N]
-TIMESTEP_S = 0.001             # physics step = the firmware period (the issue allows 1 ms or finer)
+TIMESTEP_S = 0.001             # physics step = the firmware period (1 ms or finer keeps the firmware grid)
 FOOT_RADIUS_M = 0.008          # rubber foot-tip sphere
 FOOT_FRICTION = 1.0            # rubber on wood
 LINK_RADIUS_M = 0.007          # link capsules (visual; the tibia capsule also collides)

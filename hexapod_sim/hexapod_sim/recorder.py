@@ -1,6 +1,6 @@
 """Recording of the sim node's topics into a rosbag2-layout MCAP bag (``bags/`` by default). No rclpy.
 
-A thin layer over :class:`hexapod_model.bagio.BagWriter`: the node hands every message it
+A thin layer over :class:`hexapod_sim.bagio.BagWriter`: the node hands every message it
 publishes or receives to :meth:`Recorder.write` with the simulated time as the log time. The
 writer closes its chunk, flushes and rewrites ``metadata.yaml`` at least once per second of
 simulated *and* of wall time, so a crash loses at most the last second; :meth:`close` finalises
@@ -23,7 +23,7 @@ import struct
 from pathlib import Path
 from typing import Any
 
-from hexapod_model.bagio import BagWriter
+from hexapod_sim.bagio import BagWriter
 
 FLUSH_PERIOD_S = 1.0          # at most this much is lost on a crash
 

@@ -20,7 +20,7 @@ import numpy as np
 from hexapod_model.description import LEGS, Robot, joint_name
 from hexapod_model.kinematics import forward, inverse
 
-from .sim import HexapodSim, run_trajectory
+from .plant import HexapodSim, run_trajectory
 
 TRIPODS = ((1, 6, 3), (2, 5, 4))     # front-left, middle-right, rear-left / the other three
 

@@ -4,7 +4,7 @@
                          [--clock [HZ]] [--delay S] [--wait-for-subscribers S] [--qos-depth N]
     ros2 run hexapod_sim replay BAG ...
 
-BAG is a rosbag2 directory or a single ``.mcap`` file (read with :mod:`hexapod_model.bagio`:
+BAG is a rosbag2 directory or a single ``.mcap`` file (read with :mod:`hexapod_sim.bagio`:
 a truncated bag plays up to its last complete chunk, with a warning). Each message is published
 as its recorded CDR bytes (``Publisher.publish(bytes)``) on a publisher created from the installed
 ROS message class, so the content is bit-identical to the recording. Topics whose type is not
@@ -30,7 +30,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import remove_ros_args
 
 from hexapod_model import contract
-from hexapod_model.bagio import BagError, BagReader, type_hash
+from hexapod_sim.bagio import BagError, BagReader, type_hash
 
 try:
     from tqdm import tqdm

@@ -46,8 +46,8 @@ from hexapod_msgs.srv import SetReadSchedule
 
 from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from .recorder import Recorder, resolve_bag_dir
-from .sim import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoState, SimError
-from .sim_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
+from .plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
+from .bus_master_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
                        TruthSample, truth_vector)
 from .terrain import TERRAINS
 
@@ -319,7 +319,7 @@ class SimNode(Node):
             m.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
             m.present = True
             self._send(contract.POWER, m, ev.t_s)
-        elif isinstance(ev, ServoState):
+        elif isinstance(ev, ServoTelemetry):
             m = ServoDiagnostics()
             m.header.stamp = stamp(ev.t_s)
             ids = self.sim.servo_ids

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from hexapod_model.bagio import BagReader
+from hexapod_sim.bagio import BagReader
 from hexapod_sim import recorder
 from hexapod_sim.recorder import Recorder, resolve_bag_dir, ros_to_plain
 
@@ -55,7 +55,7 @@ def test_fast_cdr_packers_match_the_bag_writers_encoder(tmp_path):
     import numpy as np
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
-    from hexapod_model.bagio import BagWriter
+    from hexapod_sim.bagio import BagWriter
     rng = np.random.default_rng(0)
     w = BagWriter(tmp_path / 'enc')
     try:
@@ -81,7 +81,7 @@ def test_fast_cdr_packers_for_imu_pose_and_arrays(tmp_path):
     from geometry_msgs.msg import PoseStamped
     from sensor_msgs.msg import Imu
     from std_msgs.msg import Float64MultiArray, MultiArrayDimension
-    from hexapod_model.bagio import BagWriter
+    from hexapod_sim.bagio import BagWriter
     rng = np.random.default_rng(1)
     w = BagWriter(tmp_path / 'enc')
     try:

@@ -6,7 +6,7 @@ from PIL import Image
 from hexapod_model.description import ALL_JOINTS, load_robot
 from hexapod_sim import cli
 from hexapod_sim.render import RenderError, record_video, render_png, scripted_tripod
-from hexapod_sim.sim import HexapodSim
+from hexapod_sim.plant import HexapodSim
 
 
 @pytest.fixture(scope='module')

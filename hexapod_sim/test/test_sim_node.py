@@ -22,7 +22,7 @@ from hexapod_model import contract  # noqa: E402
 from hexapod_model.description import ALL_JOINTS, load_robot  # noqa: E402
 from hexapod_model.servo import theta_to_tick  # noqa: E402
 from hexapod_msgs.msg import ReadSchedule, ServoDiagnostics, ServoStatus  # noqa: E402
-from hexapod_sim import sim as sim_mod  # noqa: E402
+from hexapod_sim import plant as sim_mod  # noqa: E402
 from hexapod_sim.sim_node import SimNode  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]

@@ -1,0 +1,114 @@
+"""``bus_emulator``: an emulated AX-12A bus on a pseudo-terminal until Ctrl-C or SIGTERM."""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from hexapod_model.description import load_robot
+
+from .. import protocol as p
+from .backends import BACKEND_GROUP, backend_plugins
+from .pty_server import BusEmulator
+
+
+def _load_plugins(ap: argparse.ArgumentParser) -> dict:
+    """{name: plug-in object} of the installed backend plug-ins; a broken one is a one-line error."""
+    plugins = {}
+    for name, ep in sorted(backend_plugins().items()):
+        try:
+            plugins[name] = ep.load()
+        except Exception as exc:                # an installed but broken plug-in: say which and why
+            ap.error(f'emulator backend plug-in {name!r} ({ep.value}) does not load: {type(exc).__name__}: {exc}')
+    return plugins
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(
+        prog='bus_emulator',
+        description='Emulated AX-12A bus (Dynamixel Protocol 1.0) on a pseudo-terminal: prints the port path, '
+                    'serves until Ctrl-C. Point the driver at it: ros2 run hexapod_driver driver_node '
+                    '--ros-args -p device:=<path>.')
+    ap.add_argument('--robot', default=None, help='robot description YAML (default: the packaged robot.yaml)')
+    ap.add_argument('--link', default=None,
+                    help='also create this symlink to the pty (a stable name, like a udev symlink)')
+    plugins = _load_plugins(ap)
+    ap.add_argument('--backend', default='ideal', metavar='NAME',
+                    help='what moves the servos. ideal: they move straight to their goals' +
+                         ''.join(f'; {name}: {plugin.help}' for name, plugin in plugins.items()) +
+                         f' (more backends are plug-ins in the entry-point group {BACKEND_GROUP})')
+    for name, plugin in plugins.items():
+        plugin.add_arguments(ap.add_argument_group(f'{name} backend'))
+    ap.add_argument('--wire-time', action='store_true',
+                    help='delay replies by the 1 Mbps wire time of both packets (10 bits/byte)')
+    ap.add_argument('--absent', type=int, nargs='*', default=[], help='servo IDs that are not on the bus')
+    ap.add_argument('--drop-probability', type=float, default=0.0, help='lose each reply with this probability')
+    ap.add_argument('--corrupt-probability', type=float, default=0.0,
+                    help='corrupt the checksum of each reply with this probability')
+    ap.add_argument('--reply-latency-ms', type=float, default=0.0,
+                    help='hold every reply back this long, like an FTDI adapter with its 16 ms default latency timer')
+    ap.add_argument('--servo-baud', type=int, default=None,
+                    help='baud rate register (address 4) of every servo, e.g. 34 for 57600 baud; a servo answers '
+                         'only when the port is opened at its rate')
+    ap.add_argument('--status-return-level', type=int, choices=[0, 1, 2], default=None,
+                    help='status return level (address 16) of every servo: 0 PING only, 1 reads only, 2 all')
+    ap.add_argument('--seed', type=int, default=0, help='seed of the random faults')
+    ap.add_argument('--verbose', action='store_true', help='print every instruction packet (slow)')
+    args, unknown = ap.parse_known_args(argv)
+    if args.backend != 'ideal' and args.backend not in plugins:
+        ap.error(f"--backend {args.backend}: no such backend installed (installed: {', '.join(['ideal', *plugins])}); "
+                 f"backends are plug-ins in the entry-point group {BACKEND_GROUP}, e.g. 'sim' (MuJoCo) "
+                 f"comes with the hexapod_sim package")
+    if unknown:
+        ap.error(f"unrecognized arguments: {' '.join(unknown)}")
+    for name in ('drop_probability', 'corrupt_probability'):
+        v = getattr(args, name)
+        if not 0.0 <= v <= 1.0:
+            ap.error(f'--{name.replace("_", "-")} must be within 0..1, got {v}')
+    robot = load_robot(args.robot)
+    backend = None if args.backend == 'ideal' else plugins[args.backend].create(robot, args)
+    emu = BusEmulator(robot, backend, link_path=args.link, wire_time=args.wire_time, absent_ids=tuple(args.absent),
+                      seed=args.seed)
+    if args.drop_probability:
+        emu.faults.drop_replies(count=None, probability=args.drop_probability)
+    if args.corrupt_probability:
+        emu.faults.corrupt_replies(count=None, probability=args.corrupt_probability)
+    if args.reply_latency_ms < 0:
+        ap.error(f'--reply-latency-ms must be >= 0, got {args.reply_latency_ms}')
+    emu.faults.set_reply_latency(args.reply_latency_ms / 1000.0)
+    if args.servo_baud is not None and not 0 <= args.servo_baud <= 254:
+        ap.error(f'--servo-baud is register 4 (0..254), got {args.servo_baud}')
+    for s in emu.servos:
+        if args.servo_baud is not None:
+            s.set_register('baud_rate', args.servo_baud)
+        if args.status_return_level is not None:
+            s.set_register('status_return_level', args.status_return_level)
+    emu.start()
+    ids = sorted(s.servo_id for s in emu.servos)
+    print(f'AX-12A bus emulator: {len(ids)} servos (ids {ids}) on {emu.port}', flush=True)
+    if args.link:
+        print(f'pty: {emu._slave_name}', flush=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        while not stop.wait(0.2):
+            while args.verbose and emu.log:
+                e = emu.log.popleft()
+                print(f'{e.t:10.4f} id={e.servo_id:3d} {p.INSTRUCTION_NAMES.get(e.instruction, hex(e.instruction))}'
+                      f' addr={e.address} data={e.data.hex(" ")} err={e.error:#04x}'
+                      f'{" reply=" + e.reply_params.hex(" ") if e.replied else " (no reply: " + e.note + ")"}'
+                      f' rx={e.rx.hex(" ")} tx={e.tx.hex(" ")}', flush=True)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emu.stop()
+        print(f'served {emu.packets} packets', file=sys.stderr)
+        close = getattr(backend, 'close', None)      # a plug-in's backend may have results to write
+        if close is not None:
+            close()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,132 @@
+"""Fault injection of the emulated bus: dropped, corrupt and stale replies, adapter latency, a servo
+that disappears, overheating, overload and supply voltage."""
+from __future__ import annotations
+
+import random
+from typing import TYPE_CHECKING
+
+from .control_table import EmulatorError
+
+if TYPE_CHECKING:
+    from .pty_server import BusEmulator
+
+
+class Faults:
+    """Fault injection. Every method is thread-safe and takes effect on the next packet.
+
+    ``ids`` = None means any servo. ``count`` faults happen on the next ``count`` matching
+    replies; ``probability`` makes each matching reply fail at random (seeded).
+    """
+
+    def __init__(self, emulator: 'BusEmulator', seed: int):
+        self._emu = emulator
+        self._rng = random.Random(seed)
+        self._drop: list[tuple[set[int] | None, int | None, float]] = []
+        self._corrupt: list[tuple[set[int] | None, int | None, float]] = []
+        self._stale: list[tuple[set[int] | None, int | None, float]] = []
+        self.missing: set[int] = set()
+        self.reply_latency_s = 0.0
+        self.dropped = 0
+        self.corrupted = 0
+        self.stale = 0
+
+    @staticmethod
+    def _ids(ids) -> set[int] | None:
+        if ids is None:
+            return None
+        return {int(ids)} if isinstance(ids, int) else {int(i) for i in ids}
+
+    def drop_replies(self, ids=None, count: int | None = 1, probability: float = 1.0) -> None:
+        """The next ``count`` replies (or each with ``probability`` if ``count`` is None) are lost."""
+        with self._emu.lock:
+            self._drop.append((self._ids(ids), count, probability))
+
+    def corrupt_replies(self, ids=None, count: int | None = 1, probability: float = 1.0) -> None:
+        """The next ``count`` replies get a wrong checksum byte."""
+        with self._emu.lock:
+            self._corrupt.append((self._ids(ids), count, probability))
+
+    def stale_replies(self, ids=None, count: int | None = 1, probability: float = 1.0) -> None:
+        """The next ``count`` replies are preceded by a stray empty status packet of the same servo, as
+        when the reply to an earlier, timed-out instruction arrives late."""
+        with self._emu.lock:
+            self._stale.append((self._ids(ids), count, probability))
+
+    def set_reply_latency(self, seconds: float) -> None:
+        """Every reply reaches the host ``seconds`` later than the servo sent it, as behind an FTDI
+        adapter whose latency timer is at its 16 ms default. Instructions are still executed on
+        arrival (the host-to-servo direction is not held back)."""
+        if not seconds >= 0:
+            raise EmulatorError(f'reply latency must be >= 0, got {seconds}')
+        with self._emu.lock:
+            self.reply_latency_s = float(seconds)
+
+    def remove_servo(self, servo_id: int) -> None:
+        """The servo disappears from the bus (cable cut): it neither answers nor executes."""
+        with self._emu.lock:
+            self._emu.servo(servo_id)
+            self.missing.add(servo_id)
+
+    def restore_servo(self, servo_id: int) -> None:
+        with self._emu.lock:
+            self.missing.discard(servo_id)
+
+    def set_temperature(self, servo_id: int, temperature_c: float) -> None:
+        """Present temperature; above the limit (address 11) it raises the overheating alarm."""
+        with self._emu.lock:
+            s = self._emu.servo(servo_id)
+            s.temperature_c = float(temperature_c)
+            self._emu._check_alarms(s)
+
+    def set_overload(self, servo_id: int, active: bool = True) -> None:
+        """The servo cannot hold its load (overload alarm) until cleared."""
+        with self._emu.lock:
+            s = self._emu.servo(servo_id)
+            s.overload = bool(active)
+            self._emu._check_alarms(s)
+
+    def set_voltage(self, voltage_v: float, servo_id: int | None = None) -> None:
+        with self._emu.lock:
+            for s in ([self._emu.servo(servo_id)] if servo_id is not None else self._emu.servos):
+                s.voltage_v = float(voltage_v)
+
+    def clear(self) -> None:
+        """Remove every pending drop/corrupt rule and restore missing servos."""
+        with self._emu.lock:
+            self._drop.clear()
+            self._corrupt.clear()
+            self._stale.clear()
+            self.missing.clear()
+
+    @staticmethod
+    def _match(rules, rng, servo_id) -> bool:
+        for i, (ids, count, prob) in enumerate(rules):
+            if ids is not None and servo_id not in ids:
+                continue
+            if rng.random() >= prob:
+                continue
+            if count is not None:
+                if count <= 1:
+                    del rules[i]
+                else:
+                    rules[i] = (ids, count - 1, prob)
+            return True
+        return False
+
+    def _should_drop(self, servo_id: int) -> bool:
+        if self._match(self._drop, self._rng, servo_id):
+            self.dropped += 1
+            return True
+        return False
+
+    def _should_prepend_stale(self, servo_id: int) -> bool:
+        if self._match(self._stale, self._rng, servo_id):
+            self.stale += 1
+            return True
+        return False
+
+    def _should_corrupt(self, servo_id: int) -> bool:
+        if self._match(self._corrupt, self._rng, servo_id):
+            self.corrupted += 1
+            return True
+        return False

@@ -1,0 +1,486 @@
+"""Reading rosbag2-layout MCAP bags record by record, tolerant of a cut-off or corrupt file (see the
+package docstring); :func:`recover_bag` and :func:`joint_series`."""
+from __future__ import annotations
+
+import heapq
+import io
+import os
+import struct
+import warnings
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Footer, Message, Schema
+from mcap.stream_reader import breakup_chunk
+
+from hexapod_model import contract
+
+from .cdr import decoder_for
+from .common import MCAP_MAGIC, BagError, BagMessage, BagWarning, TopicInfo
+from .definitions import message_definition, normalize_type_name
+from .writer import BagWriter
+
+
+_KNOWN_OPCODES = {int(o) for o in Opcode}
+
+
+@dataclass
+class _ChunkRef:
+    file_idx: int
+    offset: int            # byte offset of the chunk record (opcode byte)
+    length: int            # record length incl. the 9-byte opcode+length prefix
+    start_ns: int
+    end_ns: int
+    count: int
+
+
+@dataclass
+class _FileScan:
+    path: Path
+    size: int
+    chunks: list = field(default_factory=list)
+    loose: list = field(default_factory=list)        # Message records outside chunks
+    schemas: dict = field(default_factory=dict)      # id -> Schema
+    channels: dict = field(default_factory=dict)     # id -> Channel
+    counts: dict = field(default_factory=dict)       # channel id -> readable messages
+    complete: bool = False                           # footer + trailing magic present
+    readable_bytes: int = 0                          # end of the last complete record
+    problems: list = field(default_factory=list)     # human-readable warnings
+
+
+def _opname(op: int) -> str:
+    try:
+        return Opcode(op).name
+    except ValueError:
+        return f'0x{op:02x}'
+
+
+def _collect_chunk_records(chunk: Chunk, scan: _FileScan) -> tuple[list[Message], int]:
+    records = breakup_chunk(chunk, validate_crc=True)
+    msgs = []
+    for r in records:
+        if isinstance(r, Schema):
+            scan.schemas.setdefault(r.id, r)
+        elif isinstance(r, Channel):
+            scan.channels.setdefault(r.id, r)
+        elif isinstance(r, Message):
+            msgs.append(r)
+    return msgs, len(msgs)
+
+
+def _scan_file(path: Path, file_idx: int) -> _FileScan:
+    """Walk every record of one MCAP file; stop at the first broken/truncated record."""
+    try:
+        size = path.stat().st_size
+        f = open(path, 'rb')
+    except OSError as exc:
+        raise BagError(f'{path}: cannot open: {exc.strerror or exc}') from exc
+    scan = _FileScan(path, size)
+    with f:
+        head = f.read(len(MCAP_MAGIC))
+        if size == 0:
+            raise BagError(f'{path}: file is empty (0 bytes): no data was ever written to this bag')
+        if head != MCAP_MAGIC:
+            if MCAP_MAGIC.startswith(head):
+                raise BagError(f'{path}: truncated to {size} bytes, before the end of the MCAP magic; '
+                               'nothing is readable')
+            raise BagError(f'{path}: not an MCAP file (starts with {head[:8]!r}, expected the MCAP '
+                           f'magic {MCAP_MAGIC!r}); nothing is readable')
+        pos = len(MCAP_MAGIC)
+        scan.readable_bytes = pos
+        while pos < size:
+            if size - pos < 9:
+                scan.problems.append(f'truncated at byte {size}: {size - pos} trailing byte(s) of an '
+                                     'incomplete record header')
+                break
+            f.seek(pos)
+            op, length = struct.unpack('<BQ', f.read(9))
+            if op not in _KNOWN_OPCODES and op < 0x80:
+                scan.problems.append(f'corrupt data at byte {pos}: invalid record opcode 0x{op:02x}; '
+                                     f'the remaining {size - pos} bytes are unreadable')
+                break
+            if pos + 9 + length > size:
+                scan.problems.append(
+                    f'truncated at byte {size}: the {_opname(op)} record starting at byte {pos} needs '
+                    f'{9 + length} bytes but only {size - pos} remain')
+                break
+            body = f.read(length)
+            try:
+                rec = None
+                stream = ReadDataStream(io.BytesIO(body))
+                if op == Opcode.CHUNK:
+                    chunk = Chunk.read(stream)
+                    try:
+                        msgs, n = _collect_chunk_records(chunk, scan)
+                    except Exception as exc:      # bad compression / CRC / inner framing
+                        scan.problems.append(f'corrupt chunk at byte {pos} ({exc}); its messages are '
+                                             'skipped')
+                    else:
+                        if n:
+                            scan.chunks.append(_ChunkRef(file_idx, pos, 9 + length,
+                                                         chunk.message_start_time, chunk.message_end_time, n))
+                            for m in msgs:
+                                scan.counts[m.channel_id] = scan.counts.get(m.channel_id, 0) + 1
+                elif op == Opcode.SCHEMA:
+                    rec = Schema.read(stream)
+                    scan.schemas.setdefault(rec.id, rec)
+                elif op == Opcode.CHANNEL:
+                    rec = Channel.read(stream)
+                    scan.channels.setdefault(rec.id, rec)
+                elif op == Opcode.MESSAGE:
+                    rec = Message.read(stream, length)
+                    scan.loose.append(rec)
+                    scan.counts[rec.channel_id] = scan.counts.get(rec.channel_id, 0) + 1
+                elif op == Opcode.FOOTER:
+                    Footer.read(stream)
+                    f.seek(pos + 9 + length)
+                    tail = f.read(len(MCAP_MAGIC))
+                    if tail != MCAP_MAGIC:
+                        scan.problems.append(f'footer at byte {pos} is not followed by the MCAP magic')
+                    else:
+                        scan.complete = True
+                    scan.readable_bytes = pos + 9 + length + len(tail)
+                    break
+            except Exception as exc:
+                scan.problems.append(f'corrupt {_opname(op)} record at byte {pos} ({exc}); the '
+                                     f'remaining {size - pos} bytes are unreadable')
+                break
+            pos += 9 + length
+            scan.readable_bytes = pos
+        if not scan.complete and not scan.problems:
+            scan.problems.append(f'ends at byte {size} without the MCAP summary/footer (recording was '
+                                 'not closed)')
+    return scan
+
+
+def _load_chunk(fh, ref: _ChunkRef) -> list[Message]:
+    fh.seek(ref.offset + 9)
+    chunk = Chunk.read(ReadDataStream(io.BytesIO(fh.read(ref.length - 9))))
+    return [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, Message)]
+
+
+class BagReader:
+    """Read a rosbag2 directory or a single ``.mcap`` file.
+
+    Everything is checked at open: :class:`BagError` if nothing is readable (missing path, empty
+    or garbage file, no messages); one :class:`BagWarning` per problem otherwise (truncated tail
+    -> read up to the last complete chunk; corrupt chunk -> skipped; topic whose message type
+    cannot be decoded -> skipped by :meth:`messages` unless ``raw=True``). ``warnings`` lists them.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self.warnings: list[str] = []
+        self.metadata: dict | None = None
+        self._defer_warnings = True     # warn only once we know the bag is readable at all
+        files = self._resolve_files()
+        self._scans = [_scan_file(p, i) for i, p in enumerate(files)]
+        for s in self._scans:
+            for p in s.problems:
+                recovered = sum(s.counts.values())
+                self._warn(f'{s.path.name}: {p}; {recovered} message(s) in {len(s.chunks)} complete '
+                           f'chunk(s) are readable ({s.readable_bytes} of {s.size} bytes)')
+        self._build_topics()
+        for s_idx, s in enumerate(self._scans):
+            orphans = sum(n for cid, n in s.counts.items() if (s_idx, cid) not in self._chan)
+            if orphans:
+                self._warn(f'{s.path.name}: {orphans} message(s) refer to a channel whose definition '
+                           'record was lost (corrupt chunk); they are skipped')
+        if self.message_count == 0:
+            what = '; '.join(f'{s.path.name}: ' + ('; '.join(s.problems) if s.problems else
+                                                   'complete file with no messages')
+                             for s in self._scans)
+            raise BagError(f'{self.path}: no readable messages ({what})')
+        self._defer_warnings = False
+        for text in self.warnings:
+            warnings.warn(f'{self.path}: {text}', BagWarning, stacklevel=2)
+
+    # -- open helpers --
+    def _warn(self, text: str) -> None:
+        self.warnings.append(text)
+        if not self._defer_warnings:
+            warnings.warn(f'{self.path}: {text}', BagWarning, stacklevel=3)
+
+    def _resolve_files(self) -> list[Path]:
+        p = self.path
+        if not p.exists():
+            raise BagError(f'{p}: no such file or directory (expected a rosbag2 directory or an .mcap file)')
+        if p.is_file():
+            if p.name == 'metadata.yaml':
+                self.path = p = p.parent
+            else:
+                return [p]
+        meta_file = p / 'metadata.yaml'
+        mcaps = sorted(x for x in p.iterdir() if x.suffix == '.mcap' and x.is_file())
+        if meta_file.is_file():
+            try:
+                info = yaml.safe_load(meta_file.read_text())['rosbag2_bagfile_information']
+                rel = list(info['relative_file_paths'])
+                storage = info.get('storage_identifier', 'mcap')
+            except Exception as exc:
+                if not mcaps:
+                    raise BagError(f'{meta_file}: not a valid rosbag2 metadata file ({exc}) and no .mcap '
+                                   'file in the directory') from exc
+                self._warn(f'metadata.yaml is unreadable ({exc}); reading {[m.name for m in mcaps]}')
+                return mcaps
+            if storage != 'mcap':
+                raise BagError(f'{p}: storage {storage!r} is not supported (only mcap)')
+            self.metadata = info
+            files = [p / Path(r).name for r in rel]
+            missing = [f.name for f in files if not f.exists()]
+            if missing:
+                raise BagError(f'{p}: metadata.yaml lists file(s) that do not exist: {missing}')
+            if not files:
+                if not mcaps:
+                    raise BagError(f'{p}: metadata.yaml lists no data files and the directory has no '
+                                   '.mcap file')
+                files = mcaps
+            return files
+        if mcaps:
+            self._warn(f'no metadata.yaml; reading {[m.name for m in mcaps]}')
+            return mcaps
+        raise BagError(f'{p}: not a rosbag2 directory (no metadata.yaml and no .mcap file)')
+
+    def _build_topics(self) -> None:
+        meta_topics = {}
+        if self.metadata:
+            for entry in self.metadata.get('topics_with_message_count') or []:
+                tm = entry.get('topic_metadata', {}) if isinstance(entry, dict) else {}
+                if 'name' in tm:
+                    meta_topics[tm['name']] = tm
+        self._chan: dict[tuple[int, int], tuple[str, str]] = {}     # (file, cid) -> (topic, type)
+        self._decoders: dict[tuple[int, int], Any] = {}
+        counts: dict[str, int] = {}
+        types: dict[str, str] = {}
+        hashes: dict[str, str] = {}
+        self.undecodable: dict[str, str] = {}
+        for s_idx, s in enumerate(self._scans):
+            for cid, ch in s.channels.items():
+                schema = s.schemas.get(ch.schema_id)
+                msg_type = schema.name if schema is not None and schema.name else \
+                    meta_topics.get(ch.topic, {}).get('type', '')
+                try:
+                    msg_type = normalize_type_name(msg_type)
+                except BagError:
+                    pass
+                self._chan[(s_idx, cid)] = (ch.topic, msg_type)
+                types.setdefault(ch.topic, msg_type)
+                counts[ch.topic] = counts.get(ch.topic, 0) + s.counts.get(cid, 0)
+                h = ch.metadata.get('topic_type_hash') or meta_topics.get(ch.topic, {}).get(
+                    'type_description_hash', '')
+                if h:
+                    hashes.setdefault(ch.topic, h)
+                dec, why = self._make_decoder(ch, schema, msg_type)
+                if dec is not None:
+                    self._decoders[(s_idx, cid)] = dec
+                elif ch.topic not in self.undecodable:
+                    self.undecodable[ch.topic] = why
+                    self._warn(f'topic {ch.topic} ({msg_type or "unknown type"}): {why}; its '
+                               f'{counts[ch.topic]} message(s) are skipped when decoding')
+        self._topics = {}
+        for topic, msg_type in types.items():
+            tm = meta_topics.get(topic, {})
+            qos = tm.get('offered_qos_profiles', [])
+            if isinstance(qos, str):
+                try:
+                    qos = yaml.safe_load(qos) or []
+                except yaml.YAMLError:
+                    qos = []
+            self._topics[topic] = TopicInfo(topic, msg_type, counts.get(topic, 0), tuple(qos or ()),
+                                            hashes.get(topic, ''))
+
+    @staticmethod
+    def _make_decoder(ch: Channel, schema: Schema | None, msg_type: str):
+        if ch.message_encoding != 'cdr':
+            return None, f'message encoding {ch.message_encoding!r} is not CDR'
+        reasons = []
+        if schema is not None and schema.encoding == 'ros2msg' and schema.data:
+            try:
+                return decoder_for(schema.name, schema.data.decode()), ''
+            except Exception as exc:
+                reasons.append(f'its stored ros2msg schema does not parse ({exc})')
+        elif schema is not None and schema.data:
+            reasons.append(f'its stored schema is in {schema.encoding!r}, not ros2msg')
+        else:
+            reasons.append('the bag stores no schema for it')
+        try:
+            text = message_definition(msg_type)
+            dec = decoder_for(msg_type, text)
+            return dec, ''
+        except Exception as exc:
+            reasons.append(f'no local definition ({exc})' if msg_type else 'and its type is unknown')
+        return None, 'cannot be decoded: ' + '; '.join(reasons)
+
+    # -- queries --
+    def topics(self) -> dict[str, str]:
+        """{topic: message type} of every topic in the bag (decodable or not)."""
+        return {t: i.msg_type for t, i in self._topics.items()}
+
+    def topic_info(self) -> dict[str, TopicInfo]:
+        return dict(self._topics)
+
+    @property
+    def message_count(self) -> int:
+        return sum(i.message_count for i in self._topics.values())
+
+    @property
+    def complete(self) -> bool:
+        """True if every file ended with a valid footer and nothing had to be skipped."""
+        return all(s.complete for s in self._scans) and not self.warnings
+
+    @property
+    def start_ns(self) -> int:
+        times = [c.start_ns for s in self._scans for c in s.chunks] + \
+                [m.log_time for s in self._scans for m in s.loose]
+        return min(times) if times else 0
+
+    @property
+    def end_ns(self) -> int:
+        times = [c.end_ns for s in self._scans for c in s.chunks] + \
+                [m.log_time for s in self._scans for m in s.loose]
+        return max(times) if times else 0
+
+    def messages(self, topics: Sequence[str] | None = None, start_ns: int | None = None,
+                 end_ns: int | None = None, *, raw: bool = False) -> Iterator[BagMessage]:
+        """Yield ``(topic, msg_type, t_ns, msg)`` in log-time order (file order for equal times),
+        ``start_ns <= t_ns < end_ns``; ``topics`` not in the bag yield nothing. ``raw=True`` yields the CDR bytes (undecodable topics
+        included); otherwise decoded messages with attribute access."""
+        if isinstance(topics, str):
+            topics = [topics]
+        wanted = None if topics is None else set(topics)     # topics absent from the bag: none yielded
+        lo = -1 if start_ns is None else int(start_ns)
+        hi = 2**64 if end_ns is None else int(end_ns)
+        decode_failed: dict[str, int] = {}
+
+        def accept(file_idx: int, m: Message):
+            key = (file_idx, m.channel_id)
+            ch = self._chan.get(key)
+            if ch is None or not lo <= m.log_time < hi:
+                return None
+            if wanted is not None and ch[0] not in wanted:
+                return None
+            if not raw and key not in self._decoders:
+                return None
+            return ch
+
+        refs = sorted((c for s in self._scans for c in s.chunks if c.end_ns >= lo and c.start_ns < hi),
+                      key=lambda c: (c.start_ns, c.file_idx, c.offset))
+        handles = {}
+        heap: list = []
+        seq = 0
+        try:
+            for s_idx, s in enumerate(self._scans):
+                for m in s.loose:
+                    heapq.heappush(heap, (m.log_time, seq, s_idx, m))
+                    seq += 1
+            i = 0
+            while i < len(refs) or heap:
+                while i < len(refs) and (not heap or refs[i].start_ns <= heap[0][0]):
+                    ref = refs[i]
+                    i += 1
+                    fh = handles.get(ref.file_idx)
+                    if fh is None:
+                        fh = handles[ref.file_idx] = open(self._scans[ref.file_idx].path, 'rb')
+                    try:
+                        msgs = _load_chunk(fh, ref)
+                    except Exception as exc:
+                        self._warn(f'chunk at byte {ref.offset} of {self._scans[ref.file_idx].path.name} '
+                                   f'became unreadable ({exc}); its {ref.count} message(s) are skipped')
+                        continue
+                    for m in msgs:
+                        heapq.heappush(heap, (m.log_time, seq, ref.file_idx, m))
+                        seq += 1
+                if not heap:
+                    continue
+                _, _, f_idx, m = heapq.heappop(heap)
+                ch = accept(f_idx, m)
+                if ch is None:
+                    continue
+                if raw:
+                    yield BagMessage(ch[0], ch[1], m.log_time, m.data)
+                    continue
+                try:
+                    msg = self._decoders[(f_idx, m.channel_id)](m.data)
+                except Exception as exc:
+                    n = decode_failed.get(ch[0], 0)
+                    decode_failed[ch[0]] = n + 1
+                    if n == 0:
+                        self._warn(f'topic {ch[0]}: message at t={m.log_time} ns does not decode as '
+                                   f'{ch[1]} ({exc}); skipping it (further failures on this topic are '
+                                   'skipped silently)')
+                    continue
+                yield BagMessage(ch[0], ch[1], m.log_time, msg)
+        finally:
+            for fh in handles.values():
+                fh.close()
+
+    def __iter__(self) -> Iterator[BagMessage]:
+        return self.messages()
+
+    def schema_text(self, topic: str) -> str | None:
+        """The ros2msg definition stored in the bag for a topic (None if none)."""
+        for s_idx, s in enumerate(self._scans):
+            for cid, ch in s.channels.items():
+                sc = s.schemas.get(ch.schema_id)
+                if ch.topic == topic and sc is not None and sc.encoding == 'ros2msg' and sc.data:
+                    return sc.data.decode()
+        return None
+
+
+def recover_bag(src: str | os.PathLike, dst: str | os.PathLike, **writer_kw) -> int:
+    """Copy every readable message of ``src`` (e.g. a recording cut off by a crash, which other
+    tools such as rosbags refuse without its MCAP footer) into a new, properly closed bag ``dst``.
+    Topic definitions and QoS are taken from ``src``. Returns the number of messages copied."""
+    reader = BagReader(src)
+    n = 0
+    with BagWriter(dst, **writer_kw) as w:
+        for topic, info in reader.topic_info().items():
+            w.add_topic(topic, info.msg_type, definition=reader.schema_text(topic),
+                        qos_profiles=list(info.offered_qos_profiles) or None)
+        for topic, msg_type, t_ns, data in reader.messages(raw=True):
+            w.write(topic, msg_type, data, t_ns)
+            n += 1
+    return n
+
+
+def _stamp_s(msg: Any) -> float:
+    st = msg.header.stamp
+    return float(st.sec) + 1e-9 * float(st.nanosec)
+
+
+def joint_series(reader: BagReader) -> dict[str, dict[str, np.ndarray]]:
+    """Per-joint position series of ``/joint_commands`` and ``/joint_states``.
+
+    Returns ``{topic: {joint_name: array (N, 2)}}`` with columns (header.stamp [s], position
+    [rad]), sorted by stamp (stable). A topic absent from the bag maps to ``{}``. A message whose
+    ``position`` is shorter than its ``name`` list raises :class:`BagError` naming it.
+    """
+    topics = (contract.JOINT_COMMANDS, contract.JOINT_STATES)
+    present = [t for t in topics if t in reader.topics()]
+    for t in present:
+        if reader.topics()[t] != contract.MSG_TYPES[t]:
+            raise BagError(f'{t} is recorded as {reader.topics()[t]}, expected {contract.MSG_TYPES[t]}')
+    acc: dict[str, dict[str, list]] = {t: {} for t in topics}
+    for topic, _, t_ns, msg in reader.messages(topics=present or None) if present else ():
+        names = list(msg.name)
+        pos = list(msg.position)
+        if len(pos) < len(names):
+            raise BagError(f'{topic} message at t={t_ns} ns names {len(names)} joint(s) but has '
+                           f'{len(pos)} position(s)')
+        stamp = _stamp_s(msg)
+        series = acc[topic]
+        for n, p in zip(names, pos):
+            series.setdefault(n, []).append((stamp, p))
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for topic, series in acc.items():
+        out[topic] = {}
+        for n, rows in series.items():
+            a = np.asarray(rows, dtype=float).reshape(-1, 2)
+            out[topic][n] = a[np.argsort(a[:, 0], kind='stable')]
+    return out

@@ -1,0 +1,174 @@
+"""The whole analysis: simulate, locate, name and fit, then before/after on held-out data (step 4).
+
+:func:`analyse` is the library entry point of the ``discrepancy`` tool; it takes a
+:class:`~.recording.Recording` (not a path) and a robot, so tests and the benchmark call it the
+way the command-line tool does.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hexapod_model.description import Effect, Robot, load_robot, parse_joint_name
+from .effects import scope_name
+from .fit import FitSettings, Hypothesis, Namer, make_split
+from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
+from .recording import Recording, RecordingError
+from .segments import looks_like_walk, swing_segments
+from .simulate import Replay
+
+MODES = ('auto', 'stand', 'walk')
+
+
+@dataclass(frozen=True)
+class JointFit:
+    heldout_rmse_ticks_before: float
+    heldout_rmse_ticks_after: float
+    n_heldout: int
+
+
+@dataclass(frozen=True)
+class FoundEffect:
+    effect: Effect
+    scope: str                       # 'leg 3 tibia', 'leg 2', 'the whole robot'
+    condition: str                   # where it shows (locate.CONDITIONS)
+    heldout_rmse_ticks_before: float  # on the effect's joints, final model without this effect
+    heldout_rmse_ticks_after: float   # final model
+
+
+@dataclass
+class Analysis:
+    source: str
+    mode: str
+    robot: Robot
+    replay: Replay
+    split: object
+    duration_s: float
+    residual_before: dict
+    residual_after: dict
+    conditions: dict
+    mismatches: list[Mismatch]
+    effects: list[FoundEffect]
+    joints: dict[str, JointFit]
+    notes: list[str] = field(default_factory=list)
+    runtime_s: float = 0.0
+    log: list = field(default_factory=list)
+
+    @property
+    def found(self) -> tuple[Effect, ...]:
+        return tuple(f.effect for f in self.effects)
+
+
+def _rmse(res: dict, masks: dict, joints) -> tuple[float, int]:
+    sse, n = 0.0, 0
+    for j in joints:
+        if j in res:
+            r = res[j][masks[j]]
+            sse += float(r @ r)
+            n += len(r)
+    return (math.sqrt(sse / n) if n else math.nan), n
+
+
+def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=None, mode: str = 'auto',
+            settings: FitSettings | None = None, block_s: float = 2.0, progress: bool = False,
+            workers: int = 2) -> Analysis:
+    """Find what the nominal model of ``robot`` leaves out of ``rec`` (see the package docstring).
+
+    ``joints``: restrict to these joints. ``windows``: list of (t_start, t_end) [s] to analyse
+    (all legs), overriding the stand/walk choice. ``mode``: 'auto', 'stand' or 'walk'.
+    ``block_s``: length of the alternating fit / held-out time blocks.
+    """
+    t_start = time.perf_counter()
+    if mode not in MODES:
+        raise ValueError(f'mode must be one of {MODES}, got {mode!r}')
+    robot = robot if robot is not None else load_robot()
+    settings = settings or FitSettings()
+    notes: list[str] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=None, desc='discrepancy', unit=' step', leave=False, disable=None)
+
+    def step(msg: str):
+        if bar is not None:
+            bar.set_postfix_str(msg[:60])
+            bar.update(1)
+
+    try:
+        segments = None
+        if windows:
+            legs_all = sorted({parse_joint_name(j)[0] for j in rec.joints})
+            segments = {leg: list(windows) for leg in legs_all}
+            mode_used = 'windows'
+            notes.append(f'analysed only the given time windows: '
+                         + ', '.join(f'{a:g}-{b:g} s' for a, b in windows))
+        step('replaying the recorded goals')
+        replay = Replay(robot, rec, joints=joints, segments=segments)
+        pred0 = replay.predict(robot)
+        res0 = {j: replay.reads[j].tick - pred0[j] for j in replay.joints}
+        if segments is None:
+            segs = swing_segments(rec, replay.legs)
+            walk = mode == 'walk' or (mode == 'auto' and looks_like_walk(replay, res0, segs))
+            if walk:
+                n_spans = sum(len(v) for v in segs.values())
+                if n_spans == 0:
+                    raise RecordingError(f'{rec.source}: looks like a walk (legs carry load) but no swing phase '
+                                         'was found in the femur commands; pass --time windows where the legs '
+                                         'hang free')
+                total = sum(b - a for v in segs.values() for a, b in v)
+                notes.append(f'walk recording: stance legs carry the body, so only swing phases were analysed '
+                             f'({n_spans} spans, {total:.1f} s of leg time, from lift-off to just before the '
+                             f'swing-down stops)')
+                replay = Replay(robot, rec, joints=joints, segments=segs)
+                pred0 = replay.predict(robot)
+                res0 = {j: replay.reads[j].tick - pred0[j] for j in replay.joints}
+                mode_used = 'walk'
+            else:
+                mode_used = 'stand'
+                notes.append('stand recording: every leg treated as hanging free for the whole recording')
+        split = make_split(replay, block_s=block_s)
+        step('motion conditions')
+        traj = {leg: replay.trajectory(robot, leg) for leg in replay.legs}
+        cond = read_conditions(replay, robot, traj)
+        mism = mismatch_windows(replay, res0, cond)
+        step('naming and fitting effects')
+        namer = Namer(replay, robot, split, settings, progress=step, workers=workers)
+        try:
+            effects, accepted = namer.run()
+            step('before/after on held-out data')
+            pred1 = namer.pred.predict(effects, replay.joints)
+            found = []
+            for i, h in enumerate(accepted):
+                others = [e for k, e in enumerate(effects) if k != i]
+                p_wo = namer.pred.predict(others, replay.joints) if others else pred0
+                own = [j for j in h.joints if j in replay.reads]
+                r_wo = {j: replay.reads[j].tick - p_wo[j] for j in own}
+                r_w = {j: replay.reads[j].tick - pred1[j] for j in own}
+                b, _ = _rmse(r_wo, split.hold, own)
+                a, _ = _rmse(r_w, split.hold, own)
+                found.append(FoundEffect(h.effect, scope_name(h.joints, replay.joints),
+                                         dominant_condition(own, cond, r_wo, r_w), b, a))
+        finally:
+            namer.close()
+        res1 = {j: replay.reads[j].tick - pred1[j] for j in replay.joints}
+        jfit = {}
+        for j in replay.joints:
+            b, n = _rmse(res0, split.hold, [j])
+            a, _ = _rmse(res1, split.hold, [j])
+            jfit[j] = JointFit(b, a, n)
+        n_hold = sum(int(np.count_nonzero(m)) for m in split.hold.values())
+        n_fit = sum(int(np.count_nonzero(m)) for m in split.fit.values())
+        notes.append(f'fitted on {n_fit} reads, judged on {n_hold} held-out reads (alternating {block_s:g} s blocks)')
+        return Analysis(source=rec.source, mode=mode_used, robot=robot, replay=replay, split=split,
+                        duration_s=rec.duration_s, residual_before=res0, residual_after=res1, conditions=cond,
+                        mismatches=mism, effects=found, joints=jfit, notes=notes,
+                        runtime_s=time.perf_counter() - t_start, log=list(settings.log))
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+__all__ = ['Analysis', 'FoundEffect', 'JointFit', 'analyse', 'MODES', 'Hypothesis']

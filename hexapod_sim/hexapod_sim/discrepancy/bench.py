@@ -1,0 +1,288 @@
+"""Benchmark of the discrepancy tool on concealed data (not a test): ``./hexapod discrepancy-bench``.
+
+Every case injects effects at realistic AX-12A magnitudes into the robot description, runs the
+stand calibration routine (:mod:`hexapod_sim.calibration`) on the MuJoCo sim
+(:class:`hexapod_sim.plant.HexapodSim`, ``fixed_base=True``), writes the recording as a bag, and
+hands the tool only that bag path (the command-line entry point, in process). The tool never
+sees the truth or the sim's model. The result is scored against the hidden truth:
+
+* named: every injected effect is reported by name, and nothing else;
+* located: the reported joints equal the injected ones (a payload: the same legs);
+* parameter error, relative, goal within 25 % (friction, backlash, damping, dead-band) or 10 %
+  (saturation, delay, payload);
+* held-out improvement: RMS before/after on the effect's joints, goal at least 1.5x;
+* false effects on clean recordings: goal none;
+* speed: analysis time per minute of recording on this machine, goal under 60 s.
+
+Cases (magnitudes and joints drawn from ``--seed``): each effect alone on one joint (a payload on
+one leg), three effects on a whole leg, three robot-wide, two pairs at once, two clean runs.
+``--make-demo DIR`` writes one concealed-effect bag (one leg, < 2 MB) and its truth next to it.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from hexapod_model.description import Effect, JOINT_ROLES, LEGS, effects_to_overlay, joint_name, load_robot, parse_joint_name
+
+from ..calibration import calibration_plan, run_calibration
+from .effects import BY_NAME
+
+# Realistic AX-12A magnitudes (joint side) for the injected effects.
+RANGES = {
+    'coulomb_friction': (0.04, 0.10),      # N m extra (nominal 0.060)
+    'static_friction': (0.15, 0.35),       # N m break-away
+    'viscous_damping': (0.10, 0.30),       # N m s/rad extra (nominal 0.20)
+    'backlash': (math.radians(0.8), math.radians(2.0)),
+    'torque_saturation': (0.45, 0.90),     # N m (stall 1.5): supply sag or a weak servo
+    'compliance_deadband': (1, 3),         # ticks, integer as the AX-12A register
+    'readout_delay': (2, 8),               # ms, whole milliseconds (the sim delays by physics steps)
+    'mass_error': (0.03, 0.10),            # kg at the foot
+}
+TOLERANCE = {'coulomb_friction': 0.25, 'static_friction': 0.25, 'viscous_damping': 0.25, 'backlash': 0.25,
+             'compliance_deadband': 0.25, 'torque_saturation': 0.10, 'readout_delay': 0.10, 'mass_error': 0.10}
+GOALS = {'right': 0.9, 'ratio': 1.5, 'seconds_per_minute': 60.0}
+
+
+@dataclass
+class Case:
+    name: str
+    effects: tuple[Effect, ...]
+    speed_scale: float = 1.0
+
+
+def _value(rng, effect: str) -> float:
+    lo, hi = RANGES[effect]
+    if effect == 'compliance_deadband':
+        return float(rng.integers(lo, hi + 1))
+    if effect == 'readout_delay':
+        return float(rng.integers(lo, hi + 1)) / 1000.0
+    return float(rng.uniform(lo, hi))
+
+
+def _effect(rng, name: str, joints) -> Effect:
+    return Effect(name, tuple(joints), {BY_NAME[name].key: _value(rng, name)})
+
+
+def make_cases(seed: int, legs=LEGS) -> list[Case]:
+    rng = np.random.default_rng(seed)
+    legs = tuple(legs)
+    everything = tuple(joint_name(leg, r) for leg in legs for r in JOINT_ROLES)
+
+    def one_joint():
+        return joint_name(int(rng.choice(legs)), str(rng.choice(JOINT_ROLES)))
+
+    def one_leg():
+        leg = int(rng.choice(legs))
+        return tuple(joint_name(leg, r) for r in JOINT_ROLES)
+
+    cases = []
+    for name in BY_NAME:
+        cases.append(Case(f'{name}@joint' if name != 'mass_error' else 'mass_error@leg',
+                          (_effect(rng, name, one_leg() if name == 'mass_error' else (one_joint(),)),)))
+    for name in ('backlash', 'static_friction', 'coulomb_friction'):
+        cases.append(Case(f'{name}@leg', (_effect(rng, name, one_leg()),)))
+    for name in ('readout_delay', 'torque_saturation', 'viscous_damping'):
+        cases.append(Case(f'{name}@robot', (_effect(rng, name, everything),)))
+    j = one_joint()
+    cases.append(Case('backlash@joint+readout_delay@robot',
+                      (_effect(rng, 'backlash', (j,)), _effect(rng, 'readout_delay', everything))))
+    leg_a = one_leg()
+    others = [leg for leg in legs if joint_name(leg, 'coxa') != leg_a[0]] or list(legs)
+    j2 = joint_name(int(rng.choice(others)), str(rng.choice(('femur', 'tibia'))))
+    cases.append(Case('coulomb_friction@joint+mass_error@leg',
+                      (_effect(rng, 'coulomb_friction', (j2,)), _effect(rng, 'mass_error', leg_a))))
+    cases.append(Case('clean', ()))
+    cases.append(Case('clean@0.8x', (), speed_scale=0.8))
+    return cases
+
+
+def record_case(case: Case, out_dir: Path, legs=LEGS, robot=None, progress: bool = False) -> tuple[Path, float]:
+    """Run the calibration routine on the MuJoCo sim with the case's effects; write the bag. -> (bag, duration)."""
+    from ..plant import HexapodSim
+    base = robot or load_robot()
+    truth = base.with_effects(case.effects)
+    plan = calibration_plan(base, legs=legs, speed_scale=case.speed_scale)
+    sim = HexapodSim(truth, fixed_base=True)
+    sim.reset(joint_angles={joint_name(leg, r): float(plan.goals_rad[0, i])
+                            for leg in plan.legs for i, r in enumerate(JOINT_ROLES)})
+    rec = run_calibration(sim, plan, progress=progress, robot=base)
+    bag = out_dir / case.name.replace('@', '_at_').replace('+', '_and_')
+    if bag.exists():
+        shutil.rmtree(bag)
+    rec.write_bag(bag)
+    return bag, rec.duration_s
+
+
+def _legs_of(joints) -> set[int]:
+    return {parse_joint_name(j)[0] for j in joints}
+
+
+def score(case: Case, result: dict) -> dict:
+    """Compare the tool's JSON with the hidden truth of ``case``."""
+    found = result['effects']
+    rows = []
+    matched = set()
+    for t in case.effects:
+        cand = [i for i, f in enumerate(found) if f['effect'] == t.effect and i not in matched]
+        if t.effect == 'mass_error':
+            same = [i for i in cand if _legs_of(found[i]['joints']) == _legs_of(t.joints)]
+        else:
+            same = [i for i in cand if set(found[i]['joints']) == set(t.joints)]
+        pick = same[0] if same else (cand[0] if cand else None)
+        key = BY_NAME[t.effect].key
+        row = {'effect': t.effect, 'truth_joints': list(t.joints), 'truth': t.params[key], 'named': pick is not None,
+               'located': bool(same), 'fitted': math.nan, 'param_error': math.nan, 'ratio': math.nan}
+        if pick is not None:
+            matched.add(pick)
+            f = found[pick]
+            row['fitted'] = f['params'][key]
+            row['param_error'] = abs(f['params'][key] - t.params[key]) / t.params[key]
+            row['ratio'] = f['heldout_rmse_ticks_before'] / max(f['heldout_rmse_ticks_after'], 1e-9)
+        row['param_ok'] = bool(row['param_error'] <= TOLERANCE[t.effect])
+        rows.append(row)
+    false = [f for i, f in enumerate(found) if i not in matched]
+    return {'truth': rows, 'false_effects': false,
+            'right': all(r['named'] and r['located'] for r in rows) and not false}
+
+
+def run(cases, legs, keep: Path | None, progress: bool = True) -> list[dict]:
+    from tqdm import tqdm
+    from .cli import main as tool
+    work = Path(keep) if keep else Path(tempfile.mkdtemp(prefix='discrepancy_bench_'))
+    work.mkdir(parents=True, exist_ok=True)
+    out = []
+    try:
+        for case in tqdm(cases, desc='benchmark cases', unit='case', disable=not progress):
+            t0 = time.perf_counter()
+            bag, duration = record_case(case, work, legs=legs)
+            t_sim = time.perf_counter() - t0
+            js = work / (bag.name + '.json')
+            t0 = time.perf_counter()
+            with contextlib.redirect_stdout(io.StringIO()) as text:
+                rc = tool([str(bag), '--json', str(js), '--no-progress'])
+            (work / (bag.name + '.txt')).write_text(text.getvalue())
+            t_tool = time.perf_counter() - t0
+            if rc != 0:
+                raise RuntimeError(f'the tool failed on case {case.name} (exit {rc})')
+            result = json.loads(js.read_text())
+            s = score(case, result)
+            s.update(case=case.name, duration_s=duration, sim_s=t_sim, tool_s=t_tool,
+                     s_per_min=t_tool / (duration / 60.0), bag_mb=sum(f.stat().st_size for f in bag.iterdir()) / 1e6)
+            out.append(s)
+    finally:
+        if not keep:
+            shutil.rmtree(work, ignore_errors=True)
+    return out
+
+
+def table(results: list[dict]) -> str:
+    lines = [f'{"case":40s} {"truth":>48s} {"fitted":>9s} {"err":>6s} {"ratio":>6s} {"named":>5s} {"joints":>6s} '
+             f'{"false":>5s} {"s/min":>6s}']
+    for r in results:
+        rows = r['truth'] or [None]
+        for k, t in enumerate(rows):
+            name = r['case'] if k == 0 else ''
+            false = str(len(r['false_effects'])) if k == 0 else ''
+            spm = f'{r["s_per_min"]:6.1f}' if k == 0 else ''
+            if t is None:
+                lines.append(f'{name:40s} {"(clean)":>48s} {"":>9s} {"":>6s} {"":>6s} {"":>5s} {"":>6s} {false:>5s} {spm}')
+                continue
+            scope = (t['truth_joints'][0] if len(t['truth_joints']) == 1 else
+                     f'leg {parse_joint_name(t["truth_joints"][0])[0]}' if len(t['truth_joints']) == 3 else
+                     f'{len(t["truth_joints"])} joints')
+            truth = f'{t["effect"]} {t["truth"]:.4g} on {scope}'
+            lines.append(f'{name:40s} {truth:>48s} {t["fitted"]:9.4g} {100 * t["param_error"]:5.1f}% '
+                         f'{t["ratio"]:6.2f} {("yes" if t["named"] else "NO"):>5s} '
+                         f'{("yes" if t["located"] else "NO"):>6s} {false:>5s} {spm}')
+        for f in r['false_effects']:
+            lines.append(f'{"":40s}   false: {f["effect"]} on {len(f["joints"])} joint(s) {f["params"]}')
+    return '\n'.join(lines)
+
+
+def summary(results: list[dict]) -> str:
+    effect_rows = [t for r in results for t in r['truth']]
+    with_truth = [r for r in results if r['truth']]
+    clean = [r for r in results if not r['truth']]
+    right = sum(r['right'] for r in with_truth) / max(len(with_truth), 1)
+    p_ok = sum(t['param_ok'] for t in effect_rows) / max(len(effect_rows), 1)
+    ratio_ok = sum((t['ratio'] >= GOALS['ratio']) for t in effect_rows) / max(len(effect_rows), 1)
+    false_clean = sum(len(r['false_effects']) for r in clean)
+    worst = max(r['s_per_min'] for r in results)
+    mean = float(np.mean([r['s_per_min'] for r in results]))
+
+    def met(ok):
+        return 'MET' if ok else 'MISSED'
+    return '\n'.join([
+        f'right effect and joints (no extra effect): {100 * right:.0f}% of {len(with_truth)} cases '
+        f'(goal >= {100 * GOALS["right"]:.0f}%): {met(right >= GOALS["right"])}',
+        f'parameters within tolerance (25% friction/backlash/damping/dead-band, 10% saturation/delay/payload): '
+        f'{100 * p_ok:.0f}% of {len(effect_rows)} injected effects',
+        f'held-out RMS improvement >= {GOALS["ratio"]}x: {100 * ratio_ok:.0f}% of injected effects',
+        f'false effects on clean recordings: {false_clean} (goal 0): {met(false_clean == 0)}',
+        f'analysis time per minute of recording: mean {mean:.1f} s, worst {worst:.1f} s '
+        f'(goal < {GOALS["seconds_per_minute"]:.0f} s): {met(worst < GOALS["seconds_per_minute"])}',
+    ])
+
+
+def make_demo(out_dir: Path, seed: int) -> None:
+    """One concealed-effect bag for the docs' demo: one leg on the stand, truth in a separate file."""
+    rng = np.random.default_rng(seed)
+    leg = int(rng.choice(LEGS))
+    name = str(rng.choice(['backlash', 'compliance_deadband', 'coulomb_friction', 'viscous_damping']))
+    joint = joint_name(leg, str(rng.choice(JOINT_ROLES)))
+    case = Case('discrepancy_demo', (_effect(rng, name, (joint,)),))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bag, duration = record_case(case, out_dir, legs=(leg,), progress=True)
+    truth = out_dir / 'discrepancy_demo.truth.yaml'
+    truth.write_text('# Hidden truth of bags/discrepancy_demo (the discrepancy tool never reads this file).\n'
+                     f'# Made by: discrepancy_bench --make-demo {out_dir} --seed {seed}\n'
+                     + yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
+    size = sum(f.stat().st_size for f in bag.iterdir()) / 1e6
+    print(f'demo bag {bag} ({duration:.1f} s, {size:.2f} MB); truth in {truth}')
+
+
+def main(argv=None) -> int:
+    from hexapod_model.cli_common import make_parser
+    ap = make_parser('discrepancy_bench', __doc__.splitlines()[0])
+    ap.add_argument('--seed', type=int, default=0, help='draws the magnitudes and joints of the cases')
+    ap.add_argument('--cases', nargs='+', metavar='NAME', help='run only these cases (names as in the table)')
+    ap.add_argument('--legs', nargs='+', type=int, default=list(LEGS), help='legs the routine moves (default all)')
+    ap.add_argument('--keep', metavar='DIR', help='keep the bags and JSON results here')
+    ap.add_argument('--json', metavar='OUT.json', help='write the scored results here')
+    ap.add_argument('--list', action='store_true', help='list the cases (names only, not the truth) and exit')
+    ap.add_argument('--make-demo', metavar='DIR', help='write the demo bag and its truth file into DIR and exit')
+    args = ap.parse_args(argv)
+    if args.make_demo:
+        make_demo(Path(args.make_demo), args.seed)
+        return 0
+    cases = make_cases(args.seed, args.legs)
+    if args.list:
+        print('\n'.join(c.name for c in cases))
+        return 0
+    if args.cases:
+        unknown = sorted(set(args.cases) - {c.name for c in cases})
+        if unknown:
+            ap.error(f'unknown case(s) {unknown}; see --list')
+        cases = [c for c in cases if c.name in args.cases]
+    results = run(cases, args.legs, Path(args.keep) if args.keep else None)
+    print(table(results))
+    print()
+    print(summary(results))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2, default=float) + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,86 @@
+"""Sim-vs-real discrepancy: where the recording departs from the model, and which physics is missing.
+
+Replays the goals recorded in BAG through the nominal model (robot description + servo model),
+finds where the recorded reads depart from the prediction, names the missing physical effect
+from a library of candidates, fits it, and shows the before/after on held-out data. No ROS graph
+is needed (``./hexapod discrepancy`` or ``ros2 run hexapod_sim discrepancy``).
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, make_parser,
+                          output_file, plot_extensions, positive_float, ratio_at_least_one)
+from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
+from .analysis import MODES, analyse
+from .effects import BY_NAME
+from .fit import FitSettings
+from .recording import RecordingError, load_recording
+from .segments import parse_windows
+
+
+def build_parser():
+    ap = make_parser('discrepancy', __doc__)
+    ap.add_argument('bag', help='rosbag2 directory or .mcap file following the recording contract')
+    ap.add_argument('--json', metavar='OUT.json', type=output_file(('.json',)), help='write the machine-readable result here')
+    ap.add_argument('--plot', metavar='OUT.png', type=output_file(plot_extensions), help='write the before/after figure here')
+    ap.add_argument('--write-overlay', metavar='OUT.yaml', type=output_file(('.yaml', '.yml')),
+                    help='write the fitted effects as a robot-description overlay (read it back with --overlay)')
+    ap.add_argument('--joints', nargs='+', metavar='JOINT', help='analyse only these joints (e.g. leg3_tibia)')
+    ap.add_argument('--time', nargs='+', metavar='START:END', dest='windows',
+                    help='analyse only these time windows [s from the bag start], in which the legs hang free')
+    ap.add_argument('--mode', choices=MODES, default='auto',
+                    help='stand: legs free all the time; walk: only swing phases; auto: decide from the data')
+    ap.add_argument('--robot', metavar='ROBOT.yaml', type=existing_file,
+                    help='robot description (default: the packaged data/robot.yaml)')
+    add_overlay_option(ap, 'robot-description overlay applied before the analysis (e.g. a previous '
+                           '--write-overlay result); repeatable, applied in order')
+    ap.add_argument('--candidates', nargs='+', choices=sorted(BY_NAME), metavar='EFFECT',
+                    help=f'test only these effects (default all: {", ".join(BY_NAME)})')
+    ap.add_argument('--holdout-block', type=positive_float, default=2.0, metavar='S',
+                    help='length of the alternating fit / held-out blocks [s]')
+    ap.add_argument('--min-ratio', type=ratio_at_least_one, default=FitSettings.min_ratio,
+                    help='held-out RMS improvement factor an effect must reach')
+    add_no_progress_option(ap)
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        if args.joints:
+            bad = [j for j in args.joints if j not in ALL_JOINTS]
+            if bad:
+                raise RecordingError(f'--joints: unknown joint(s) {bad}; names are leg<1..6>_<coxa|femur|tibia>')
+        windows = parse_windows(args.windows) if args.windows else None
+        robot = load_robot(args.robot, overlays=args.overlay)
+        rec = load_recording(args.bag)
+        settings = FitSettings(min_ratio=args.min_ratio)
+        if args.candidates:
+            settings.candidates = tuple(args.candidates)
+        result = analyse(rec, robot, joints=args.joints, windows=windows, mode=args.mode, settings=settings,
+                         block_s=args.holdout_block, progress=args.progress)
+    except (RecordingError, DescriptionError, ValueError) as exc:
+        print(f'{ap.prog}: error: {" ".join(str(exc).split())}', file=sys.stderr)
+        return 2
+    from .report import overlay_yaml, text_report, to_json
+    print(text_report(result))
+    if args.json:
+        Path(args.json).write_text(json.dumps(to_json(result, args.bag), indent=2) + '\n')
+        print(f'\nJSON written to {args.json}')
+    if args.write_overlay:
+        Path(args.write_overlay).write_text(overlay_yaml(result))
+        print(f'overlay written to {args.write_overlay} (read it with --overlay {args.write_overlay}; '
+              'empty when nothing was found)')
+    if args.plot:
+        from .plot import save_plot
+        save_plot(result, args.plot)
+        print(f'plot written to {args.plot}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

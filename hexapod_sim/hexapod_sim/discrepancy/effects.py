@@ -1,0 +1,85 @@
+"""The library of candidate physical effects the discrepancy tool tests.
+
+Each candidate is a one-parameter physical model that the robot description already knows how
+to apply (:data:`hexapod_model.description.EFFECT_PARAMS`, ``Robot.joint_effects``): adding an
+:class:`~hexapod_model.description.Effect` to the robot changes the swing-down model, the coxa
+model and the MuJoCo sim alike. This module only adds what the search needs: the parameter's
+plausible range for an AX-12A joint (search bounds), a typical magnitude (for screening), the
+scopes it may have, and how to say it in plain language.
+
+Ranges (joint side; nominal values from the robot description in brackets): Coulomb friction
+0.005-0.4 N m [0.060], break-away torque 0.07-0.9 N m, viscous damping 0.01-1.5 N m s/rad
+[0.20], backlash 0.1-6 deg, torque limit 0.1-1.45 N m [stall 1.5], compliance margin 0.3-10
+ticks [0], readout delay 0.3-40 ms, tibia-tip payload 5-400 g.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from hexapod_model.description import EFFECT_PARAMS, Effect, Robot, joint_name, parse_joint_name, JOINT_ROLES
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate effect: name and parameter key as in the description, search range, wording."""
+
+    effect: str
+    key: str
+    lo: float
+    hi: float
+    typical: float
+    leg_only: bool       # mass_error: a payload belongs to a leg, never to a single joint
+    phrase: str          # "the simulation left out <phrase> of about <value>"
+    unit: str
+    scale: float         # display value = scale * parameter
+    digits: int
+
+    def describe(self, value: float) -> str:
+        v = self.scale * value
+        return f'{self.phrase} of about {v:.{self.digits}f} {self.unit}'.rstrip()
+
+    def make(self, joints, value: float) -> Effect:
+        return Effect(self.effect, tuple(joints), {self.key: float(value)})
+
+
+CANDIDATES: tuple[Candidate, ...] = (
+    Candidate('coulomb_friction', 'tau_c_nm', 0.005, 0.4, 0.05, False, 'extra Coulomb friction', 'N m', 1.0, 3),
+    Candidate('static_friction', 'tau_s_nm', 0.07, 0.9, 0.2, False, 'static (break-away) friction', 'N m', 1.0, 3),
+    Candidate('viscous_damping', 'b_nms_per_rad', 0.01, 1.5, 0.15, False, 'extra viscous damping', 'N m s/rad',
+              1.0, 3),
+    Candidate('backlash', 'width_rad', math.radians(0.1), math.radians(6.0), math.radians(1.2), False,
+              'gear backlash', 'degrees', 180.0 / math.pi, 2),
+    Candidate('torque_saturation', 'tau_max_nm', 0.1, 1.45, 0.6, False, 'a torque limit (weak servo or supply sag)',
+              'N m', 1.0, 2),
+    Candidate('compliance_deadband', 'margin_ticks', 0.3, 10.0, 2.0, False, 'a compliance dead-band', 'ticks', 1.0, 1),
+    Candidate('readout_delay', 'delay_s', 0.0003, 0.04, 0.005, False, 'a position readout delay', 'ms', 1000.0, 1),
+    Candidate('mass_error', 'payload_kg', 0.005, 0.4, 0.05, True, 'an extra mass at the foot', 'g', 1000.0, 0),
+)
+
+BY_NAME = {c.effect: c for c in CANDIDATES}
+assert set(BY_NAME) == set(EFFECT_PARAMS) and all(EFFECT_PARAMS[c.effect] == (c.key,) for c in CANDIDATES)
+
+
+def leg_joints(leg: int) -> tuple[str, ...]:
+    return tuple(joint_name(leg, r) for r in JOINT_ROLES)
+
+
+def scope_name(joints, analysed) -> str:
+    """Plain-language scope: 'leg 3 tibia', 'leg 3', 'the whole robot' or a list."""
+    joints = tuple(joints)
+    analysed = tuple(analysed)
+    if len(joints) > 1 and set(joints) >= set(analysed):
+        return 'the whole robot'
+    legs = sorted({parse_joint_name(j)[0] for j in joints})
+    if len(joints) == 1:
+        leg, role = parse_joint_name(joints[0])
+        return f'leg {leg} {role}'
+    if len(legs) == 1 and set(joints) >= {j for j in analysed if parse_joint_name(j)[0] == legs[0]}:
+        return f'leg {legs[0]}'
+    return ', '.join(f'leg {parse_joint_name(j)[0]} {parse_joint_name(j)[1]}' for j in joints)
+
+
+def apply(robot: Robot, effects) -> Robot:
+    """The robot with ``effects`` added (the one path the model and the sim share)."""
+    return robot.with_effects(tuple(effects))

@@ -1,0 +1,493 @@
+"""Step 3, name: which candidate effect, on which joints, with which parameter explains the mismatch.
+
+Hypotheses are (effect, joints) pairs with one shared physical parameter: every single joint,
+every leg (its three joints) and the whole robot (every analysed joint); a payload
+(``mass_error``) belongs to a leg or to every leg. The search is greedy forward selection:
+
+1. *Screen* every hypothesis cheaply: one rollout per (effect, joint) at a probe magnitude
+   gives the effect's signature ``D`` (change of every prediction); a least-squares scale
+   ``alpha`` of ``D`` against the current residual on the fitting reads predicts the gain on
+   the held-out reads. Strongly nonlinear effects are probed at three magnitudes.
+2. *Fit* the most promising hypotheses exactly (:meth:`Namer.fit`), with the full nonlinear
+   rollout, so friction, backlash, dead-band and saturation are fitted as what they are. The
+   residual is piecewise smooth in the parameter (integer ticks in the firmware) and, where a
+   joint hunts in a limit cycle, rugged; so the parameter is found by grids and bounded 1-D
+   searches (:func:`scipy.optimize.minimize_scalar`, Brent), first on a phase-insensitive
+   windowed loss that locates the basin, then on the pointwise squared residual of the fitting
+   reads of every joint the effect touches.
+3. *Judge* on held-out reads only (alternating time blocks never used for fitting): a hypothesis
+   is accepted when it lowers the held-out RMS error on its joints by at least
+   ``min_ratio`` (default 1.15x) and ``min_drop_ticks``, explains at least half of the held-out
+   variance above tick rounding (a small dent in a misfit the model cannot describe, e.g. feet
+   touching the ground, is no effect), and its parameter is not stuck at an end of its plausible
+   range. The accepted hypothesis with the largest held-out gain wins; a smaller
+   scope that achieves nearly the same gain (``parsimony``) is preferred. Repeat with the effect
+   added to the model, until nothing passes (``max_effects``).
+4. With several effects, every parameter is refitted once with the others in place.
+
+Noise-fitting is not rewarded: parameters never see the held-out reads, and a gain that the
+held-out reads do not confirm by a clear factor is not an effect. An empty result means "no
+missing physics found".
+"""
+from __future__ import annotations
+
+import math
+import threading
+from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from hexapod_model.description import Effect, Robot, joint_name, parse_joint_name
+from .effects import BY_NAME, CANDIDATES, Candidate, leg_joints
+from .simulate import Replay
+
+
+ROUNDING_VAR = 1.0 / 12.0   # variance [tick^2] of rounding to whole ticks (uniform in +-0.5)
+NONLINEAR = ('static_friction', 'backlash', 'compliance_deadband', 'torque_saturation')
+
+
+@dataclass(frozen=True)
+class Split:
+    """Per joint: which analysed reads are for fitting and which are held out."""
+
+    fit: dict
+    hold: dict
+    block_s: float
+
+
+def make_split(replay: Replay, block_s: float = 2.0, skip_start_s: float = 0.3) -> Split:
+    """Alternating time blocks of ``block_s``: even blocks fit, odd blocks held out.
+
+    Reads within ``skip_start_s`` of a segment start (initial state not yet forgotten) are in neither.
+    """
+    if not block_s > 0:
+        raise ValueError(f'block_s must be > 0, got {block_s}')
+    fit, hold = {}, {}
+    for j in replay.joints:
+        r = replay.reads[j]
+        leg = parse_joint_name(j)[0]
+        starts = np.array([replay.segments[leg][i][0] * replay.dt for i in r.segment])
+        ok = r.t_s >= starts + skip_start_s
+        even = (np.floor(r.t_s / block_s).astype(np.int64) % 2) == 0
+        fit[j] = ok & even
+        hold[j] = ok & ~even
+    return Split(fit, hold, block_s)
+
+
+def _affected(effect: str, joints) -> set[str]:
+    """Joints whose predictions an effect on ``joints`` changes."""
+    out: set[str] = set()
+    for j in joints:
+        leg, role = parse_joint_name(j)
+        if effect == 'readout_delay':
+            out.add(j)
+        elif effect == 'mass_error':
+            out.update(leg_joints(leg))
+        elif role == 'coxa':
+            out.add(j)
+        else:
+            out.update((joint_name(leg, 'femur'), joint_name(leg, 'tibia')))
+    return out
+
+
+class Predictor:
+    """Predictions for any set of effects, with a cache of rollouts keyed by the effects that matter."""
+
+    def __init__(self, replay: Replay, base: Robot, workers: int = 2, cache_size: int = 96):
+        self.rep = replay
+        self.base = base
+        self.cache: OrderedDict = OrderedDict()
+        self.cache_size = cache_size
+        self.pool = ThreadPoolExecutor(max_workers=workers) if workers > 1 else None
+        self.lock = threading.Lock()       # the cache is shared by the worker threads
+        self.n_rollouts = 0
+
+    def close(self):
+        if self.pool is not None:
+            self.pool.shutdown()
+
+    @staticmethod
+    def _key(effects, leg: int, which: str):
+        mine = {joint_name(leg, 'coxa')} if which == 'coxa' else {joint_name(leg, 'femur'), joint_name(leg, 'tibia')}
+        key = []
+        for e in effects:
+            if e.effect == 'readout_delay':
+                continue
+            if e.effect == 'mass_error':
+                if any(parse_joint_name(j)[0] == leg for j in e.joints):
+                    key.append(('mass_error', 'leg', tuple(sorted(e.params.items()))))
+                continue
+            js = tuple(sorted(set(e.joints) & mine))
+            if js:
+                key.append((e.effect, js, tuple(sorted(e.params.items()))))
+        return (leg, which, tuple(sorted(key)))
+
+    def _rollouts(self, robot: Robot, effects, leg: int, which: str):
+        key = self._key(effects, leg, which)
+        with self.lock:
+            hit = self.cache.get(key)
+            if hit is not None:
+                self.cache.move_to_end(key)
+                return hit
+        val = [self.rep.rollout_leg(robot, leg, i, which) for i in range(len(self.rep.segments[leg]))]
+        with self.lock:
+            self.n_rollouts += 1
+            self.cache[key] = val
+            if len(self.cache) > self.cache_size:
+                self.cache.popitem(last=False)
+        return val
+
+    def predict(self, effects, joints) -> dict[str, np.ndarray]:
+        """Predicted ticks at the analysed reads of ``joints`` for the base robot plus ``effects``."""
+        effects = tuple(effects)
+        robot = self.base.with_effects(effects)
+        want = [j for j in joints if j in self.rep.reads]
+        jobs = []
+        for leg in sorted({parse_joint_name(j)[0] for j in want}):
+            roles = {parse_joint_name(j)[1] for j in want if parse_joint_name(j)[0] == leg}
+            if roles & {'femur', 'tibia'}:
+                jobs.append((leg, 'ft'))
+            if 'coxa' in roles:
+                jobs.append((leg, 'coxa'))
+        if self.pool is not None and len(jobs) > 1:
+            results = list(self.pool.map(lambda lw: self._rollouts(robot, effects, *lw), jobs))
+        else:
+            results = [self._rollouts(robot, effects, *lw) for lw in jobs]
+        out = {}
+        for (leg, which), per_seg in zip(jobs, results):
+            cols = (('coxa', 0),) if which == 'coxa' else (('femur', 0), ('tibia', 1))
+            for role, col in cols:
+                j = joint_name(leg, role)
+                if j in want:
+                    out[j] = self.rep.sample(robot, j, per_seg, col)
+        return out
+
+
+@dataclass
+class Hypothesis:
+    candidate: Candidate
+    joints: tuple[str, ...]
+    screen_gain: float = 0.0
+    screen_ratio: float = 1.0
+    value: float = math.nan
+    fit_sse_before: float = math.nan
+    fit_sse_after: float = math.nan
+    hold_sse_before: float = math.nan
+    hold_sse_after: float = math.nan
+    n_hold: int = 0
+    affected: tuple[str, ...] = ()
+    evals: int = 0
+
+    @property
+    def effect(self) -> Effect:
+        return self.candidate.make(self.joints, self.value)
+
+    @property
+    def hold_rmse_before(self) -> float:
+        return math.sqrt(self.hold_sse_before / max(self.n_hold, 1))
+
+    @property
+    def hold_rmse_after(self) -> float:
+        return math.sqrt(self.hold_sse_after / max(self.n_hold, 1))
+
+    @property
+    def hold_gain(self) -> float:
+        return self.hold_sse_before - self.hold_sse_after
+
+
+@dataclass
+class FitSettings:
+    min_ratio: float = 1.15          # held-out RMS before/after on the effect's joints
+    min_drop_ticks: float = 0.03     # and at least this absolute drop
+    min_explained: float = 0.5       # and explain this share of the held-out variance above tick rounding
+    parsimony: float = 0.95          # prefer a smaller scope reaching this share of the best gain
+    max_effects: int = 4
+    n_fit: int = 6                   # hypotheses fitted exactly per round
+    min_screen_ratio: float = 1.02   # skip exact fits the linear screen gives no chance
+    screen_floor_ticks: float = 0.4  # joints with a fitting residual below this need no explaining
+    grid: int = 8
+    feature_window_s: float = 0.25
+    candidates: tuple[str, ...] = tuple(c.effect for c in CANDIDATES)
+    log: list = field(default_factory=list)
+
+
+class Namer:
+    """Greedy forward selection of effects (see the module docstring)."""
+
+    def __init__(self, replay: Replay, base: Robot, split: Split, settings: FitSettings | None = None,
+                 progress=None, workers: int = 2):
+        self.rep = replay
+        self.split = split
+        self.s = settings or FitSettings()
+        self.pred = Predictor(replay, base, workers=workers)
+        self.meas = {j: replay.reads[j].tick for j in replay.joints}
+        self.progress = progress
+        self._prepare_features()
+        unknown = [c for c in self.s.candidates if c not in BY_NAME]
+        if unknown:
+            raise ValueError(f'unknown candidate effect(s) {unknown}; known: {sorted(BY_NAME)}')
+
+    def close(self):
+        self.pred.close()
+
+    # ------------------------------------------------------------------ helpers
+    def _sse(self, pred: dict, joints, which: str) -> tuple[float, int]:
+        masks = self.split.fit if which == 'fit' else self.split.hold
+        sse, n = 0.0, 0
+        for j in joints:
+            if j not in pred:
+                continue
+            m = masks[j]
+            d = self.meas[j][m] - pred[j][m]
+            sse += float(d @ d)
+            n += int(np.count_nonzero(m))
+        return sse, n
+
+    def _hypotheses(self) -> list[Hypothesis]:
+        joints = self.rep.joints
+        legs = sorted({parse_joint_name(j)[0] for j in joints})
+        out = []
+        for name in self.s.candidates:
+            c = BY_NAME[name]
+            if not c.leg_only:
+                out.extend(Hypothesis(c, (j,)) for j in joints)
+            for leg in legs:
+                lj = tuple(j for j in leg_joints(leg) if j in joints)
+                if len(lj) > 1 or c.leg_only:
+                    out.append(Hypothesis(c, lj))
+            if len(legs) > 1:
+                out.append(Hypothesis(c, tuple(joints)))
+        # drop duplicates (a leg with one analysed joint equals the joint hypothesis)
+        seen, uniq = set(), []
+        for h in out:
+            k = (h.candidate.effect, h.joints)
+            if k not in seen:
+                seen.add(k)
+                uniq.append(h)
+        return uniq
+
+    # ------------------------------------------------------------------ screening
+    def screen(self, effects, base_pred) -> list[Hypothesis]:
+        """Linearised gain of every hypothesis: the signature ``D`` of an effect (change of every
+        prediction at a probe magnitude) scaled by least squares against the residual.
+
+        Strongly nonlinear effects (stick-slip, play, dead-band, saturation) are probed at half,
+        one and two times their typical magnitude and the best probe counts. Signatures are only
+        computed on joints whose fitting residual is above ``screen_floor_ticks`` (elsewhere there
+        is nothing to explain; their share of a hypothesis counts as zero here and is judged by
+        the exact fit).
+        """
+        joints = self.rep.joints
+        active = set()
+        for j in joints:
+            r = (self.meas[j] - base_pred[j])[self.split.fit[j]]
+            if len(r) and math.sqrt(float(r @ r) / len(r)) > self.s.screen_floor_ticks:
+                active.add(j)
+        sig: dict[tuple, dict[str, np.ndarray]] = {}
+        for name in self.s.candidates:
+            c = BY_NAME[name]
+            mags = (0.5 * c.typical, c.typical, 2.0 * c.typical) if name in NONLINEAR else (c.typical,)
+            if c.leg_only:
+                units = [(leg_joints(leg)[0], tuple(leg_joints(leg)))
+                         for leg in sorted({parse_joint_name(j)[0] for j in joints})]
+            else:
+                units = [(j, (j,)) for j in joints]
+            for key_joint, on in units:
+                aff = sorted(_affected(c.effect, on) & active)
+                if not aff:
+                    continue
+                for m, mag in enumerate(mags):
+                    p = self.pred.predict(tuple(effects) + (c.make(on, mag),), aff)
+                    sig[(c.effect, key_joint, m)] = {a: p[a] - base_pred[a] for a in aff}
+        hyps = self._hypotheses()
+        fitm, holdm = self.split.fit, self.split.hold
+        for h in hyps:
+            c = h.candidate
+            members = [leg_joints(parse_joint_name(j)[0])[0] for j in h.joints] if c.leg_only else list(h.joints)
+            members = list(dict.fromkeys(members))
+            n_mags = 3 if c.effect in NONLINEAR else 1
+            for m in range(n_mags):
+                D: dict[str, np.ndarray] = {}
+                for mj in members:
+                    for a, d in sig.get((c.effect, mj, m), {}).items():
+                        D[a] = D[a] + d if a in D else d
+                num = den = before = gain = 0.0
+                for a, d in D.items():
+                    r = self.meas[a] - base_pred[a]
+                    k = fitm[a]
+                    num += float(r[k] @ d[k])
+                    den += float(d[k] @ d[k])
+                if den <= 0:
+                    continue
+                alpha = max(num / den, 0.0)       # effects have a fixed sign: a negative scale means "not this"
+                for a, d in D.items():
+                    r = self.meas[a] - base_pred[a]
+                    k = holdm[a]
+                    before += float(r[k] @ r[k])
+                    gain += float(r[k] @ r[k]) - float((r[k] - alpha * d[k]) @ (r[k] - alpha * d[k]))
+                if gain > h.screen_gain:
+                    h.screen_gain = gain
+                    h.screen_ratio = math.sqrt(before / max(before - gain, 1e-12)) if before > 0 else 1.0
+        return hyps
+
+    # ------------------------------------------------------------------ exact fit
+    def _feature_sse(self, pred: dict, joints) -> float:
+        """Phase-insensitive loss: per window of ``feature_window_s``, squared difference of the mean
+        and of the spread of ``position - goal`` (recorded vs predicted), weighted by the read count."""
+        out = 0.0
+        for j in joints:
+            if j not in pred:
+                continue
+            win, g, cnt, mu_m, sd_m = self._feat[j]
+            d = pred[j][self.split.fit[j]] - g
+            nw = len(cnt)
+            mu = np.bincount(win, d, nw) / np.maximum(cnt, 1)
+            sd = np.sqrt(np.maximum(np.bincount(win, d * d, nw) / np.maximum(cnt, 1) - mu * mu, 0.0))
+            out += float(np.sum(cnt * ((mu_m - mu) ** 2 + (sd_m - sd) ** 2)))
+        return out
+
+    def _prepare_features(self):
+        self._feat = {}
+        for j in self.rep.joints:
+            r = self.rep.reads[j]
+            m = self.split.fit[j]
+            k = np.clip(np.floor(r.t_s[m] / self.rep.dt + 1e-9).astype(np.int64), 0, self.rep.n_periods - 1)
+            g = self.rep.goals[j][k]
+            win_raw = np.floor(r.t_s[m] / self.s.feature_window_s).astype(np.int64)
+            _, win = np.unique(win_raw, return_inverse=True)
+            nw = int(win.max()) + 1 if len(win) else 0
+            cnt = np.bincount(win, minlength=nw).astype(float)
+            d = self.meas[j][m] - g
+            mu = np.bincount(win, d, nw) / np.maximum(cnt, 1)
+            sd = np.sqrt(np.maximum(np.bincount(win, d * d, nw) / np.maximum(cnt, 1) - mu * mu, 0.0))
+            self._feat[j] = (win, g, cnt, mu, sd)
+
+    def fit(self, h: Hypothesis, effects, base_pred) -> Hypothesis:
+        """Fit the hypothesis' parameter (see the module docstring).
+
+        Stage 1 locates the basin with the phase-insensitive windowed loss (smooth even when the
+        joint hunts in a limit cycle, e.g. with backlash and no gravity preload): geometric grid,
+        then bounded Brent. Stage 2 minimises the pointwise squared residual in a +-15 % band around
+        it (dense local grid, then bounded Brent): the parameter that best predicts every read.
+        """
+        c = h.candidate
+        aff = sorted(_affected(c.effect, h.joints) & set(self.rep.joints))
+        h.affected = tuple(aff)
+        h.fit_sse_before, _ = self._sse(base_pred, aff, 'fit')
+        h.hold_sse_before, h.n_hold = self._sse(base_pred, aff, 'hold')
+        cache: dict[float, tuple[float, float]] = {}
+
+        def evaluate(v: float) -> tuple[float, float]:
+            v = float(v)
+            if v not in cache:
+                p = self.pred.predict(tuple(effects) + (c.make(h.joints, v),), aff)
+                cache[v] = (self._sse(p, aff, 'fit')[0], self._feature_sse(p, aff))
+                h.evals += 1
+            return cache[v]
+
+        grid = np.geomspace(c.lo, c.hi, self.s.grid)
+        feat = [evaluate(v)[1] for v in grid]
+        i = int(np.argmin(feat))
+        a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+        res = minimize_scalar(lambda v: evaluate(v)[1], bounds=(a, b), method='bounded',
+                              options={'xatol': 0.01 * grid[i], 'maxiter': 10})
+        v1 = min((v for v in cache if a <= v <= b), key=lambda v: cache[v][1])
+        if res.success and evaluate(res.x)[1] <= cache[v1][1]:
+            v1 = float(res.x)
+        lo_b, hi_b = max(c.lo, v1 / 1.15), min(c.hi, v1 * 1.15)
+        # stick-slip and play make the pointwise loss rugged (resting ticks flip with the parameter):
+        # a dense local grid for a few joints (cheap), a coarser one where many joints average it out
+        for v in np.geomspace(lo_b, hi_b, 15 if len(aff) <= 3 else 7):
+            evaluate(v)
+        near = sorted(v for v in cache if lo_b <= v <= hi_b)
+        v2 = min(near, key=lambda v: cache[v][0])
+        k = near.index(v2)
+        a2, b2 = near[max(k - 1, 0)], near[min(k + 1, len(near) - 1)]
+        if b2 > a2:
+            res = minimize_scalar(lambda v: evaluate(v)[0], bounds=(a2, b2), method='bounded',
+                                  options={'xatol': 0.002 * v2, 'maxiter': 6})
+            if res.success and evaluate(res.x)[0] < cache[v2][0]:
+                v2 = float(res.x)
+        h.value = float(v2)
+        h.fit_sse_after = cache[v2][0]
+        p = self.pred.predict(tuple(effects) + (h.effect,), aff)
+        h.hold_sse_after, _ = self._sse(p, aff, 'hold')
+        return h
+
+    def passes(self, h: Hypothesis) -> bool:
+        c = h.candidate
+        if not np.isfinite(h.value) or h.n_hold == 0:
+            return False
+        # a parameter at either end of its plausible range is not a physical explanation
+        for end in (c.lo, c.hi):
+            if abs(h.value - end) <= 0.02 * abs(end) + 1e-12:
+                return False
+        before, after = h.hold_rmse_before, h.hold_rmse_after
+        excess = before ** 2 - ROUNDING_VAR
+        explained = (before ** 2 - after ** 2) / excess if excess > 0 else 0.0
+        return (after > 0 and before / after >= self.s.min_ratio and before - after >= self.s.min_drop_ticks
+                and explained >= self.s.min_explained and h.fit_sse_after < h.fit_sse_before)
+
+    # ------------------------------------------------------------------ the search
+    def run(self) -> tuple[list[Effect], list[Hypothesis]]:
+        effects: list[Effect] = []
+        accepted: list[Hypothesis] = []
+        for round_ in range(self.s.max_effects):
+            base_pred = self.pred.predict(effects, self.rep.joints)
+            done = {(h.candidate.effect, h.joints) for h in accepted}
+            hyps = [h for h in self.screen(effects, base_pred) if (h.candidate.effect, h.joints) not in done]
+            hyps = [h for h in hyps if h.screen_gain > 0 and h.screen_ratio >= self.s.min_screen_ratio]
+            # near-ties go to the smaller scope (joints at the rounding floor add nothing to a screen)
+            hyps.sort(key=lambda h: -h.screen_gain * (1.0 - 0.01 * math.log2(len(h.joints))))
+            picked = self._pick_for_fit(hyps)
+            fitted = []
+            for h in picked:
+                self.fit(h, effects, base_pred)
+                fitted.append(h)
+                self.s.log.append(('round', round_, h.candidate.effect, h.joints, h.value, h.hold_rmse_before,
+                                   h.hold_rmse_after, h.screen_gain, self.passes(h)))
+                if self.progress is not None:
+                    self.progress(f'round {round_ + 1}: {h.candidate.effect} on {len(h.joints)} joint(s)')
+            ok = [h for h in fitted if self.passes(h)]
+            if not ok:
+                break
+            best = max(ok, key=lambda h: h.hold_gain)
+            for h in sorted(ok, key=lambda h: len(h.joints)):
+                if (h.candidate.effect == best.candidate.effect and set(h.joints) < set(best.joints)
+                        and h.hold_gain >= self.s.parsimony * best.hold_gain):
+                    best = h
+                    break
+            effects.append(best.effect)
+            accepted.append(best)
+        if len(accepted) > 1:
+            accepted = self._refine(accepted)
+            effects = [h.effect for h in accepted]
+        return effects, accepted
+
+    def _pick_for_fit(self, hyps: list[Hypothesis]) -> list[Hypothesis]:
+        """The best screened hypotheses, at most two per effect, ``n_fit`` in all."""
+        per_effect: dict[str, int] = {}
+        out = []
+        for h in hyps:
+            n = per_effect.get(h.candidate.effect, 0)
+            if n >= 2:
+                continue
+            per_effect[h.candidate.effect] = n + 1
+            out.append(h)
+            if len(out) >= self.s.n_fit:
+                break
+        return out
+
+    def _refine(self, accepted: list[Hypothesis]) -> list[Hypothesis]:
+        """Refit each parameter once with all other accepted effects in place."""
+        out = list(accepted)
+        for i, h in enumerate(out):
+            others = [x.effect for k, x in enumerate(out) if k != i]
+            base_pred = self.pred.predict(others, self.rep.joints)
+            nh = Hypothesis(h.candidate, h.joints)
+            self.fit(nh, others, base_pred)
+            out[i] = nh
+        return out

@@ -1,0 +1,147 @@
+"""What the discrepancy tool reads: the goal writes and position reads of a recording.
+
+A :class:`Recording` holds, per joint, the stamps and goal angles of every bus write that
+included the joint (``/joint_commands``) and the stamps and angles of every position read
+(``/joint_states``), as the recording contract defines them (:mod:`hexapod_model.contract`):
+DH joint angles ``theta`` in radians, a write's stamp is the time of the write, a read's stamp is
+the time the position was sampled. Times are seconds since ``t0_ns`` (the earliest stamp floored
+to a whole millisecond, so the 1 kHz firmware grid of the sim stays aligned).
+
+:func:`load_recording` reads a rosbag2 directory or a single ``.mcap`` file through
+:mod:`hexapod_sim.bagio`; :meth:`Recording.write_bag` writes one back (tests, benchmark).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Mapping
+
+import numpy as np
+
+from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES
+from hexapod_model.description import ALL_JOINTS, DescriptionError, parse_joint_name
+
+
+class RecordingError(ValueError):
+    """The recording cannot be analysed; the message says what is wrong with it."""
+
+
+@dataclass(frozen=True)
+class Series:
+    """Stamped samples of one joint: ``t_s`` ascending [s], ``theta_rad`` the DH angle [rad]."""
+
+    t_s: np.ndarray
+    theta_rad: np.ndarray
+
+    def __post_init__(self):
+        if self.t_s.shape != self.theta_rad.shape or self.t_s.ndim != 1:
+            raise RecordingError(f'series stamps {self.t_s.shape} and values {self.theta_rad.shape} differ in shape')
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+
+@dataclass(frozen=True)
+class Recording:
+    """Goal writes and position reads per joint (see the module docstring)."""
+
+    commands: Mapping[str, Series]
+    states: Mapping[str, Series]
+    t0_ns: int = 0
+    source: str = '<memory>'
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        """Joints that were both commanded and read, in the contract's order."""
+        return tuple(j for j in ALL_JOINTS if j in self.commands and j in self.states and len(self.states[j]))
+
+    @property
+    def duration_s(self) -> float:
+        ends = [s.t_s[-1] for s in list(self.commands.values()) + list(self.states.values()) if len(s)]
+        return float(max(ends)) if ends else 0.0
+
+    @classmethod
+    def from_samples(cls, commands: Iterable[tuple[float, Mapping[str, float]]],
+                     reads: Iterable[tuple[float, str, float]], source: str = '<memory>',
+                     t0_ns: int = 0) -> 'Recording':
+        """Build from ``commands = [(t_s, {joint: goal_rad})]`` and ``reads = [(t_s, joint, theta_rad)]``."""
+        cmd: dict[str, list] = {}
+        for t, goals in commands:
+            for j, v in goals.items():
+                cmd.setdefault(j, []).append((float(t), float(v)))
+        st: dict[str, list] = {}
+        for t, j, v in reads:
+            st.setdefault(j, []).append((float(t), float(v)))
+        return cls(commands=_to_series(cmd, 'command'), states=_to_series(st, 'read'), t0_ns=t0_ns, source=source)
+
+    def write_bag(self, path: str | Path) -> None:
+        """Write this recording as a contract bag (``/joint_commands`` per write, ``/joint_states`` per read)."""
+        from ..bagio import BagWriter   # only needed when bags are written
+        events = []
+        writes: dict[float, dict[str, float]] = {}
+        for j, s in self.commands.items():
+            for t, v in zip(s.t_s, s.theta_rad):
+                writes.setdefault(float(t), {})[j] = float(v)
+        for t, goals in writes.items():
+            names = [j for j in ALL_JOINTS if j in goals]
+            events.append((t, 0, JOINT_COMMANDS, names, [goals[j] for j in names]))
+        for j, s in self.states.items():
+            for t, v in zip(s.t_s, s.theta_rad):
+                events.append((float(t), 1, JOINT_STATES, [j], [float(v)]))
+        events.sort(key=lambda e: (e[0], e[1]))
+        writer = BagWriter(str(path), flush_period_s=60.0)   # written in one go: large chunks compress better
+        try:
+            for t, _, topic, names, values in events:
+                t_ns = self.t0_ns + int(round(t * 1e9))
+                msg = {'header': {'stamp': {'sec': t_ns // 1_000_000_000, 'nanosec': t_ns % 1_000_000_000},
+                                  'frame_id': ''},
+                       'name': names, 'position': values, 'velocity': [], 'effort': []}
+                writer.write(topic, MSG_TYPES[topic], msg, t_ns)
+        finally:
+            writer.close()
+
+
+def _to_series(d: Mapping[str, list], what: str) -> dict[str, Series]:
+    out = {}
+    for j, rows in d.items():
+        try:
+            parse_joint_name(j)
+        except DescriptionError as exc:
+            raise RecordingError(f'{what} for unknown joint: {exc}') from None
+        a = np.array(rows, dtype=float).reshape(-1, 2)
+        if not np.all(np.isfinite(a)):
+            bad = int(np.count_nonzero(~np.isfinite(a).all(axis=1)))
+            raise RecordingError(f'{what}s of {j}: {bad} sample(s) are NaN or infinite')
+        order = np.argsort(a[:, 0], kind='stable')
+        a = a[order]
+        out[j] = Series(a[:, 0].copy(), a[:, 1].copy())
+    return out
+
+
+# ----------------------------------------------------------------------------- bag loading
+def load_recording(path: str | Path) -> Recording:
+    """Read ``/joint_commands`` and ``/joint_states`` from a rosbag2 directory or an ``.mcap`` file."""
+    p = Path(path)
+    if not p.exists():
+        raise RecordingError(f'{p}: no such bag (expected a rosbag2 directory or a .mcap file)')
+    from ..bagio import BagError, BagReader, joint_series
+    try:
+        series = joint_series(BagReader(str(p)))
+    except BagError as exc:
+        raise RecordingError(f'{p}: {exc}') from None
+    cmds, reads = series[JOINT_COMMANDS], series[JOINT_STATES]
+    if not cmds:
+        raise RecordingError(f'{p}: no {JOINT_COMMANDS} messages (the tool replays the recorded goals)')
+    if not reads:
+        raise RecordingError(f'{p}: no {JOINT_STATES} messages (nothing to compare the model with)')
+    t_first = min(float(a[0, 0]) for d in (cmds, reads) for a in d.values() if len(a))
+    t0_ms = int(np.floor(t_first * 1000.0 + 1e-6))
+    t0 = t0_ms / 1000.0
+
+    def conv(d, what):
+        out = {}
+        for j, a in d.items():
+            out[j] = [(float(t) - t0, float(v)) for t, v in a]
+        return _to_series(out, what)
+    return Recording(commands=conv(cmds, 'command'), states=conv(reads, 'read'), t0_ns=t0_ms * 1_000_000,
+                     source=str(p))

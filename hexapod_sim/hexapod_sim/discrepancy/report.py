@@ -1,0 +1,103 @@
+"""Step 4 output: the stable JSON document, the plain-language report and the overlay YAML."""
+from __future__ import annotations
+
+import math
+
+import yaml
+
+from hexapod_model.description import effects_to_overlay
+from .analysis import Analysis
+from .effects import BY_NAME
+from .locate import CONDITION_WORDS, WINDOW_S
+
+
+CLOSE_FIT_TICKS = 0.6   # held-out RMS below this: only rounding and integration noise left
+
+
+def _f(x: float) -> float:
+    return float(round(x, 4)) if math.isfinite(x) else float('nan')
+
+
+def to_json(a: Analysis, bag: str | None = None) -> dict:
+    """The tool's JSON document (the format is stable; other tools and tests read it)."""
+    return {
+        'bag': str(bag if bag is not None else a.source),
+        'joints': {j: {'heldout_rmse_ticks_before': _f(v.heldout_rmse_ticks_before),
+                       'heldout_rmse_ticks_after': _f(v.heldout_rmse_ticks_after)}
+                   for j, v in a.joints.items() if v.n_heldout > 0},
+        'mismatches': [{'joint': m.joint, 't_start': _f(m.t_start), 't_end': _f(m.t_end), 'condition': m.condition,
+                        'rmse_ticks': _f(m.rmse_ticks), 'peak_rmse_ticks': _f(m.peak_rmse_ticks)}
+                       for m in a.mismatches],
+        'effects': [{'effect': f.effect.effect, 'joints': list(f.effect.joints),
+                     'params': {k: float(v) for k, v in f.effect.params.items()},
+                     'heldout_rmse_ticks_before': _f(f.heldout_rmse_ticks_before),
+                     'heldout_rmse_ticks_after': _f(f.heldout_rmse_ticks_after)} for f in a.effects],
+    }
+
+
+def text_report(a: Analysis, max_windows: int = 8) -> str:
+    """A short plain-language report for a person."""
+    n_reads = sum(len(r.t_s) for r in a.replay.reads.values())
+    lines = [f'discrepancy report for {a.source}',
+             f'  {a.duration_s:.1f} s recording, {len(a.replay.joints)} joints, {n_reads} reads; '
+             f'analysis took {a.runtime_s:.1f} s']
+    lines += [f'  note: {n}' for n in a.notes]
+    lines.append('')
+    judged = {j: v for j, v in a.joints.items() if v.n_heldout > 0}
+    if not a.effects and judged:
+        worst_j, worst = max(judged.items(), key=lambda kv: kv[1].heldout_rmse_ticks_before)
+        rmse = worst.heldout_rmse_ticks_before
+        if rmse <= CLOSE_FIT_TICKS:
+            lines.append('No missing physics found: the nominal model predicts every held-out read to within tick '
+                         f'rounding (worst {worst_j}: {rmse:.2f} ticks RMS; rounding alone gives 0.29).')
+        else:
+            lines.append(f'No candidate effect explains the mismatch: the nominal model leaves up to {rmse:.2f} ticks '
+                         f'RMS on held-out reads ({worst_j}; rounding alone gives 0.29). The cause lies outside the '
+                         'candidate library (e.g. ground contact or body motion during a walk, or a mechanism the '
+                         'library does not model); the mismatch windows below show where.')
+    for f in a.effects:
+        c = BY_NAME[f.effect.effect]
+        value = next(iter(f.effect.params.values()))
+        subject = f.scope if f.scope != 'the whole robot' else 'every joint (the whole robot)'
+        lines.append(f'{subject}: the simulation left out {c.describe(value)}; it shows '
+                     f'{CONDITION_WORDS.get(f.condition, f.condition)}; held-out RMS error '
+                     f'{f.heldout_rmse_ticks_before:.2f} -> {f.heldout_rmse_ticks_after:.2f} ticks.')
+    lines.append('')
+    lines.append('held-out RMS error per joint [ticks], nominal model -> with the effects:')
+    row = []
+    for j, v in judged.items():
+        row.append(f'{j} {v.heldout_rmse_ticks_before:.2f}->{v.heldout_rmse_ticks_after:.2f}')
+        if len(row) == 3:
+            lines.append('  ' + '   '.join(row))
+            row = []
+    if row:
+        lines.append('  ' + '   '.join(row))
+    unjudged = [j for j, v in a.joints.items() if v.n_heldout == 0]
+    if unjudged:
+        lines.append(f'  (no held-out reads, not judged: {", ".join(unjudged)})')
+    if a.mismatches:
+        lines.append('')
+        close = not a.effects and judged and max(v.heldout_rmse_ticks_before for v in judged.values()) <= CLOSE_FIT_TICKS
+        if close:
+            lines.append(f'{len(a.mismatches)} short stretch(es) where the residual over {WINDOW_S:g} s briefly exceeds '
+                         'tick rounding, too brief to raise the held-out RMS above it; largest '
+                         f'{min(max_windows, len(a.mismatches))}:')
+        else:
+            lines.append(f'{len(a.mismatches)} mismatch window(s) where the residual over {WINDOW_S:g} s exceeds tick '
+                         f'rounding in the nominal replay; largest {min(max_windows, len(a.mismatches))}:')
+        lines.append(f'  {"joint":11s} {"window [s]":>15s}  {"peak":>5s} / {"whole":>5s} ticks RMS  condition')
+        for m in sorted(a.mismatches, key=lambda m: -m.rmse_ticks * math.sqrt(m.t_end - m.t_start + 1e-3))[:max_windows]:
+            lines.append(f'  {m.joint:11s} {m.t_start:7.2f}-{m.t_end:7.2f}  {m.peak_rmse_ticks:5.2f} / {m.rmse_ticks:5.2f}'
+                         f'             {m.condition}')
+    else:
+        lines.append('')
+        lines.append('No time window departs from the nominal replay beyond tick rounding.')
+    return '\n'.join(lines)
+
+
+def overlay_yaml(a: Analysis) -> str:
+    """The fitted effects as a robot-description overlay (``load_robot(overlays=[...])``)."""
+    head = (f'# Robot-description overlay written by the discrepancy tool from {a.source}.\n'
+            '# Load with hexapod_model.description.load_robot(overlays=[this file]); the swing-down model and\n'
+            '# the MuJoCo sim both apply these effects.\n')
+    return head + yaml.safe_dump(effects_to_overlay(a.found), sort_keys=False)

@@ -1,0 +1,218 @@
+"""Step 1, simulate: replay the recorded goals through the model and predict every recorded read.
+
+Timing convention (the project's servo contract): the firmware runs at integer multiples of the
+control period (1 ms); a goal written at ``t`` takes effect at the first firmware tick at or
+after ``t``; a read reports the position at its stamp (the start of the read transaction), minus
+any readout delay. Femur and tibia of a leg are replayed together through the two-link
+:class:`~hexapod_model.swing_model.LegModel`; the coxa through the 1-DOF
+:class:`~hexapod_model.swing_model.CoxaModel` (whole leg's inertia about the vertical axis, no
+gravity) at the leg's typical femur/tibia pose while the coxa moves.
+
+Replays run per *segment*: a time span in which the leg hangs free. On a stand that is the whole
+recording; in a walk only the swing phases (see :mod:`.segments`). Each segment starts from the
+recorded positions at its start, at rest.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hexapod_model.description import JOINT_ROLES, Robot, joint_name, parse_joint_name
+from hexapod_model.servo import quantize_tick, servo_tick, theta_to_tick
+from hexapod_model.swing_model import CoxaModel, LegModel
+from .recording import Recording, RecordingError
+
+
+def goal_joint_ticks(theta_rad, robot: Robot, joint: str) -> np.ndarray:
+    """Integer goal in joint-tick space that the servo firmware receives for commanded angles.
+
+    The driver writes ``rint`` of the raw servo tick (mounting direction and offset applied) and
+    clips it to the servo's range; mapped back to the joint's tick axis (``theta_to_tick``).
+    """
+    s = robot.servo
+    bj = robot.bus.by_joint(joint)
+    raw = quantize_tick(np.array([servo_tick(float(v), s, bj) for v in np.atleast_1d(theta_rad)]), s)
+    return s.center_tick + bj.direction * (raw.astype(float) - s.center_tick - bj.offset_ticks)
+
+
+@dataclass(frozen=True)
+class JointReads:
+    """The analysed reads of one joint: stamps [s], recorded ticks, and the segment of each read."""
+
+    t_s: np.ndarray
+    tick: np.ndarray
+    segment: np.ndarray      # index into Replay.segments[leg]
+
+
+class Replay:
+    """Replays a recording through the model of any robot (nominal or with effects).
+
+    ``segments``: optional dict leg -> list of (t_start, t_end) free-leg spans [s]; default one
+    span over the whole recording for every leg.
+    """
+
+    def __init__(self, robot: Robot, rec: Recording, joints=None, segments=None):
+        self.robot = robot
+        self.rec = rec
+        self.dt = robot.servo.control_period_s
+        avail = rec.joints
+        if joints is not None:
+            unknown = [j for j in joints if j not in rec.states]
+            if unknown:
+                raise RecordingError(f'--joints {unknown}: not read in {rec.source} (read: {sorted(rec.states)})')
+            uncmd = [j for j in joints if j not in rec.commands]
+            if uncmd:
+                raise RecordingError(f'--joints {uncmd}: never commanded in {rec.source}')
+            avail = tuple(j for j in avail if j in set(joints))
+        if not avail:
+            raise RecordingError(f'{rec.source}: no joint is both commanded and read')
+        self.legs = tuple(sorted({parse_joint_name(j)[0] for j in avail}))
+        t_end = rec.duration_s
+        self.n_periods = int(math.ceil(t_end / self.dt)) + 2
+        k = np.arange(self.n_periods)
+        # goal per period for every joint of the analysed legs
+        self.goals: dict[str, np.ndarray] = {}
+        for leg in self.legs:
+            for role in JOINT_ROLES:
+                j = joint_name(leg, role)
+                self.goals[j] = self._goals_per_period(j, k)
+        # segments and analysed reads
+        self.segments: dict[int, list[tuple[int, int]]] = {}
+        for leg in self.legs:
+            spans = (segments or {}).get(leg, [(0.0, t_end + self.dt)])
+            segs = []
+            for a, b in spans:
+                ka = max(int(math.floor(a / self.dt + 1e-9)), 0)
+                kb = min(int(math.ceil(b / self.dt - 1e-9)), self.n_periods - 1)
+                if kb - ka >= 2:
+                    segs.append((ka, kb))
+            self.segments[leg] = segs
+        self.reads: dict[str, JointReads] = {}
+        for j in avail:
+            leg = parse_joint_name(j)[0]
+            s = rec.states[j]
+            seg_of = np.full(len(s), -1)
+            for i, (ka, kb) in enumerate(self.segments[leg]):
+                m = (s.t_s >= ka * self.dt) & (s.t_s <= kb * self.dt)
+                seg_of[m & (seg_of < 0)] = i
+            keep = seg_of >= 0
+            if np.any(keep):
+                self.reads[j] = JointReads(s.t_s[keep], theta_to_tick(s.theta_rad[keep], robot.servo), seg_of[keep])
+        self.joints = tuple(j for j in avail if j in self.reads)
+        if not self.joints:
+            raise RecordingError(f'{rec.source}: no read falls inside the analysed time spans')
+        # initial state of every segment: the latest read at or before its start (else the first after)
+        self.q0: dict[tuple[int, int], np.ndarray] = {}
+        for leg in self.legs:
+            for i, (ka, _) in enumerate(self.segments[leg]):
+                self.q0[(leg, i)] = np.array([self._state_at(joint_name(leg, r), ka * self.dt) for r in JOINT_ROLES])
+        # coxa inertia pose per segment: median commanded femur/tibia while the coxa moves
+        self.coxa_pose: dict[tuple[int, int], tuple[float, float]] = {}
+        for leg in self.legs:
+            gc = self.goals[joint_name(leg, 'coxa')]
+            gf = self.goals[joint_name(leg, 'femur')]
+            gt = self.goals[joint_name(leg, 'tibia')]
+            for i, (ka, kb) in enumerate(self.segments[leg]):
+                moving = np.zeros(kb - ka, dtype=bool)
+                moving[1:] = np.diff(gc[ka:kb]) != 0
+                sel = moving if np.count_nonzero(moving) >= 5 else np.ones(kb - ka, dtype=bool)
+                rpt, c = robot.servo.rad_per_tick, robot.servo.center_tick
+                self.coxa_pose[(leg, i)] = (float(np.median(gf[ka:kb][sel]) - c) * rpt,
+                                            float(np.median(gt[ka:kb][sel]) - c) * rpt)
+
+    # ------------------------------------------------------------------ set-up helpers
+    def _goals_per_period(self, j: str, k: np.ndarray) -> np.ndarray:
+        cmd = self.rec.commands.get(j)
+        hold = self._first_read_tick(j)
+        if cmd is None or len(cmd) == 0:
+            return np.full(len(k), hold)
+        kc = np.ceil(cmd.t_s / self.dt - 1e-9).astype(np.int64)
+        g = goal_joint_ticks(cmd.theta_rad, self.robot, j)
+        idx = np.searchsorted(kc, k, side='right') - 1
+        out = np.where(idx >= 0, g[np.clip(idx, 0, None)], hold)
+        return np.ascontiguousarray(out, dtype=np.float64)
+
+    def _first_read_tick(self, j: str):
+        s = self.rec.states.get(j)
+        if s is None or len(s) == 0:
+            cmd = self.rec.commands.get(j)
+            if cmd is None or len(cmd) == 0:
+                return float(self.robot.servo.center_tick)
+            return float(goal_joint_ticks(cmd.theta_rad[:1], self.robot, j)[0])
+        return float(np.rint(theta_to_tick(s.theta_rad[0], self.robot.servo)))
+
+    def _state_at(self, j: str, t: float) -> float:
+        s = self.rec.states.get(j)
+        if s is None or len(s) == 0:
+            k = min(max(int(round(t / self.dt)), 0), self.n_periods - 1)
+            return float((self.goals[j][k] - self.robot.servo.center_tick) * self.robot.servo.rad_per_tick)
+        i = int(np.searchsorted(s.t_s, t, side='right')) - 1
+        return float(s.theta_rad[max(i, 0)])
+
+    # ------------------------------------------------------------------ prediction
+    def rollout_leg(self, robot: Robot, leg: int, seg: int, which: str):
+        """Rollout of one segment: ``which`` = 'ft' (femur+tibia) or 'coxa'. Returns (k0, q grid (n+1, 2))."""
+        ka, kb = self.segments[leg][seg]
+        q0 = self.q0[(leg, seg)]
+        if which == 'ft':
+            g = np.empty((kb - ka, 2))
+            g[:, 0] = self.goals[joint_name(leg, 'femur')][ka:kb]
+            g[:, 1] = self.goals[joint_name(leg, 'tibia')][ka:kb]
+            ro = LegModel(robot, leg).rollout(q0[1:], [0.0, 0.0], g)
+            return ka, ro.q_rad
+        ro = CoxaModel(robot, leg, self.coxa_pose[(leg, seg)]).rollout_coxa(
+            q0[0], 0.0, self.goals[joint_name(leg, 'coxa')][ka:kb])
+        return ka, ro.q_rad
+
+    def predict_joints(self, robot: Robot, joints) -> dict[str, np.ndarray]:
+        """Predicted (continuous) tick at every analysed read of ``joints`` for ``robot``."""
+        out: dict[str, np.ndarray] = {}
+        want = [j for j in joints if j in self.reads]
+        legs = sorted({parse_joint_name(j)[0] for j in want})
+        for leg in legs:
+            roles = {parse_joint_name(j)[1] for j in want if parse_joint_name(j)[0] == leg}
+            jobs = []
+            if roles & {'femur', 'tibia'}:
+                jobs.append(('ft', (('femur', 0), ('tibia', 1))))
+            if 'coxa' in roles:
+                jobs.append(('coxa', (('coxa', 0),)))
+            for which, cols in jobs:
+                per_seg = [self.rollout_leg(robot, leg, i, which) for i in range(len(self.segments[leg]))]
+                for role, col in cols:
+                    j = joint_name(leg, role)
+                    if j not in self.reads or role not in roles:
+                        continue
+                    out[j] = self.sample(robot, j, per_seg, col)
+        return out
+
+    def sample(self, robot: Robot, j: str, per_seg, col: int) -> np.ndarray:
+        """Predicted ticks at the reads of ``j`` from per-segment rollouts (column ``col``), with its readout delay."""
+        r = self.reads[j]
+        delay = robot.joint_effects(j).readout_delay_s
+        pred = np.empty(len(r.t_s))
+        for i, (k0, q) in enumerate(per_seg):
+            m = r.segment == i
+            if not np.any(m):
+                continue
+            x = (r.t_s[m] - delay) / self.dt - k0
+            x = np.clip(x, 0.0, len(q) - 1.0)
+            i0 = np.minimum(np.floor(x).astype(np.int64), len(q) - 2)
+            f = x - i0
+            th = q[i0, col] * (1.0 - f) + q[i0 + 1, col] * f
+            pred[m] = theta_to_tick(th, robot.servo)
+        return pred
+
+    def predict(self, robot: Robot) -> dict[str, np.ndarray]:
+        return self.predict_joints(robot, self.joints)
+
+    def trajectory(self, robot: Robot, leg: int):
+        """Full 1 kHz predicted trajectories of a leg (coxa, femur, tibia) for plots: (t_s, theta (n, 3)), NaN outside segments."""
+        q = np.full((self.n_periods, 3), np.nan)
+        for i, (ka, kb) in enumerate(self.segments[leg]):
+            _, ft = self.rollout_leg(robot, leg, i, 'ft')
+            _, cx = self.rollout_leg(robot, leg, i, 'coxa')
+            q[ka:kb + 1, 1:] = ft[: kb + 1 - ka]
+            q[ka:kb + 1, 0] = cx[: kb + 1 - ka, 0]
+        return np.arange(self.n_periods) * self.dt, q

@@ -1,0 +1,133 @@
+"""The discrepancy tool on model-generated recordings: every candidate effect recovered alone on
+the right joint, clean data gives no effect, two effects at once are both found.
+
+Recordings: the stand calibration routine (only the phases that exercise the joint, one or two
+legs, 15-30 s) replayed through the model with the effect injected, reads rounded to ticks as a
+servo reports them. The concealed-generator case (MuJoCo) is in test_discrepancy_sim.py.
+"""
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from hexapod_sim.calibration import calibration_plan
+from hexapod_model.description import Effect, load_robot
+from hexapod_sim.discrepancy import analyse
+from hexapod_sim.discrepancy.effects import CANDIDATES
+from hexapod_sim.discrepancy.locate import Mismatch
+from hexapod_sim.discrepancy.plot import _mark_clipped, save_plot
+from hexapod_sim.discrepancy.report import text_report, to_json
+from hexapod_sim.discrepancy.synthetic import model_recording
+
+LEG2 = ('leg2_coxa', 'leg2_femur', 'leg2_tibia')
+
+# effect, joints it is injected on, value, calibration phases that exercise it
+SINGLE = [
+    ('coulomb_friction', ('leg2_femur',), 0.07, ('femur',)),
+    ('static_friction', ('leg2_tibia',), 0.25, ('tibia',)),
+    ('viscous_damping', ('leg2_coxa',), 0.2, ('coxa',)),
+    ('backlash', ('leg2_tibia',), math.radians(1.4), ('tibia',)),
+    ('torque_saturation', ('leg2_femur',), 0.6, ('femur',)),
+    ('compliance_deadband', ('leg2_coxa',), 2.0, ('coxa',)),
+    ('readout_delay', ('leg2_tibia',), 0.005, ('tibia',)),
+    ('mass_error', LEG2, 0.06, ('femur', 'tibia')),
+]
+
+
+@pytest.fixture(scope='module')
+def robot():
+    return load_robot()
+
+
+def test_every_candidate_is_in_the_single_effect_cases():
+    assert sorted(c.effect for c in CANDIDATES) == sorted(s[0] for s in SINGLE)
+
+
+@pytest.mark.parametrize('effect, joints, value, phases', SINGLE, ids=[s[0] for s in SINGLE])
+def test_single_effect_recovered_on_the_right_joint(robot, effect, joints, value, phases):
+    key = next(c.key for c in CANDIDATES if c.effect == effect)
+    truth = Effect(effect, joints, {key: value})
+    rec = model_recording(robot.with_effects([truth]), calibration_plan(robot, legs=(2,), phases=phases))
+    a = analyse(rec, robot, workers=1)
+    assert len(a.effects) == 1, text_report(a)
+    found = a.effects[0]
+    assert found.effect.effect == effect
+    assert set(found.effect.joints) == set(joints)
+    assert found.effect.params[key] == pytest.approx(value, rel=0.12)
+    assert found.heldout_rmse_ticks_before / found.heldout_rmse_ticks_after >= 1.5
+    assert found.heldout_rmse_ticks_after < 0.45          # back at the tick-rounding floor (0.29)
+
+
+def test_clean_recording_gives_no_effect(robot, tmp_path):
+    rec = model_recording(robot, calibration_plan(robot, legs=(1, 4), phases=('coxa', 'tibia')))
+    a = analyse(rec, robot, workers=1)
+    assert a.effects == []
+    assert 'No missing physics found' in text_report(a)
+    doc = to_json(a, 'memory')
+    assert doc['effects'] == [] and set(doc) == {'bag', 'joints', 'mismatches', 'effects'}
+    assert {'leg1_coxa', 'leg1_tibia', 'leg4_coxa', 'leg4_tibia'} <= set(doc['joints'])
+    for j, v in doc['joints'].items():
+        assert v['heldout_rmse_ticks_before'] == pytest.approx(v['heldout_rmse_ticks_after'])
+        assert v['heldout_rmse_ticks_before'] < 0.4, j        # only tick rounding left
+    assert doc['mismatches'] == []
+    # a brief excursion beyond rounding in an otherwise clean fit is not called a mismatch window,
+    # and the report shows the peak that flagged it beside the whole window's RMS
+    blip = dataclasses.replace(a, mismatches=[Mismatch('leg1_tibia', 2.0, 2.3, 'moving', 0.69, 0.81)])
+    text = text_report(blip)
+    assert 'No missing physics found' in text and 'short stretch(es)' in text and 'mismatch window' not in text
+    assert '0.81 /  0.69' in text
+    png = save_plot(blip, tmp_path / 'clean.png')
+    assert png.stat().st_size > 10_000
+
+
+def test_plot_marks_values_beyond_the_axis():
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    t = np.linspace(0, 1, 50)
+    y = np.zeros(50)
+    y[10], y[30] = 80.0, -55.0
+    ax.set_ylim(-5, 5)
+    _mark_clipped(ax, t, y, 'k')
+    texts = [x.get_text() for x in ax.texts]
+    assert texts == ['2 read(s) beyond the axis (triangles; extreme +80 ticks)']
+    edges = sorted(float(v) for line in ax.lines for v in line.get_ydata())
+    assert edges == [-5.0, 5.0]                         # one triangle on each edge
+    plt.close(fig)
+
+
+def test_two_effects_at_once_are_both_found(robot):
+    legs = (1, 3)
+    every = tuple(f'leg{leg}_{r}' for leg in legs for r in ('coxa', 'femur', 'tibia'))
+    truth = [Effect('backlash', ('leg3_tibia',), {'width_rad': math.radians(1.2)}),
+             Effect('readout_delay', every, {'delay_s': 0.004})]
+    rec = model_recording(robot.with_effects(truth), calibration_plan(robot, legs=legs, phases=('tibia', 'coxa')))
+    a = analyse(rec, robot, workers=1)
+    got = {f.effect.effect: f for f in a.effects}
+    assert set(got) == {'backlash', 'readout_delay'}, text_report(a)
+    assert got['backlash'].effect.joints == ('leg3_tibia',)
+    assert got['backlash'].effect.params['width_rad'] == pytest.approx(math.radians(1.2), rel=0.15)
+    assert set(got['readout_delay'].effect.joints) == set(every)
+    assert got['readout_delay'].effect.params['delay_s'] == pytest.approx(0.004, rel=0.1)
+    assert got['readout_delay'].scope == 'the whole robot'
+    doc = to_json(a)
+    assert [e['effect'] for e in doc['effects']] == [f.effect.effect for f in a.effects]
+    for e in doc['effects']:
+        assert e['heldout_rmse_ticks_before'] / e['heldout_rmse_ticks_after'] >= 1.5
+    # the mismatch windows of the nominal replay include the tibia with the play, at a load reversal
+    tib = [m for m in a.mismatches if m.joint == 'leg3_tibia']
+    assert tib and any(m.condition == 'load_reversal' for m in tib)
+    assert got['backlash'].condition == 'load_reversal'
+
+
+def test_held_out_reads_never_take_part_in_the_fit(robot):
+    rec = model_recording(robot, calibration_plan(robot, legs=(2,), phases=('coxa',)))
+    a = analyse(rec, robot, workers=1, block_s=1.5)
+    for j in a.replay.joints:
+        fit, hold = a.split.fit[j], a.split.hold[j]
+        assert not np.any(fit & hold)
+        t = a.replay.reads[j].t_s
+        assert np.all((np.floor(t[hold] / 1.5) % 2) == 1)
+        assert np.all((np.floor(t[fit] / 1.5) % 2) == 0)
