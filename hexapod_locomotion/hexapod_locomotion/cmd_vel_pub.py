@@ -22,9 +22,11 @@ import sys
 import threading
 import time
 
+from hexapod_model.contract import CMD_VEL
+
 from .controller import LocomotionError, VelocityCommand
 
-TOPIC = 'cmd_vel'      # relative on purpose: hexapod_model.contract.CMD_VEL is its resolved default
+TOPIC = CMD_VEL        # relative: resolved in the node's namespace (--ros-args -r __ns:=/hexa)
 ACK_TIMEOUT_S = 1.0    # wait this long for subscribers to acknowledge the final zero Twist
 
 

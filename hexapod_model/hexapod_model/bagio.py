@@ -452,8 +452,7 @@ class BagWriter:
             self._add_topic_locked(topic, msg_type, definition, qos_profiles)
 
     def _add_topic_locked(self, topic, msg_type, definition, qos_profiles) -> _WTopic:
-        if not isinstance(topic, str) or not topic.startswith('/') or len(topic) < 2:
-            raise BagError(f'invalid topic name {topic!r}: expected an absolute name like "/joint_states"')
+        topic = _bag_topic(topic)
         full = normalize_type_name(msg_type)
         if topic in self._topics:
             have = self._topics[topic]
@@ -521,6 +520,7 @@ class BagWriter:
             t_ns = int(t_ns)
         if isinstance(t_ns, bool) or not isinstance(t_ns, int) or not 0 <= t_ns < 2**63:
             raise BagError(f'{topic}: t_ns must be a non-negative integer time in nanoseconds, got {t_ns!r}')
+        topic = _bag_topic(topic)
         with self._lock:
             self._check_open()
             t = self._topics.get(topic)
@@ -944,6 +944,11 @@ class BagReader:
     def topic_info(self) -> dict[str, TopicInfo]:
         return dict(self._topics)
 
+    def resolve(self, name: str) -> str | None:
+        """The bag's name of a contract topic ('joint_states' or '/joint_states'), None if absent."""
+        key = contract.topic_key(name)
+        return next((t for t in self._topics if contract.topic_key(t) == key), None)
+
     @property
     def message_count(self) -> int:
         return sum(i.message_count for i in self._topics.values())
@@ -972,7 +977,8 @@ class BagReader:
         included); otherwise decoded messages with attribute access."""
         if isinstance(topics, str):
             topics = [topics]
-        wanted = None if topics is None else set(topics)     # topics absent from the bag: none yielded
+        # '/x' and 'x' name one topic (contract names are relative); topics absent from the bag: none yielded
+        wanted = None if topics is None else {contract.topic_key(t) for t in topics}
         lo = -1 if start_ns is None else int(start_ns)
         hi = 2**64 if end_ns is None else int(end_ns)
         decode_failed: dict[str, int] = {}
@@ -982,7 +988,7 @@ class BagReader:
             ch = self._chan.get(key)
             if ch is None or not lo <= m.log_time < hi:
                 return None
-            if wanted is not None and ch[0] not in wanted:
+            if wanted is not None and contract.topic_key(ch[0]) not in wanted:
                 return None
             if not raw and key not in self._decoders:
                 return None
@@ -1070,6 +1076,13 @@ def recover_bag(src: str | os.PathLike, dst: str | os.PathLike, **writer_kw) -> 
 
 # ------------------------------------------------------------------------------------ helpers --
 
+def _bag_topic(topic) -> str:
+    """The absolute name a bag stores: contract names are relative ('joint_states' -> '/joint_states')."""
+    if not isinstance(topic, str) or not contract.topic_key(topic):
+        raise BagError(f'invalid topic name {topic!r}: expected a name like "joint_states" or "/joint_states"')
+    return contract.bag_topic(topic)
+
+
 def _stamp_s(msg: Any) -> float:
     st = msg.header.stamp
     return float(st.sec) + 1e-9 * float(st.nanosec)
@@ -1083,12 +1096,14 @@ def joint_series(reader: BagReader) -> dict[str, dict[str, np.ndarray]]:
     ``position`` is shorter than its ``name`` list raises :class:`BagError` naming it.
     """
     topics = (contract.JOINT_COMMANDS, contract.JOINT_STATES)
-    present = [t for t in topics if t in reader.topics()]
+    in_bag = {t: reader.resolve(t) for t in topics}
+    present = [t for t in topics if in_bag[t] is not None]
     for t in present:
-        if reader.topics()[t] != contract.MSG_TYPES[t]:
-            raise BagError(f'{t} is recorded as {reader.topics()[t]}, expected {contract.MSG_TYPES[t]}')
+        if reader.topics()[in_bag[t]] != contract.MSG_TYPES[t]:
+            raise BagError(f'{in_bag[t]} is recorded as {reader.topics()[in_bag[t]]}, expected {contract.MSG_TYPES[t]}')
     acc: dict[str, dict[str, list]] = {t: {} for t in topics}
-    for topic, _, t_ns, msg in reader.messages(topics=present or None) if present else ():
+    for bag_name, _, t_ns, msg in reader.messages(topics=present or None) if present else ():
+        topic = contract.topic_key(bag_name)
         names = list(msg.name)
         pos = list(msg.position)
         if len(pos) < len(names):

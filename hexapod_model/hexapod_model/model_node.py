@@ -27,7 +27,7 @@ class ModelNode(Node):
         self.models = {leg: LegModel(self.robot, leg) for leg in range(1, 7)}
         from hexapod_msgs.srv import PredictSwingDown
         self.srv = self.create_service(PredictSwingDown, PREDICT_SWING_DOWN, self.on_request)
-        self.get_logger().info(f'serving {PREDICT_SWING_DOWN} for robot {self.robot.name!r}')
+        self.get_logger().info(f'serving {self.resolve_service_name(PREDICT_SWING_DOWN)} for robot {self.robot.name!r}')
 
     def on_request(self, req, resp):
         legs = list(req.legs)
