@@ -2,14 +2,16 @@
 allowed range or choices (:mod:`hexapod_model.param_schema`). No ROS import: the bus library, the
 ``--help`` text, the node and the launch-file test all read the rules from here.
 
-Servo mounting (ID, direction, offset of each joint) is not a setting of the driver: it is the
-robot description's ``bus.joints`` (robot.yaml + overlays), which model and sim read as well.
+What the model must know too is not a setting of the driver but of the robot description
+(robot.yaml + overlays), which model and sim read as well: servo mounting (``bus.joints``: ID,
+direction, offset of each joint), the baud rate (``bus.baud_rate``) and the compliance margin and
+slope written to the servos (``servo``: the swing-down model's P gain).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hexapod_model.param_schema import RobotSource, param, validate
+from hexapod_model.param_schema import NodeSpec, RobotSource, param, validate
 
 DEFAULT_DEVICE = '/dev/hexapod_dynamixel'     # the udev symlink of docs/real-robot.md
 FAULT_POLICIES = ('limp', 'recover')
@@ -29,13 +31,10 @@ def _non_empty(value) -> str | None:
 
 @dataclass(frozen=True)
 class DriverConfig:
-    """Settings of :class:`hexapod_driver.dynamixel_bus.DynamixelBus` (the node's parameters).
-    ``None`` = take it from the robot description (the node declares that value as the default)."""
+    """Settings of :class:`hexapod_driver.dynamixel_bus.DynamixelBus` (the node's parameters)."""
 
     device: str = param(DEFAULT_DEVICE, 'serial device of the Dynamixel adapter (udev symlink, or the bus '
                         'emulator pty)', rule=_non_empty)
-    baud_rate: int | None = param(None, 'bus baud rate; must match every servo (register 4) or nothing '
-                                  'answers; default: the description', min=1)
     latency_timer_ms: float = param(
         1.0, 'USB adapter latency timer [ms] (udev sets 1); sizes the reply timeout. Too small: replies are '
         'declared lost; too large: a lost reply blocks the bus longer. Widened automatically when start-up '
@@ -48,10 +47,6 @@ class DriverConfig:
                                   'gives up and names what failed', min=1)
     return_delay_time: int = param(0, 'servo return delay (register 5, x 2 us) written at start-up; the '
                                    'factory 250 adds 0.5 ms to every read', min=0, max=254)
-    compliance_margin: int | None = param(None, 'compliance margin [ticks] (registers 26/27); must match the '
-                                          'model; default: the description', min=0, max=255)
-    compliance_slope: int | None = param(None, 'compliance slope (registers 28/29); changes the P gain the '
-                                         'model assumes; default: the description', min=1, max=254)
     torque_limit: int = param(1023, 'torque limit (register 34) written at start-up and on recovery; 0 would '
                               'leave the servos limp', min=1, max=1023)
     write_angle_limits: bool = param(True, 'write the joint limits as EEPROM angle limits (the servo then '
@@ -91,4 +86,10 @@ class DriverNodeParams:
         'long [s]; 0 disables', min=0.0)
 
 
-NODE_SCHEMAS = {'driver_node': (RobotSource, DriverConfig, DriverNodeParams)}
+def robot_defaults(robot) -> dict:
+    """The default the description sets: reads paced at the read period the swing-down model assumes."""
+    return {'read_period_s': robot.bus.t_com_s}
+
+
+NODE = NodeSpec('hexapod_driver', 'driver_node', 'hexapod_driver', (RobotSource, DriverConfig, DriverNodeParams),
+                robot_defaults)

@@ -29,13 +29,13 @@ from std_srvs.srv import Trigger
 
 from hexapod_model import contract
 from hexapod_model.bus import BusError
-from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
+from hexapod_model.description import ALL_JOINTS, DescriptionError
 from hexapod_model.node_params import NodeParams
 from hexapod_model.param_schema import ParameterError, RobotSource, help_lines
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoStatus
 from hexapod_msgs.srv import SetReadSchedule
 
-from .config import NODE_SCHEMAS, DriverConfig, DriverNodeParams
+from .config import NODE, DriverConfig, DriverNodeParams, robot_defaults
 from .dynamixel_bus import CommandError, DynamixelBus
 
 
@@ -53,15 +53,9 @@ EXIT_BUS_LOOP_CRASH = 3     # unexpected exception in the bus loop: torque turne
 TEST_HOOK_RAISE_ENV = 'HEXAPOD_DRIVER_TEST_RAISE_ON_SIGUSR1'
 
 
-def robot_defaults(robot) -> dict:
-    """The defaults the description sets (bus section, servo compliance, the model's read period)."""
-    return {'baud_rate': robot.bus.baud_rate, 'compliance_margin': robot.servo.compliance_margin_ticks,
-            'compliance_slope': robot.servo.compliance_slope_ticks, 'read_period_s': robot.bus.t_com_s}
-
-
 class DriverNode(Node):
-    def __init__(self):
-        super().__init__('hexapod_driver')
+    def __init__(self, **node_kwargs):
+        super().__init__(NODE.node_name, **node_kwargs)
         params = NodeParams(self)
         robot = params.declare(RobotSource).load()        # servo mounting: the description's bus.joints
         cfg = params.declare(DriverConfig, defaults=robot_defaults(robot))
@@ -270,7 +264,7 @@ come from the robot description (robot_description + robot_overlays). Parameters
 
 
 def print_help() -> None:
-    lines = [HELP, *help_lines(NODE_SCHEMAS['driver_node'], robot_defaults(load_robot()))]
+    lines = [HELP, *help_lines(NODE.schemas, NODE.defaults())]
     lines.append(f'\nExit codes: {EXIT_OK} clean shutdown; {EXIT_STARTUP} bad parameter or start-up failure; '
                  f'{EXIT_BUS_LOOP_CRASH} the bus loop crashed (torque turned off, ERROR on /servo_diagnostics).')
     print('\n'.join(lines))

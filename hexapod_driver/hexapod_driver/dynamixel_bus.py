@@ -128,13 +128,11 @@ class DynamixelBus:
         self.clock = clock
         self._sleep = sleep
         self.t_com_s = robot.bus.t_com_s if t_com_s is None else float(t_com_s)
-        self.baud_rate = int(config.baud_rate or robot.bus.baud_rate)
+        self.baud_rate = int(robot.bus.baud_rate)
         self.mount: dict[str, BusJoint] = {j.joint: j for j in robot.bus.joints}   # the description's mounting
         self.joints = tuple(ALL_JOINTS)
-        self.margin = robot.servo.compliance_margin_ticks if config.compliance_margin is None \
-            else config.compliance_margin
-        self.slope = robot.servo.compliance_slope_ticks if config.compliance_slope is None \
-            else config.compliance_slope
+        self.margin = robot.servo.compliance_margin_ticks    # the model's servo law assumes these
+        self.slope = robot.servo.compliance_slope_ticks
         self.lock = threading.RLock()
         self.packet = PacketHandler(1.0)
         self.port: LowLatencyPortHandler | None = None
@@ -283,7 +281,7 @@ class DynamixelBus:
                     f'power and cable; if the servos are set to another baud rate (register 4), find them with '
                     f'`./hexapod run hexapod_driver servo_tool --device {self.config.device} --baud <rate> scan` '
                     f'(AX-12A rates: 1000000 factory default, 500000, 400000, 250000, 200000, 117647, 57600, '
-                    f'19200, 9600) and set the driver parameter baud_rate to match')
+                    f'19200, 9600) and set bus.baud_rate in the robot description (an overlay) to match')
             elif missing:
                 parts.append('no answer from ' + ', '.join(
                     f'{j} (id {i})' + (f' [{w}]' if w else '') for j, i, w in missing))

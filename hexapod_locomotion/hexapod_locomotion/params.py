@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hexapod_model.param_schema import RobotSource, param
+from hexapod_model.param_schema import NodeSpec, RobotSource, param
 
 from .controller import LocomotionParams
 from .detector import DETECTOR_KINDS, DetectorConfig
@@ -59,4 +59,4 @@ class ComposedParams:
                           'locomotion_node: docs/architecture.md)', choices=('sim',))
 
 
-NODE_SCHEMAS = {'locomotion_node': (RobotSource, LocomotionNodeParams)}
+NODE = NodeSpec('hexapod_locomotion', 'locomotion_node', 'locomotion_node', (RobotSource, LocomotionNodeParams))

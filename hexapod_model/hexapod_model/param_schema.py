@@ -204,3 +204,49 @@ class RobotSource:
         """The :class:`hexapod_model.description.Robot` (raises DescriptionError naming the file and key)."""
         from .description import load_robot
         return load_robot(self.robot_description or None, list(self.robot_overlays))
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """Which schemas make up a node's parameters: for its ``config/<executable>.yaml``, launch files
+    and the tests that check them. ``robot_defaults``: defaults the robot description sets."""
+
+    package: str
+    executable: str
+    node_name: str
+    schemas: tuple
+    robot_defaults: Callable[[Any], dict] | None = None
+
+    def names(self) -> list[str]:
+        return [n for s in self.schemas for n in specs(s)]
+
+    def defaults(self) -> dict:
+        return self.robot_defaults(RobotSource().load()) if self.robot_defaults else {}
+
+
+def _yaml_value(v) -> str:
+    if isinstance(v, bool):
+        return 'true' if v else 'false'
+    if isinstance(v, str):
+        return "'" + v.replace("'", "''") + "'"
+    if isinstance(v, list):
+        return '[' + ', '.join(_yaml_value(x) for x in (v or [''])) + ']'     # ROS cannot type an empty list
+    return repr(v)
+
+
+def params_yaml(node: NodeSpec) -> str:
+    """The node's parameter file (``--ros-args --params-file``): every declared parameter at its default,
+    each with its description and allowed values as a comment."""
+    defaults = node.defaults()
+    lines = [f'# Parameters of {node.package} {node.executable} (node name {node.node_name}), all at their defaults.',
+             '# Generated from the schema dataclasses by tools/params_files.py; edit a copy,',
+             f'# start with: ros2 run {node.package} {node.executable} --ros-args --params-file <this file>',
+             f'{node.node_name}:', '  ros__parameters:']
+    for schema in node.schemas:
+        for name, spec in specs(schema).items():
+            lines.append(f'    # {spec.full_description()}')
+            lines.append(f'    {name}: {_yaml_value(defaults.get(name, spec.default))}')
+    return '\n'.join(lines) + '\n'
+
+
+MODEL_NODE = NodeSpec('hexapod_model', 'model_node', 'model_node', (RobotSource,))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hexapod_model.param_schema import RobotSource, param
+from hexapod_model.param_schema import NodeSpec, RobotSource, param
 
 from .sim import DEFAULT_AMBIENT_C, DEFAULT_START_TEMPERATURE_C
 from .terrain import TERRAINS
@@ -13,13 +13,10 @@ from .terrain import TERRAINS
 
 @dataclass(frozen=True)
 class SimParams:
-    """``t_com_s`` None: the description's read period (the node declares it as the default)."""
-
     terrain: str = param('flat', 'terrain', choices=tuple(TERRAINS))
     seed: int = param(0, 'seed of the random terrains (blocks, rough, mockup)', min=0)
-    t_com_s: float | None = param(None, 'duration of one position read [s]: 0.001 hardware-accelerated, 0.016 '
-                                  "stock USB adapter; a multiple of the physics step; default: the description",
-                                  min=0.0, min_exclusive=True)
+    t_com_s: float = param(0.0, 'duration of one position read [s]: 0.001 hardware-accelerated, 0.016 stock USB '
+                           "adapter; a multiple of the physics step; 0 = the description's bus.t_com_s", min=0.0)
     t_write_s: float = param(0.0, 'duration of one sync write [s]', min=0.0)
     fixed_base: bool = param(False, 'weld the trunk in the air with no ground (calibration stand, free swing)')
     start_x_m: float = param(0.0, 'start position of the trunk along x [m]')
@@ -46,4 +43,4 @@ class SimParams:
         return 1.0 / rate_hz if rate_hz > 0 else 0.0
 
 
-NODE_SCHEMAS = {'sim_node': (RobotSource, SimParams)}
+NODE = NodeSpec('hexapod_sim', 'sim_node', 'sim_node', (RobotSource, SimParams))

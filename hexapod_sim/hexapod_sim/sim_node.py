@@ -67,8 +67,9 @@ class SimNode(Node):
         super().__init__('sim_node', **node_kwargs)
         params = NodeParams(self)
         robot = params.declare(RobotSource).load()
-        p = self.params = params.declare(SimParams, defaults={'t_com_s': robot.bus.t_com_s})
-        self.sim = HexapodSim(robot, terrain=p.terrain, seed=p.seed, t_com_s=p.t_com_s, fixed_base=p.fixed_base,
+        p = self.params = params.declare(SimParams)
+        self.sim = HexapodSim(robot, terrain=p.terrain, seed=p.seed, t_com_s=p.t_com_s or robot.bus.t_com_s,
+                              fixed_base=p.fixed_base,
                               t_write_s=p.t_write_s, imu_rate_hz=p.imu_rate_hz,
                               ambient_c=p.ambient_temperature_c, initial_temperature_c=p.initial_temperature_c,
                               start_xy_m=(p.start_x_m, p.start_y_m))     # SimError names what does not fit
