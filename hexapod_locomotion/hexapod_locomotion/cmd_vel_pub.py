@@ -71,9 +71,9 @@ def rate_warning(rate_hz: float, timeout_s: float) -> str | None:
 
 
 def controller_cmd_vel_timeout_s() -> float:
-    """locomotion_node's default ``cmd_vel_timeout_s`` (read from the node, not retyped)."""
-    from .locomotion_node import PARAMS
-    return float(PARAMS['cmd_vel_timeout_s'][0])
+    """locomotion_node's default ``cmd_vel_timeout_s`` (read from its parameter schema, not retyped)."""
+    from .params import LocomotionNodeParams
+    return LocomotionNodeParams().cmd_vel_timeout_s
 
 
 class StopFlag:
