@@ -22,7 +22,8 @@ from tqdm import tqdm
 from hexapod_model.description import load_robot
 
 from . import protocol as p
-from .bus import DriverConfig, DynamixelBus
+from .config import DriverConfig
+from .dynamixel_bus import DynamixelBus
 
 
 def _start_emulator(wire_time: bool, robot_path: str | None) -> tuple[subprocess.Popen, str]:

@@ -1,7 +1,7 @@
 """ROS 2 node: the AX-12A bus as topics (recording contract of hexapod_model.contract).
 
 Thin: declared parameters, message conversion, one library call per callback. The bus itself is
-:class:`hexapod_driver.bus.DynamixelBus`; its loop runs in a dedicated thread (one
+:class:`hexapod_driver.dynamixel_bus.DynamixelBus`; its loop runs in a dedicated thread (one
 ``DynamixelBus.step()`` per iteration), while the executor serves commands, the read schedule,
 the emergency stop and the timing publisher. One lock inside DynamixelBus owns the bus.
 
@@ -22,7 +22,6 @@ import traceback
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.qos import QoSProfile
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
@@ -30,11 +29,14 @@ from std_srvs.srv import Trigger
 
 from hexapod_model import contract
 from hexapod_model.bus import BusError
-from hexapod_model.description import ALL_JOINTS, BusJoint, load_robot
+from hexapod_model.description import ALL_JOINTS, DescriptionError
+from hexapod_model.node_params import NodeParams
+from hexapod_model.param_schema import ParameterError, RobotSource, help_lines
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoStatus
 from hexapod_msgs.srv import SetReadSchedule
 
-from .bus import FAULT_POLICIES, LIMIT_POLICIES, CommandError, DriverConfig, DynamixelBus
+from .config import NODE, DriverConfig, DriverNodeParams, robot_defaults
+from .dynamixel_bus import CommandError, DynamixelBus
 from .local_bus import LocalDriverBus
 
 
@@ -52,68 +54,14 @@ EXIT_BUS_LOOP_CRASH = 3     # unexpected exception in the bus loop: torque turne
 TEST_HOOK_RAISE_ENV = 'HEXAPOD_DRIVER_TEST_RAISE_ON_SIGUSR1'
 
 
-def parameter_table(robot) -> list[tuple[str, object, str]]:
-    """(name, default, description) of every node parameter except the per-joint lists."""
-    d = DriverConfig()
-    bus = robot.bus
-    return [
-        ('device', '/dev/hexapod_dynamixel',
-         'serial device of the Dynamixel adapter (udev symlink, or the bus emulator pty)'),
-        ('baud_rate', bus.baud_rate, 'bus baud rate; must match every servo (register 4) or nothing answers'),
-        ('latency_timer_ms', d.latency_timer_ms,
-         "USB adapter latency timer [ms] (udev sets 1); sizes the reply timeout. Too small: replies are declared "
-         "lost; too large: a lost reply blocks the bus longer. Widened automatically when start-up measures "
-         "later replies"),
-        ('timeout_margin_ms', d.timeout_margin_ms,
-         'extra reply timeout [ms] for host scheduling jitter; too small: replies delayed by the host count as lost'),
-        ('startup_timeout_margin_ms', d.startup_timeout_margin_ms,
-         'the same during start-up verification/configuration [ms]'),
-        ('startup_attempts', d.startup_attempts,
-         'tries per transaction during start-up (a noisy bus) before start-up gives up and names what failed'),
-        ('return_delay_time', d.return_delay_time,
-         'servo return delay (register 5, x 2 us) written at start-up; the factory 250 adds 0.5 ms to every read'),
-        ('compliance_margin', robot.servo.compliance_margin_ticks,
-         'compliance margin [ticks] (registers 26/27); must match the model'),
-        ('compliance_slope', robot.servo.compliance_slope_ticks,
-         'compliance slope (registers 28/29); changes the P gain the model assumes'),
-        ('torque_limit', d.torque_limit, 'torque limit (register 34, 1..1023) written at start-up and on recovery'),
-        ('write_angle_limits', d.write_angle_limits,
-         'write the joint limits as EEPROM angle limits (the servo then refuses goals outside them itself)'),
-        ('read_retries', d.read_retries, 'extra attempts per failed read before it counts as failed'),
-        ('missing_after_failures', d.missing_after_failures, 'consecutive failed reads before a servo is skipped'),
-        ('reprobe_period_s', d.reprobe_period_s, 'how often a skipped (silent) servo is tried again [s]'),
-        ('reconnect_period_s', d.reconnect_period_s, 'how often a lost serial port is reopened [s]'),
-        ('command_timeout_s', d.command_timeout_s,
-         'commands stamped older than this are rejected, and with no command for this long the driver holds '
-         'position [s]; 0 disables'),
-        ('limit_policy', d.limit_policy, f'goals outside the joint limits: one of {LIMIT_POLICIES}'),
-        ('fault_policy', d.fault_policy,
-         f'on overheating/overload, after the servo\'s own alarm shutdown has zeroed its torque limit (limp): one '
-         f'of {FAULT_POLICIES} (limp: also torque enable 0, joint out until restart; recover: restore the torque '
-         f'limit at the present position once the alarm clears)'),
-        ('diagnostics_period_s', d.diagnostics_period_s, 'period of a diagnostics round over all servos [s]'),
-        ('read_period_s', bus.t_com_s,
-         "minimum spacing of position reads [s]; default: the description's t_com_s, the read period the "
-         "swing-down model assumes; 0 = back to back (bus-limited)"),
-        ('timing_period_s', 1.0, 'period of /bus_timing messages [s]'),
-        ('watchdog_timeout_s', 2.0,
-         'report an ERROR (log and /servo_diagnostics) when no bus transaction has completed for this long [s]; '
-         '0 disables'),
-    ]
-
-
 class DriverNode(Node):
-    def __init__(self):
-        super().__init__('hexapod_driver')
-        robot_path = self._param('robot_description', '', 'robot description YAML; empty = the packaged robot.yaml')
-        robot = load_robot(robot_path or None)
-        v = {name: self._param(name, default, desc) for name, default, desc in parameter_table(robot)}
-        timing_period, self.watchdog_s = v.pop('timing_period_s'), v.pop('watchdog_timeout_s')
-        cfg = DriverConfig(joints=self._joints(robot), **v)
-        if not timing_period > 0:
-            raise ValueError(f'driver parameter timing_period_s: must be > 0, got {timing_period}')
-        if not self.watchdog_s >= 0:
-            raise ValueError(f'driver parameter watchdog_timeout_s: must be >= 0, got {self.watchdog_s}')
+    def __init__(self, **node_kwargs):
+        super().__init__(NODE.node_name, **node_kwargs)
+        params = NodeParams(self)
+        robot = params.declare(RobotSource).load()        # servo mounting: the description's bus.joints
+        cfg = params.declare(DriverConfig, defaults=robot_defaults(robot))
+        own = params.declare(DriverNodeParams)
+        timing_period, self.watchdog_s = own.timing_period_s, own.watchdog_timeout_s
         hook = os.environ.get(TEST_HOOK_RAISE_ENV, '')
         if hook not in ('', '0', '1'):
             raise ValueError(f'{TEST_HOOK_RAISE_ENV} (test hook) must be 0 or 1, got {hook!r}')
@@ -190,24 +138,6 @@ class DriverNode(Node):
             logger.warning(text)
         else:
             logger.info(text)
-
-    # ------------------------------------------------------------------ parameters
-    def _param(self, name, default, description):
-        self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True))
-        return self.get_parameter(name).value
-
-    def _joints(self, robot) -> tuple[BusJoint, ...]:
-        by = {j.joint: j for j in robot.bus.joints}
-        order = 'in the order ' + ', '.join(ALL_JOINTS)
-        ids = self._param('servo_ids', [by[j].servo_id for j in ALL_JOINTS], f'Dynamixel ID of each joint {order}')
-        dirs = self._param('directions', [by[j].direction for j in ALL_JOINTS],
-                           f'mounting direction (+1/-1) of each joint {order}; a wrong sign mirrors the joint')
-        offs = self._param('offsets_ticks', [by[j].offset_ticks for j in ALL_JOINTS],
-                           f'mounting offset [ticks] of each joint {order}')
-        for name, v in (('servo_ids', ids), ('directions', dirs), ('offsets_ticks', offs)):
-            if len(v) != len(ALL_JOINTS):
-                raise ValueError(f'driver parameter {name}: needs {len(ALL_JOINTS)} entries ({order}), got {len(v)}')
-        return tuple(BusJoint(j, int(i), int(d), int(o)) for j, i, d, o in zip(ALL_JOINTS, ids, dirs, offs))
 
     # ------------------------------------------------------------------ callbacks
     def on_command(self, msg: JointState) -> None:
@@ -366,17 +296,13 @@ class DriverNode(Node):
 
 HELP = """usage: driver_node [-h] [--ros-args -p NAME:=VALUE ...]
 
-The AX-12A bus as ROS 2 topics (see docs/real-robot.md). Parameters (-p NAME:=VALUE):
+The AX-12A bus as ROS 2 topics (see docs/real-robot.md). Servo IDs, mounting directions and offsets
+come from the robot description (robot_description + robot_overlays). Parameters (-p NAME:=VALUE):
 """
 
 
 def print_help() -> None:
-    robot = load_robot()
-    lines = [HELP, '  robot_description (default \'\'): robot description YAML; empty = the packaged robot.yaml']
-    for name, default, desc in parameter_table(robot):
-        lines.append(f'  {name} (default {default!r}): {desc}')
-    lines.append('  servo_ids, directions, offsets_ticks: 18 entries each, in the order ' + ', '.join(ALL_JOINTS)
-                 + ' (default: the robot description)')
+    lines = [HELP, *help_lines(NODE.schemas, NODE.defaults())]
     lines.append(f'\nExit codes: {EXIT_OK} clean shutdown; {EXIT_STARTUP} bad parameter or start-up failure; '
                  f'{EXIT_BUS_LOOP_CRASH} the bus loop crashed (torque turned off, ERROR on /servo_diagnostics).')
     print('\n'.join(lines))
@@ -404,6 +330,9 @@ def main(args=None) -> int:
         rc = EXIT_OK if node.exit_code is None else node.exit_code
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (ParameterError, DescriptionError) as exc:
+        print(f'[hexapod_driver] {exc}', file=sys.stderr, flush=True)     # nothing was opened
+        rc = EXIT_STARTUP
     except (BusError, ValueError) as exc:
         print(f'[hexapod_driver] start-up failed: {exc}', file=sys.stderr, flush=True)
         rc = EXIT_STARTUP

@@ -24,7 +24,7 @@ from hexapod_model.cli_common import ArgumentParser, make_parser, nonnegative_in
 from hexapod_model.description import load_robot
 
 from . import protocol as p
-from .bus import LowLatencyPortHandler
+from .port import LowLatencyPortHandler
 
 
 class ServoToolError(RuntimeError):

@@ -189,6 +189,25 @@ def test_driver_node_serves_the_topic_contract(robot, ros):
         assert 'torque off on all servos' in out
 
 
+def test_servo_mounting_comes_from_a_description_overlay(robot, ros, tmp_path):
+    """One source of truth: the driver has no mounting parameters; an overlay of the description
+    (as model and sim load it) mirrors and offsets a joint on the bus."""
+    overlay = tmp_path / 'my_robot.yaml'
+    overlay.write_text('bus:\n  joints:\n    leg1_coxa: {direction: -1, offset_ticks: 10}\n')
+    node, ex = ros
+    with BusEmulator(robot) as emu:
+        proc = start_node(emu.port, [f'robot_overlays:=[{overlay}]'])
+        cmd_pub = node.create_publisher(JointState, contract.JOINT_COMMANDS, 10)
+        expected = round(512 - 0.3 / robot.servo.rad_per_tick + 10)
+        try:
+            spin_until(ex, lambda: (command(node, cmd_pub, ['leg1_coxa'], [0.3]) or
+                                    emu.servo(1).get('goal_position') == expected), 30.0, proc, 'mirrored goal')
+        finally:
+            rc, out = stop_node(proc)
+            node.destroy_publisher(cmd_pub)
+        assert rc == 0, out
+
+
 def test_emergency_stop_service(robot, ros):
     node, ex = ros
     with BusEmulator(robot) as emu:
@@ -505,3 +524,5 @@ def test_help_does_not_open_the_device():
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and 'watchdog_timeout_s' in r.stdout and 'fault_policy' in r.stdout
     assert '/dev/hexapod_dynamixel' in r.stdout and 'cannot open' not in r.stdout + r.stderr
+    for gone in ('servo_ids', 'directions', 'offsets_ticks', 'baud_rate', 'compliance_slope'):   # the description's
+        assert f'  {gone} (default' not in r.stdout

@@ -23,7 +23,8 @@ import numpy as np
 
 from hexapod_sim.bagio import BagError, BagReader, BagWarning
 from hexapod_model.cli_common import add_no_progress_option, make_parser, output_file, plot_extensions
-from hexapod_model.contract import GROUND_DETECTION, IMU, JOINT_STATES, POWER, SIM_TRUTH_POSE, SWING_DOWN
+from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_STATES, POWER, SIM_TRUTH_POSE, SWING_DOWN,
+                                   topic_key)
 from hexapod_model.description import DescriptionError, load_robot, parse_joint_name
 from hexapod_model.swing_model import LegModel
 
@@ -68,19 +69,20 @@ def load_bag(path: str):
     with warnings.catch_warnings():      # the problems are returned (reader.warnings) and reported by the caller
         warnings.simplefilter('ignore', BagWarning)
         reader = BagReader(path)
-    topics = reader.topics()
+    topics = {topic_key(t) for t in reader.topics()}      # bags store '/swing_down'; the contract: 'swing_down'
     if SWING_DOWN not in topics:
-        raise AnalysisError(f'{path}: no {SWING_DOWN} topic - the swing-down inputs of Algorithm 1 were not '
+        raise AnalysisError(f'{path}: no /{SWING_DOWN} topic - the swing-down inputs of Algorithm 1 were not '
                             f'recorded (record with ./hexapod demo or a locomotion_node of this version)')
     if JOINT_STATES not in topics:
-        raise AnalysisError(f'{path}: no {JOINT_STATES} topic - there are no servo reads to analyse')
+        raise AnalysisError(f'{path}: no /{JOINT_STATES} topic - there are no servo reads to analyse')
     swings, femur_reads, recorded = [], [], defaultdict(dict)
     power, pose, imu = [], [], []
     wanted = [t for t in (SWING_DOWN, JOINT_STATES, GROUND_DETECTION, POWER, SIM_TRUTH_POSE, IMU) if t in topics]
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', BagWarning)
         messages = list(reader.messages(topics=wanted))
-    for topic, _type, t_ns, msg in messages:
+    for bag_name, _type, t_ns, msg in messages:
+        topic = topic_key(bag_name)
         if topic == SWING_DOWN:
             swings.append((_t(msg.header.stamp), msg))
         elif topic == JOINT_STATES:
@@ -105,7 +107,7 @@ def load_bag(path: str):
             roll, pitch, _ = roll_pitch_yaw((q.w, q.x, q.y, q.z))
             imu.append((_t(msg.header.stamp), roll, pitch, msg.linear_acceleration.z))
     if not swings:
-        raise AnalysisError(f'{path}: {SWING_DOWN} has no messages - the recording contains no swing-down')
+        raise AnalysisError(f'{path}: /{SWING_DOWN} has no messages - the recording contains no swing-down')
     femur_reads.sort(key=lambda r: r[0])
     return swings, femur_reads, recorded, power, pose, imu, reader.warnings if hasattr(reader, 'warnings') else []
 

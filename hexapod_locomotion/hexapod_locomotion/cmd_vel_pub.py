@@ -22,9 +22,11 @@ import sys
 import threading
 import time
 
+from hexapod_model.contract import CMD_VEL
+
 from .controller import LocomotionError, VelocityCommand
 
-TOPIC = 'cmd_vel'      # relative on purpose: hexapod_model.contract.CMD_VEL is its resolved default
+TOPIC = CMD_VEL        # relative: resolved in the node's namespace (--ros-args -r __ns:=/hexa)
 ACK_TIMEOUT_S = 1.0    # wait this long for subscribers to acknowledge the final zero Twist
 
 
@@ -69,9 +71,9 @@ def rate_warning(rate_hz: float, timeout_s: float) -> str | None:
 
 
 def controller_cmd_vel_timeout_s() -> float:
-    """locomotion_node's default ``cmd_vel_timeout_s`` (read from the node, not retyped)."""
-    from .locomotion_node import PARAMS
-    return float(PARAMS['cmd_vel_timeout_s'][0])
+    """locomotion_node's default ``cmd_vel_timeout_s`` (read from its parameter schema, not retyped)."""
+    from .params import LocomotionNodeParams
+    return LocomotionNodeParams().cmd_vel_timeout_s
 
 
 class StopFlag:

@@ -14,67 +14,42 @@ thread and talks to a servo bus:
 from __future__ import annotations
 
 import math
+import sys
 import threading
 import traceback
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 from hexapod_model.bus import BusError
 from hexapod_model.contract import CMD_VEL, GROUND_DETECTION, SWING_DOWN, stamp_parts
-from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name, load_robot
+from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
+from hexapod_model.node_params import NodeParams, report
+from hexapod_model.param_schema import ParameterError, RobotSource
 
 from .controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
 from .detector import DetectorConfig, DetectorError, swing_start_fields
 from .gait import GaitError, get_gait
+from .params import LocomotionNodeParams
 from .ros_bus import RosBus
-
-PARAMS = {
-    'gait': ('tripod', 'tripod | tetrapod | pentapod (gaits.yaml); an unknown name is refused'),
-    'detector': ('adaptive', "'adaptive' (model threshold, Eq. 17) or 'fixed' (constant baseline threshold)"),
-    'epsilon_tick': (3.0, 'Eq. 17 margin [ticks]; too small stops legs early, too large stops late'),
-    'fixed_threshold_tick': (21.0, 'baseline threshold [ticks] of the fixed detector'),
-    't_des_s': (1.0, 'swing-down duration [s]; shorter is faster but hits the ground harder'),
-    't_com_s': (0.0, 'duration of one bus read [s]; 0 = from the robot description'),
-    'lift_m': (0.05, 'swing-up height [m]'),
-    'ground_depth_m': (0.03, 'theta_fin this far below the nominal ground [m]; deeper = faster swing-down'),
-    'landing_preload': (1.0, 'a leg that found ground is leveled as carrying this fraction of its share of the weight '
-                             '(compensates servo compliance; 0 = off, for rigid servos)'),
-    'max_stride_m': (0.06, 'largest foothold displacement per cycle [m]; beyond reach is clamped'),
-    'cmd_vel_timeout_s': (2.0, 'stop walking (finish the phase, then stand) when the last /cmd_vel is older than '
-                               'this [s of bus time]; longer than the period of common publishers (ros2 topic pub: '
-                               '1 s), so one late message does not stop the robot'),
-    'default_vx': (0.0, 'forward speed [m/s] used when no /cmd_vel has been received'),
-    'read_timeout_s': (0.0, 'give up on a position read after this wall time [s]; 0 = 2 s, or 10 s in lockstep '
-                            '(over DDS a loaded machine delivers reads late; a lock-stepped sim answers late but surely)'),
-    'lockstep': (False, 'drive a lock-stepped bus master (sim_node lockstep:=true): advance it by publishing '
-                        'commands instead of waiting for wall time; use with use_sim_time:=true'),
-    'robot_description': ('', 'robot YAML path; empty = the packaged description'),
-    'robot_overlays': ([''], 'overlay YAML files merged over the description (e.g. identified effects)'),
-}
-
 
 class LocomotionNode(Node):
     def __init__(self, bus=None, **node_kwargs):
         """``bus``: a :class:`hexapod_model.bus.ServoBus` with ``stopped`` (threading.Event) and
         ``set_schedule(joints)`` owned by a node in this process; None = the bus over ROS topics."""
         super().__init__('locomotion_node', **node_kwargs)
-        for name, (default, desc) in PARAMS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=desc))
-        self.add_on_set_parameters_callback(self._validate)
-        g = lambda n: self.get_parameter(n).value  # noqa: E731
-        overlays = [o for o in g('robot_overlays') if o]
-        self.robot = load_robot(g('robot_description') or None, overlays)
+        params = NodeParams(self)
+        self.robot = params.declare(RobotSource).load()
+        p = self.params = params.declare(LocomotionNodeParams)
         if bus is not None:
             t_com = bus.t_com_s
             self.bus = bus
         else:
-            t_com = g('t_com_s') or self.robot.bus.t_com_s
-            timeout = g('read_timeout_s') or (10.0 if g('lockstep') else 2.0)
-            self.bus = RosBus(self, t_com, read_timeout_s=timeout, lockstep=g('lockstep'))
+            t_com = p.t_com_s or self.robot.bus.t_com_s
+            timeout = p.read_timeout_s or (10.0 if p.lockstep else 2.0)
+            self.bus = RosBus(self, t_com, read_timeout_s=timeout, lockstep=p.lockstep)
         from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from geometry_msgs.msg import Twist
         self._LGD = LegGroundDetection
@@ -82,15 +57,14 @@ class LocomotionNode(Node):
         self.det_pub = self.create_publisher(LegGroundDetection, GROUND_DETECTION, 50)
         self.swing_pub = self.create_publisher(SwingDownStart, SWING_DOWN, 10)
         self.create_subscription(Twist, CMD_VEL, self._on_cmd, 10)
-        self._cmd = VelocityCommand(g('default_vx'), 0.0, 0.0)
+        self._cmd = VelocityCommand(p.default_vx, 0.0, 0.0)
         self._cmd_time = None
         self.controller = GaitController(
-            self.robot, get_gait(g('gait')),
-            LocomotionParams(t_des_s=g('t_des_s'), lift_m=g('lift_m'), max_stride_m=g('max_stride_m'),
-                             ground_depth_m=g('ground_depth_m'), landing_preload=g('landing_preload'),
+            self.robot, get_gait(p.gait),
+            LocomotionParams(t_des_s=p.t_des_s, lift_m=p.lift_m, max_stride_m=p.max_stride_m,
+                             ground_depth_m=p.ground_depth_m, landing_preload=p.landing_preload,
                              background_reads=False),
-            DetectorConfig(kind=g('detector'), epsilon_tick=g('epsilon_tick'),
-                           fixed_threshold_tick=g('fixed_threshold_tick')),
+            DetectorConfig(kind=p.detector, epsilon_tick=p.epsilon_tick, fixed_threshold_tick=p.fixed_threshold_tick),
             t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
             on_swing_start=self._publish_swing_start)
         self.controller.warm_up()
@@ -98,21 +72,6 @@ class LocomotionNode(Node):
         self.failed = False
         self._worker = threading.Thread(target=self._run, daemon=True)
         self._worker.start()
-
-    def _validate(self, params):
-        for p in params:
-            if p.name == 'gait':
-                try:
-                    get_gait(p.value)
-                except GaitError as exc:
-                    return SetParametersResult(successful=False, reason=str(exc))
-            if p.name == 'detector' and p.value not in ('adaptive', 'fixed'):
-                return SetParametersResult(successful=False, reason="detector must be 'adaptive' or 'fixed'")
-            if p.name in ('t_des_s', 'epsilon_tick', 'fixed_threshold_tick', 'lift_m', 'ground_depth_m', 'landing_preload',
-                          'max_stride_m') and \
-                    not (isinstance(p.value, float) and p.value >= 0):
-                return SetParametersResult(successful=False, reason=f'{p.name} must be a non-negative float')
-        return SetParametersResult(successful=True)
 
     def _on_cmd(self, msg) -> None:
         try:
@@ -225,8 +184,10 @@ def main(args=None):
     except RCLError:
         if rclpy.ok():        # a real middleware error, not the context going away on SIGTERM
             raise
+    except ParameterError as exc:
+        raise SystemExit(report('locomotion_node', exc))
     except (DescriptionError, GaitError, DetectorError, LocomotionError) as exc:
-        print(f'locomotion_node: {exc}')
+        print(f'locomotion_node: {exc}', file=sys.stderr)
         raise SystemExit(2)
     finally:
         if node is not None:

@@ -20,18 +20,19 @@ from __future__ import annotations
 import sys
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from hexapod_model.bus import BusError
 from hexapod_model.description import DescriptionError
+from hexapod_model.node_params import NodeParams, report
+from hexapod_model.param_schema import ParameterError
 
 from .controller import LocomotionError
 from .detector import DetectorError
 from .gait import GaitError
+from .params import ComposedParams
 
-HARDWARE = ('sim', 'driver')
 
 
 def _hardware(context) -> str:
@@ -39,9 +40,7 @@ def _hardware(context) -> str:
     from rclpy.node import Node
     probe = Node('robot', context=context)
     try:
-        probe.declare_parameter('hardware', 'sim', ParameterDescriptor(
-            description=f'bus master composed with the controller: {" | ".join(HARDWARE)}', read_only=True))
-        return probe.get_parameter('hardware').value
+        return NodeParams(probe).declare(ComposedParams).hardware
     finally:
         probe.destroy_node()
 
@@ -66,8 +65,6 @@ def main(args=None) -> None:
     nodes, cleanups, loco = [], [], None
     try:
         hardware = _hardware(rclpy.get_default_context())
-        if hardware not in HARDWARE:
-            raise SystemExit(f'robot: parameter hardware must be one of {", ".join(HARDWARE)}, got {hardware!r}')
         master, bus, cleanup = _bus_master(hardware)
         nodes.append(master)
         cleanups.append(cleanup)
@@ -83,6 +80,8 @@ def main(args=None) -> None:
     except RCLError:
         if rclpy.ok():        # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
             raise
+    except ParameterError as exc:
+        raise SystemExit(report('robot', exc))
     except (DescriptionError, GaitError, DetectorError, LocomotionError, SimError) as exc:
         print(f'robot: {exc}', file=sys.stderr)
         raise SystemExit(2)

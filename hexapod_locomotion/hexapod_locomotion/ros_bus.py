@@ -86,7 +86,7 @@ class RosBus:
         with self._cv:
             if self._newest is None and not self._cv.wait_for(
                     lambda: self._newest is not None or self.stopped.is_set(), timeout=self.read_timeout_s):
-                raise BusError(f'no {JOINT_STATES} from a bus master within {self.read_timeout_s} s '
+                raise BusError(f'no {self.node.resolve_topic_name(JOINT_STATES)} from a bus master within {self.read_timeout_s} s '
                                '(is the driver or sim node running?)')
             if self.stopped.is_set():
                 raise BusError('locomotion stopped')
@@ -127,7 +127,8 @@ class RosBus:
                         return
             waited += 1.0
             if waited % 5 == 0:
-                log(f'waiting for a bus master ({JOINT_STATES}, {SET_READ_SCHEDULE}): start the driver or sim node '
+                log(f'waiting for a bus master ({self.node.resolve_topic_name(JOINT_STATES)}, '
+                    f'{self.node.resolve_service_name(SET_READ_SCHEDULE)}): start the driver or sim node '
                     f'({waited:.0f} s)')
         raise BusError('locomotion stopped')
 
@@ -179,7 +180,8 @@ class RosBus:
                 if self.lockstep:
                     raise BusError(f'lock-step needs the {SET_READ_SCHEDULE} service of the bus master '
                                    f'(sim_node provides it); none answered within {self.read_timeout_s} s')
-                self.node.get_logger().warning(f'no {SET_READ_SCHEDULE} service: sending {READ_SCHEDULE} '
+                self.node.get_logger().warning(f'no {self.node.resolve_service_name(SET_READ_SCHEDULE)} service: '
+                                               f'sending {self.node.resolve_topic_name(READ_SCHEDULE)} '
                                                'messages (the first reads after a change may follow the old order)')
         if self._sched_service:
             if self.lockstep:

@@ -19,16 +19,17 @@ def _exe(pkg, name):
     return os.path.join(get_package_prefix(pkg), 'lib', pkg, name)
 
 
-def _start(pkg, exe, *params):
+def _start(pkg, exe, *params, remap=()):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
-    args = [_exe(pkg, exe), '--ros-args'] + [a for p in params for a in ('-p', p)]
+    args = [_exe(pkg, exe), '--ros-args'] + [a for p in params for a in ('-p', p)] + \
+        [a for r in remap for a in ('-r', r)]
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
 class Probe:
     """Publishes /cmd_vel at 10 Hz and collects body pose, swing-down starts and detector reads."""
 
-    def __init__(self, vx=0.05, wz=0.0):
+    def __init__(self, vx=0.05, wz=0.0, ns=''):
         from geometry_msgs.msg import PoseStamped, Twist
         from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from rclpy.executors import SingleThreadedExecutor
@@ -36,10 +37,10 @@ class Probe:
         rclpy.init(context=self.ctx)
         self.node = rclpy.create_node('graph_probe', context=self.ctx)
         self.pose, self.swings, self.reads = [], [], []
-        self.node.create_subscription(PoseStamped, '/sim/body_pose', self._on_pose, 100)
-        self.node.create_subscription(SwingDownStart, '/swing_down', self.swings.append, 100)
-        self.node.create_subscription(LegGroundDetection, '/ground_detection', self.reads.append, 1000)
-        pub = self.node.create_publisher(Twist, '/cmd_vel', 10)
+        self.node.create_subscription(PoseStamped, f'{ns}/sim/body_pose', self._on_pose, 100)
+        self.node.create_subscription(SwingDownStart, f'{ns}/swing_down', self.swings.append, 100)
+        self.node.create_subscription(LegGroundDetection, f'{ns}/ground_detection', self.reads.append, 1000)
+        pub = self.node.create_publisher(Twist, f'{ns}/cmd_vel', 10)
         self.twist = Twist()
         self.twist.linear.x, self.twist.angular.z = vx, wz
         self.node.create_timer(0.1, lambda: pub.publish(self.twist))
@@ -147,6 +148,31 @@ def test_composed_robot_walks_in_real_time_and_stops_cleanly(sig):
     assert procs[0].returncode == 0, outs
     assert 'Traceback' not in outs[0], outs[0][-3000:]
     assert 'serving /predict_swing_down' in outs[0]            # the model node is part of the graph
+
+
+def test_the_whole_stack_runs_under_a_namespace():
+    """Contract names are relative: ``-r __ns:=/hexa`` moves every topic and service of sim, model and
+    locomotion node under /hexa, nothing stays at the root but /clock (rclpy's use_sim_time
+    listens there), and the robot walks there (reads flow, swing-downs start, legs find ground)."""
+    procs = [_start('hexapod_locomotion', 'robot', 'terrain:=flat', remap=['__ns:=/hexa'])]
+    probe = Probe(vx=0.05, ns='/hexa')
+    try:
+        probe.wait(lambda p: len(p.swings) >= 2 and any(r.stopped and r.stop_reason == 1 for r in p.reads), procs)
+        topics = dict(probe.node.get_topic_names_and_types())
+        services = dict(probe.node.get_service_names_and_types())
+    finally:
+        outs = _stop(procs)
+        probe.close()
+    assert len(probe.swings) >= 2 and any(r.stopped and r.stop_reason == 1 for r in probe.reads), outs[0][-3000:]
+    for name in ('joint_states', 'joint_commands', 'servo_diagnostics', 'bus_timing', 'imu', 'power',
+                 'ground_detection', 'swing_down', 'cmd_vel', 'sim/body_pose', 'sim/foot_contacts'):
+        assert f'/hexa/{name}' in topics, sorted(topics)
+        assert f'/{name}' not in topics, sorted(topics)
+    for name in ('predict_swing_down', 'set_read_schedule', 'emergency_stop'):
+        assert f'/hexa/{name}' in services, sorted(services)
+    assert '/clock' in topics
+    assert 'serving /hexa/predict_swing_down' in outs[0]
+    assert procs[0].returncode == 0 and 'Traceback' not in outs[0], outs[0][-3000:]
 
 
 @pytest.mark.parametrize('param,named', [('hardware:=dynamixel', 'hardware'), ('terrain:=moon', 'moon'),

@@ -11,6 +11,12 @@ the read transaction). Velocity/effort may be filled where measured.
 
 The driver (hardware) and the sim node expose exactly the same topics and services, so the
 controller cannot tell them apart.
+
+Names are relative (no leading '/'): a node resolves them in its namespace, so the whole stack runs
+under ``--ros-args -r __ns:=/hexa`` (``/hexa/joint_states`` ...) and, without a namespace, they are
+the absolute names of before (``/joint_states``). Bags store absolute names (:func:`bag_topic`);
+tools that read bags compare :func:`topic_key`, so ``/joint_states`` in a bag recorded before the
+names were made relative and ``joint_states`` are the same contract topic.
 """
 
 
@@ -20,23 +26,34 @@ def stamp_parts(t_s: float) -> tuple[int, int]:
     return ns // 1_000_000_000, ns % 1_000_000_000
 
 
-JOINT_COMMANDS = '/joint_commands'          # sensor_msgs/msg/JointState, in
-JOINT_STATES = '/joint_states'              # sensor_msgs/msg/JointState, out, one per read
-READ_SCHEDULE = '/read_schedule'            # hexapod_msgs/msg/ReadSchedule, in
-SET_READ_SCHEDULE = '/set_read_schedule'    # hexapod_msgs/srv/SetReadSchedule: the same, acknowledged
-SERVO_DIAGNOSTICS = '/servo_diagnostics'    # hexapod_msgs/msg/ServoDiagnostics, out, periodic
-BUS_TIMING = '/bus_timing'                  # hexapod_msgs/msg/BusTiming, out, periodic
-EMERGENCY_STOP = '/emergency_stop'          # std_srvs/srv/Trigger: torque off on every servo
-POWER = '/power'                            # sensor_msgs/msg/BatteryState (sim: battery model)
-IMU = '/imu'                                # sensor_msgs/msg/Imu (sim only; the method needs none)
+JOINT_COMMANDS = 'joint_commands'           # sensor_msgs/msg/JointState, in
+JOINT_STATES = 'joint_states'               # sensor_msgs/msg/JointState, out, one per read
+READ_SCHEDULE = 'read_schedule'             # hexapod_msgs/msg/ReadSchedule, in
+SET_READ_SCHEDULE = 'set_read_schedule'     # hexapod_msgs/srv/SetReadSchedule: the same, acknowledged
+SERVO_DIAGNOSTICS = 'servo_diagnostics'     # hexapod_msgs/msg/ServoDiagnostics, out, periodic
+BUS_TIMING = 'bus_timing'                   # hexapod_msgs/msg/BusTiming, out, periodic
+EMERGENCY_STOP = 'emergency_stop'           # std_srvs/srv/Trigger: torque off on every servo
+POWER = 'power'                             # sensor_msgs/msg/BatteryState (sim: battery model)
+IMU = 'imu'                                 # sensor_msgs/msg/Imu (sim only; the method needs none)
+# /clock stays absolute: rclpy's use_sim_time subscribes to /clock, whatever the node's namespace.
 CLOCK = '/clock'                            # rosgraph_msgs/msg/Clock (sim, replay)
-GROUND_DETECTION = '/ground_detection'      # hexapod_msgs/msg/LegGroundDetection (controller)
-SWING_DOWN = '/swing_down'                  # hexapod_msgs/msg/SwingDownStart (controller)
-CMD_VEL = '/cmd_vel'                        # geometry_msgs/msg/Twist (controller input)
-PREDICT_SWING_DOWN = '/predict_swing_down'  # hexapod_msgs/srv/PredictSwingDown (model node)
+GROUND_DETECTION = 'ground_detection'       # hexapod_msgs/msg/LegGroundDetection (controller)
+SWING_DOWN = 'swing_down'                   # hexapod_msgs/msg/SwingDownStart (controller)
+CMD_VEL = 'cmd_vel'                         # geometry_msgs/msg/Twist (controller input)
+PREDICT_SWING_DOWN = 'predict_swing_down'   # hexapod_msgs/srv/PredictSwingDown (model node)
 # Evaluation-only ground truth published by the sim; never consumed by any estimator/controller.
-SIM_TRUTH_CONTACTS = '/sim/foot_contacts'   # hexapod_msgs-free: std_msgs/msg/Float64MultiArray
-SIM_TRUTH_POSE = '/sim/body_pose'           # geometry_msgs/msg/PoseStamped
+SIM_TRUTH_CONTACTS = 'sim/foot_contacts'    # hexapod_msgs-free: std_msgs/msg/Float64MultiArray
+SIM_TRUTH_POSE = 'sim/body_pose'            # geometry_msgs/msg/PoseStamped
+
+
+def topic_key(name: str) -> str:
+    """The contract name of a topic as written anywhere: '/joint_states' and 'joint_states' are one topic."""
+    return name.lstrip('/')
+
+
+def bag_topic(name: str) -> str:
+    """The name a bag stores for a contract topic: absolute, as rosbag2 records it ('/joint_states')."""
+    return '/' + topic_key(name)
 
 MSG_TYPES = {
     JOINT_COMMANDS: 'sensor_msgs/msg/JointState',

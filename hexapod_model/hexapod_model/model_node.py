@@ -7,29 +7,27 @@ The node keeps one compiled :class:`LegModel` per leg, so a request costs about 
 """
 from __future__ import annotations
 
+import sys
+
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from .contract import PREDICT_SWING_DOWN
-from .description import DescriptionError, load_robot
+from .description import DescriptionError
+from .node_params import NodeParams, report
+from .param_schema import ParameterError, RobotSource
 from .swing_model import LegModel, SwingDownError, predict_swing_down
 
 
 class ModelNode(Node):
     def __init__(self, **node_kwargs):
         super().__init__('model_node', **node_kwargs)
-        self.declare_parameter('robot_description', '', ParameterDescriptor(
-            description='robot YAML path; empty = the packaged description'))
-        self.declare_parameter('robot_overlays', [''], ParameterDescriptor(
-            description='overlay YAML files merged over the description (e.g. identified effects)'))
-        overlays = [o for o in self.get_parameter('robot_overlays').value if o]
-        self.robot = load_robot(self.get_parameter('robot_description').value or None, overlays)
+        self.robot = NodeParams(self).declare(RobotSource).load()
         self.models = {leg: LegModel(self.robot, leg) for leg in range(1, 7)}
         from hexapod_msgs.srv import PredictSwingDown
         self.srv = self.create_service(PredictSwingDown, PREDICT_SWING_DOWN, self.on_request)
-        self.get_logger().info(f'serving {PREDICT_SWING_DOWN} for robot {self.robot.name!r}')
+        self.get_logger().info(f'serving {self.resolve_service_name(PREDICT_SWING_DOWN)} for robot {self.robot.name!r}')
 
     def on_request(self, req, resp):
         legs = list(req.legs)
@@ -66,8 +64,10 @@ def main(args=None):
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except ParameterError as exc:
+        raise SystemExit(report('model_node', exc))
     except DescriptionError as exc:
-        print(f'model_node: {exc}')
+        print(f'model_node: {exc}', file=sys.stderr)
         raise SystemExit(2)
     finally:
         if node is not None:

@@ -140,7 +140,7 @@ class BagPlayer(Node):
         self.skipped: dict[str, str] = {}
         for topic in selected:
             info = infos[topic]
-            if clock_hz and topic == contract.CLOCK:
+            if clock_hz and contract.topic_key(topic) == contract.topic_key(contract.CLOCK):
                 self._skip(topic, f'recorded {topic} is not replayed because --clock publishes the '
                                   'playback clock')
                 continue

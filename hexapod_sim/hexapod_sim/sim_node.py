@@ -21,14 +21,12 @@ topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is writ
 """
 from __future__ import annotations
 
-import math
 import sys
 import threading
 
 import rclpy
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, Twist
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -39,17 +37,19 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
 from hexapod_model import contract
-from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
+from hexapod_model.description import ALL_JOINTS, DescriptionError
+from hexapod_model.node_params import NodeParams, report
+from hexapod_model.param_schema import ParameterError, RobotSource
 from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus,
                               SwingDownStart)
 from hexapod_msgs.srv import SetReadSchedule
 
+from .params import SimParams
 from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from .recorder import Recorder, resolve_bag_dir
 from .plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
 from .bus_master_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
                        TruthSample, truth_vector)
-from .terrain import TERRAINS
 
 TIMER_PERIOD_S = 0.002        # wall period of the stepping timer
 MAX_READS_PER_TICK = 200      # bound one callback so subscriptions/services stay responsive
@@ -65,77 +65,26 @@ def stamp(t_s: float) -> Time:
 class SimNode(Node):
     def __init__(self, **node_kwargs):
         super().__init__('sim_node', **node_kwargs)
-        ro = dict(read_only=True)
-        P = self.declare_parameter
-        P('robot_description', '', ParameterDescriptor(
-            description="Robot description YAML ('' = the packaged hexapod_model/data/robot.yaml).", **ro))
-        P('robot_overlays', [''], ParameterDescriptor(
-            description='Overlay YAMLs merged over the description (e.g. injected effects); [""] = none.', **ro))
-        overlays = [p for p in self.get_parameter('robot_overlays').value if p]
-        try:
-            robot = load_robot(self.get_parameter('robot_description').value or None, overlays)
-        except DescriptionError as exc:
-            raise SystemExit(f'sim_node: {exc}') from None
-        P('terrain', 'flat', ParameterDescriptor(
-            description=f'Terrain: one of {", ".join(TERRAINS)}.', **ro))
-        P('seed', 0, ParameterDescriptor(description='Seed of the random terrains (blocks, rough, mockup).', **ro))
-        P('t_com_s', robot.bus.t_com_s, ParameterDescriptor(
-            description='Duration of one position read [s]: 0.001 hardware-accelerated, 0.016 stock USB adapter. '
-                        'Must be a multiple of the physics step.', **ro))
-        P('t_write_s', 0.0, ParameterDescriptor(description='Duration of one sync write [s].', **ro))
-        P('fixed_base', False, ParameterDescriptor(
-            description='Weld the trunk in the air with no ground (calibration stand, free swing).', **ro))
-        P('start_x_m', 0.0, ParameterDescriptor(description='Start position of the trunk along x [m].', **ro))
-        P('start_y_m', 0.0, ParameterDescriptor(description='Start position of the trunk along y [m].', **ro))
-        P('real_time_factor', 1.0, ParameterDescriptor(
-            description='Simulated seconds per wall second; 0 = as fast as possible. Ignored in lockstep.'))
-        P('lockstep', False, ParameterDescriptor(
-            description='Advance one read-schedule cycle per /joint_commands message (deterministic runs).', **ro))
-        P('record', '', ParameterDescriptor(
-            description="Bag to record every topic to: '' off, 'auto' bags/sim_<time>, a name (bags/<name>) "
-                        'or a path.', **ro))
-        P('imu_rate_hz', 400.0, ParameterDescriptor(description='IMU rate [Hz] (paper: 400).', **ro))
-        P('power_rate_hz', 100.0, ParameterDescriptor(description='/power rate [Hz] (power averaged).', **ro))
-        P('diagnostics_rate_hz', 10.0, ParameterDescriptor(description='/servo_diagnostics rate [Hz].', **ro))
-        P('bus_timing_rate_hz', 1.0, ParameterDescriptor(description='/bus_timing rate [Hz].', **ro))
-        P('truth_rate_hz', 100.0, ParameterDescriptor(
-            description='Rate of the evaluation-only truth topics /sim/foot_contacts, /sim/body_pose [Hz]; 0 off.',
-            **ro))
-        P('clock_rate_hz', 1000.0, ParameterDescriptor(description='/clock rate in simulated time [Hz].', **ro))
-        P('ambient_temperature_c', 22.0, ParameterDescriptor(description='Ambient temperature [C].', **ro))
-        P('initial_temperature_c', 37.0, ParameterDescriptor(description='Servo temperature at start [C].', **ro))
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-
-        g = lambda name: self.get_parameter(name).value  # noqa: E731
-
-        def period(name):
-            rate = float(g(name))
-            if not math.isfinite(rate) or rate < 0:
-                raise SystemExit(f'sim_node: parameter {name} must be >= 0, got {rate}')
-            return 1.0 / rate if rate > 0 else 0.0
-
-        try:
-            self.sim = HexapodSim(robot, terrain=g('terrain'), seed=int(g('seed')), t_com_s=float(g('t_com_s')),
-                                  fixed_base=bool(g('fixed_base')), t_write_s=float(g('t_write_s')),
-                                  imu_rate_hz=float(g('imu_rate_hz')), ambient_c=float(g('ambient_temperature_c')),
-                                  initial_temperature_c=float(g('initial_temperature_c')),
-                                  start_xy_m=(float(g('start_x_m')), float(g('start_y_m'))))
-            self.loop = SimBusLoop(self.sim, power_period_s=period('power_rate_hz'),
-                                   diagnostics_period_s=period('diagnostics_rate_hz'),
-                                   timing_period_s=period('bus_timing_rate_hz'),
-                                   truth_period_s=period('truth_rate_hz'), clock_period_s=period('clock_rate_hz'))
-        except (SimError, ValueError) as exc:
-            raise SystemExit(f'sim_node: {exc}') from None
-        try:
-            self.pacer = Pacer(float(g('real_time_factor')), self.sim.now, max_lag_s=MAX_LAG_S)
-        except SimError as exc:
-            raise SystemExit(f'sim_node: {exc}') from None
-        self.lockstep = bool(g('lockstep'))
+        params = NodeParams(self)
+        robot = params.declare(RobotSource).load()
+        p = self.params = params.declare(SimParams)
+        self.sim = HexapodSim(robot, terrain=p.terrain, seed=p.seed, t_com_s=p.t_com_s or robot.bus.t_com_s,
+                              fixed_base=p.fixed_base,
+                              t_write_s=p.t_write_s, imu_rate_hz=p.imu_rate_hz,
+                              ambient_c=p.ambient_temperature_c, initial_temperature_c=p.initial_temperature_c,
+                              start_xy_m=(p.start_x_m, p.start_y_m))     # SimError names what does not fit
+        self.loop = SimBusLoop(self.sim, power_period_s=p.period(p.power_rate_hz),
+                               diagnostics_period_s=p.period(p.diagnostics_rate_hz),
+                               timing_period_s=p.period(p.bus_timing_rate_hz),
+                               truth_period_s=p.period(p.truth_rate_hz), clock_period_s=p.period(p.clock_rate_hz))
+        self.pacer = Pacer(p.real_time_factor, self.sim.now, max_lag_s=MAX_LAG_S)
+        params.on_change('real_time_factor', self.pacer.reanchor)
+        self.lockstep = p.lockstep
         self._lock = threading.RLock()      # the sim, its loop and the bag: executor vs in-process controller
         self._local: LocalSimBus | None = None
         self.recorder = None
-        if g('record'):
-            path = resolve_bag_dir(g('record'))
+        if p.record:
+            path = resolve_bag_dir(p.record)
             self.recorder = Recorder(path)
             self.get_logger().info(f'recording to {path}')
 
@@ -163,7 +112,7 @@ class SimNode(Node):
         self.create_service(Trigger, contract.EMERGENCY_STOP, self._on_estop)
         self._timer = self.create_timer(TIMER_PERIOD_S, self._on_timer)
         self.get_logger().info(
-            f'sim ready: terrain={g("terrain")} seed={g("seed")} t_com={self.sim.t_com_s * 1e3:g} ms '
+            f'sim ready: terrain={p.terrain} seed={p.seed} t_com={self.sim.t_com_s * 1e3:g} ms '
             f'{"lockstep" if self.lockstep else f"real_time_factor={self.pacer.rtf:g}"} '
             f'effects={len(robot.effects)}')
 
@@ -196,17 +145,6 @@ class SimNode(Node):
     def _warn_lag(self, behind_s: float) -> None:
         self.get_logger().warn(f'cannot keep real_time_factor={self.pacer.rtf:g} ({behind_s:.2f} s behind): '
                                'running as fast as possible', throttle_duration_sec=10.0)
-
-    # ------------------------------------------------------------------ parameters
-    def _on_set_parameters(self, params) -> SetParametersResult:
-        for p in params:
-            if p.name == 'real_time_factor':
-                v = p.value
-                if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                    return SetParametersResult(
-                        successful=False, reason=f'real_time_factor must be >= 0 (0 = as fast as possible), got {v!r}')
-                self.pacer.reanchor(float(v))
-        return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ inputs
     def _on_command(self, msg: JointState) -> None:
@@ -399,6 +337,8 @@ def main(args=None) -> None:
     except RCLError:
         if rclpy.ok():          # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
             raise
+    except (ParameterError, DescriptionError, SimError) as exc:
+        raise SystemExit(report('sim_node', exc))      # one line, exit 1: nothing was started
     finally:
         if node is not None:
             node.close()

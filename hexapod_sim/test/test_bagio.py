@@ -40,7 +40,8 @@ def joint_state(t_ns, names, pos):
 
 
 def sample_messages():
-    """(topic, type, dict, t_ns) covering nested arrays, fixed arrays, constants-bearing types."""
+    """(topic as the bag stores it, type, dict, t_ns) covering nested arrays, fixed arrays,
+    constants-bearing types."""
     out = []
     for i in range(40):
         t = T0 + i * 7_000_000
@@ -61,7 +62,7 @@ def sample_messages():
             out.append((contract.SIM_TRUTH_CONTACTS, 'std_msgs/msg/Float64MultiArray', {
                 'layout': {'dim': [{'label': 'leg', 'size': 6, 'stride': 6}], 'data_offset': 0},
                 'data': [1.0, 0.0, 1.0, 0.0, 1.0, 0.0]}, t + 4000))
-    return out
+    return [(contract.bag_topic(topic), *rest) for topic, *rest in out]
 
 
 def write_bag(path, msgs, **kw):
@@ -133,7 +134,7 @@ def test_round_trip_layout_and_metadata(tmp_path):
         assert_subset(m[2], as_plain(g.msg))
     # time window and topic filter
     sel = list(reader.messages(topics=[contract.IMU], start_ns=T0 + 1, end_ns=T0 + 200_000_000))
-    assert [g.t_ns for g in sel] == [m[3] for m in expected if m[0] == contract.IMU and T0 + 1 <= m[3] < T0 + 200_000_000]
+    assert [g.t_ns for g in sel] == [m[3] for m in expected if m[0] == contract.bag_topic(contract.IMU) and T0 + 1 <= m[3] < T0 + 200_000_000]
     assert list(reader.messages(topics=['/not_recorded'])) == []
     # single .mcap path reads the same
     assert [(g.topic, g.t_ns) for g in BagReader(bag / 'run1_0.mcap').messages()] == [(g.topic, g.t_ns) for g in got]
@@ -243,7 +244,9 @@ def test_bad_messages_are_named(tmp_path, msg, match):
 def test_bad_writer_arguments(tmp_path):
     with BagWriter(tmp_path / 'b') as w:
         with pytest.raises(BagError, match='invalid topic name'):
-            w.write('joint_states', JS, {}, 1)
+            w.write('/', JS, {}, 1)
+        with pytest.raises(BagError, match='invalid topic name'):
+            w.write(None, JS, {}, 1)
         with pytest.raises(BagError, match='t_ns must be a non-negative integer'):
             w.write('/joint_states', JS, {}, -1)
         with pytest.raises(BagError, match='t_ns must be a non-negative integer'):
@@ -511,6 +514,24 @@ def test_joint_series(tmp_path):
         w.write(contract.JOINT_STATES, JS, joint_state(T0, ['a', 'b'], [1.0]), T0)
     with pytest.raises(BagError, match='names 2 joint'):
         bagio.joint_series(BagReader(tmp_path / 'bad'))
+
+
+def test_relative_contract_names_and_old_absolute_bags_are_one_topic(tmp_path):
+    """Contract names are relative (the stack runs under a namespace); a bag stores '/joint_states'
+    either way, and readers find bags recorded with the absolute names of before."""
+    assert contract.JOINT_STATES == 'joint_states' and contract.bag_topic(contract.JOINT_STATES) == '/joint_states'
+    with BagWriter(tmp_path / 'new') as w:
+        w.write(contract.JOINT_STATES, JS, joint_state(T0, ['leg1_femur'], [0.5]), T0)
+    with BagWriter(tmp_path / 'old') as w:
+        w.write('/joint_states', JS, joint_state(T0, ['leg1_femur'], [0.5]), T0)
+    for name in ('new', 'old'):
+        r = BagReader(tmp_path / name)
+        assert list(r.topics()) == ['/joint_states']
+        assert r.resolve('joint_states') == r.resolve('/joint_states') == '/joint_states'
+        assert [m[0] for m in r.messages(topics=[contract.JOINT_STATES])] == ['/joint_states']
+        assert [m[0] for m in r.messages(topics=['/joint_states'])] == ['/joint_states']
+        assert bagio.joint_series(r)[contract.JOINT_STATES]['leg1_femur'][0, 1] == 0.5
+        assert r.resolve(contract.JOINT_COMMANDS) is None
 
 
 # ------------------------------------------------------------------------------ cross readers ---

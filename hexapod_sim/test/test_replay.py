@@ -28,7 +28,8 @@ from hexapod_sim.replay import BagPlayer, Pacer, playback_window  # noqa: E402
 
 T0 = 1_700_000_000_000_000_000
 JS = 'sensor_msgs/msg/JointState'
-CLASSES = {contract.JOINT_STATES: JointState, contract.IMU: Imu, contract.READ_SCHEDULE: ReadSchedule}
+CLASSES = {contract.bag_topic(t): cls for t, cls in ((contract.JOINT_STATES, JointState), (contract.IMU, Imu),
+                                                     (contract.READ_SCHEDULE, ReadSchedule))}   # as the bag names them
 
 
 def make_bag(path, n=90, seed_gap_ms=(4, 9, 15, 23)):
@@ -121,7 +122,7 @@ def test_replay_reproduces_messages_and_timing(ros, tmp_path, rate):
     for topic in reader.topics():
         assert [d for t, d, _ in rx.got if t == topic] == [m.msg for m in recorded if m.topic == topic]
     decoded = {m.topic: deserialize_message(m.msg, CLASSES[m.topic]) for m in recorded}
-    assert decoded[contract.READ_SCHEDULE].joint_names[0].startswith('leg')
+    assert decoded[contract.bag_topic(contract.READ_SCHEDULE)].joint_names[0].startswith('leg')
     # timing: receive time vs the recorded schedule scaled by 1/rate (constant latency removed)
     t_of = {(m.topic, m.msg): m.t_ns for m in recorded}
     pairs = sorted(((t_of[(t, d)] - recorded[0].t_ns) * 1e-9 / rate, r) for t, d, r in rx.got)
@@ -194,7 +195,7 @@ def test_cli_unknown_type_and_truncated_bag(tmp_path):
     data = mcap.read_bytes()
     mcap.write_bytes(data[:len(data) // 2])
     with pytest.warns(BagWarning):
-        recovered = sum(m.topic == contract.JOINT_STATES for m in BagReader(bag).messages())
+        recovered = sum(m.topic == contract.bag_topic(contract.JOINT_STATES) for m in BagReader(bag).messages())
     assert 0 < recovered < 60
     res = run_cli(bag, '--rate', '10')
     assert res.returncode == 0, res.stderr

@@ -157,14 +157,14 @@ def _check_bag_with_independent_readers(bag: Path, probe: Probe):
     with Reader(bag) as reader:
         for conn in reader.connections:
             store.register(get_types_from_msg(conn.msgdef.data, conn.msgtype))
-        topics = {c.topic: c.msgtype for c in reader.connections}
+        topics = {contract.topic_key(c.topic): c.msgtype for c in reader.connections}     # the contract's names
         for conn, t, data in reader.messages():
-            raw.append((conn.topic, t, bytes(data)))
-        decoded = [(c.topic, store.deserialize_cdr(d, c.msgtype)) for c, _, d in reader.messages()]
+            raw.append((contract.topic_key(conn.topic), t, bytes(data)))
+        decoded = [(contract.topic_key(c.topic), store.deserialize_cdr(d, c.msgtype)) for c, _, d in reader.messages()]
     for topic in (contract.JOINT_STATES, contract.JOINT_COMMANDS, contract.READ_SCHEDULE, contract.CLOCK, contract.IMU,
                   contract.POWER, contract.SERVO_DIAGNOSTICS, contract.BUS_TIMING, contract.SIM_TRUTH_CONTACTS,
                   contract.SIM_TRUTH_POSE):
-        assert topics[topic] == contract.MSG_TYPES.get(topic, topics[topic]), topic
+        assert topics[contract.topic_key(topic)] == contract.MSG_TYPES.get(topic, topics[contract.topic_key(topic)]), topic
     js = [m for t, m in decoded if t == contract.JOINT_STATES]
     got = probe.got[contract.JOINT_STATES]
     assert len(js) == len(got)
@@ -187,7 +187,8 @@ def _check_bag_with_independent_readers(bag: Path, probe: Probe):
     res = subprocess.run(['node', str(reader_js), str(bag)], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
-    theirs = sorted((m['topic'], int(m['logTime']), base64.b64decode(m['data'])) for m in doc['messages'])
+    theirs = sorted((contract.topic_key(m['topic']), int(m['logTime']), base64.b64decode(m['data']))
+                    for m in doc['messages'])
     assert theirs == sorted(raw)
 
 

@@ -325,6 +325,11 @@ class BagReader:
     def topic_info(self) -> dict[str, TopicInfo]:
         return dict(self._topics)
 
+    def resolve(self, name: str) -> str | None:
+        """The bag's name of a contract topic ('joint_states' or '/joint_states'), None if absent."""
+        key = contract.topic_key(name)
+        return next((t for t in self._topics if contract.topic_key(t) == key), None)
+
     @property
     def message_count(self) -> int:
         return sum(i.message_count for i in self._topics.values())
@@ -353,7 +358,8 @@ class BagReader:
         included); otherwise decoded messages with attribute access."""
         if isinstance(topics, str):
             topics = [topics]
-        wanted = None if topics is None else set(topics)     # topics absent from the bag: none yielded
+        # '/x' and 'x' name one topic (contract names are relative); topics absent from the bag: none yielded
+        wanted = None if topics is None else {contract.topic_key(t) for t in topics}
         lo = -1 if start_ns is None else int(start_ns)
         hi = 2**64 if end_ns is None else int(end_ns)
         decode_failed: dict[str, int] = {}
@@ -363,7 +369,7 @@ class BagReader:
             ch = self._chan.get(key)
             if ch is None or not lo <= m.log_time < hi:
                 return None
-            if wanted is not None and ch[0] not in wanted:
+            if wanted is not None and contract.topic_key(ch[0]) not in wanted:
                 return None
             if not raw and key not in self._decoders:
                 return None
@@ -462,12 +468,14 @@ def joint_series(reader: BagReader) -> dict[str, dict[str, np.ndarray]]:
     ``position`` is shorter than its ``name`` list raises :class:`BagError` naming it.
     """
     topics = (contract.JOINT_COMMANDS, contract.JOINT_STATES)
-    present = [t for t in topics if t in reader.topics()]
+    in_bag = {t: reader.resolve(t) for t in topics}
+    present = [t for t in topics if in_bag[t] is not None]
     for t in present:
-        if reader.topics()[t] != contract.MSG_TYPES[t]:
-            raise BagError(f'{t} is recorded as {reader.topics()[t]}, expected {contract.MSG_TYPES[t]}')
+        if reader.topics()[in_bag[t]] != contract.MSG_TYPES[t]:
+            raise BagError(f'{in_bag[t]} is recorded as {reader.topics()[in_bag[t]]}, expected {contract.MSG_TYPES[t]}')
     acc: dict[str, dict[str, list]] = {t: {} for t in topics}
-    for topic, _, t_ns, msg in reader.messages(topics=present or None) if present else ():
+    for bag_name, _, t_ns, msg in reader.messages(topics=present or None) if present else ():
+        topic = contract.topic_key(bag_name)
         names = list(msg.name)
         pos = list(msg.position)
         if len(pos) < len(names):

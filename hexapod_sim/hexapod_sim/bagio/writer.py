@@ -16,6 +16,8 @@ import yaml
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
+from hexapod_model import contract
+
 from .cdr import encoder_for, normalize, parse_definitions, ros_message_type
 from .common import DEFAULT_QOS_PROFILE, ROS_DISTRO, ROSBAG2_VERSION, BagError, BagWarning, MessageEncodeError
 from .definitions import message_definition, normalize_type_name, type_hash
@@ -119,8 +121,7 @@ class BagWriter:
             self._add_topic_locked(topic, msg_type, definition, qos_profiles)
 
     def _add_topic_locked(self, topic, msg_type, definition, qos_profiles) -> _WTopic:
-        if not isinstance(topic, str) or not topic.startswith('/') or len(topic) < 2:
-            raise BagError(f'invalid topic name {topic!r}: expected an absolute name like "/joint_states"')
+        topic = _bag_topic(topic)
         full = normalize_type_name(msg_type)
         if topic in self._topics:
             have = self._topics[topic]
@@ -188,6 +189,7 @@ class BagWriter:
             t_ns = int(t_ns)
         if isinstance(t_ns, bool) or not isinstance(t_ns, int) or not 0 <= t_ns < 2**63:
             raise BagError(f'{topic}: t_ns must be a non-negative integer time in nanoseconds, got {t_ns!r}')
+        topic = _bag_topic(topic)
         with self._lock:
             self._check_open()
             t = self._topics.get(topic)
@@ -309,3 +311,10 @@ class BagWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _bag_topic(topic) -> str:
+    """The absolute name a bag stores: contract names are relative ('joint_states' -> '/joint_states')."""
+    if not isinstance(topic, str) or not contract.topic_key(topic):
+        raise BagError(f'invalid topic name {topic!r}: expected a name like "joint_states" or "/joint_states"')
+    return contract.bag_topic(topic)

@@ -18,7 +18,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES
+from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, bag_topic
 from hexapod_model.description import ALL_JOINTS, DescriptionError, parse_joint_name
 
 
@@ -131,9 +131,9 @@ def load_recording(path: str | Path) -> Recording:
         raise RecordingError(f'{p}: {exc}') from None
     cmds, reads = series[JOINT_COMMANDS], series[JOINT_STATES]
     if not cmds:
-        raise RecordingError(f'{p}: no {JOINT_COMMANDS} messages (the tool replays the recorded goals)')
+        raise RecordingError(f'{p}: no {bag_topic(JOINT_COMMANDS)} messages (the tool replays the recorded goals)')
     if not reads:
-        raise RecordingError(f'{p}: no {JOINT_STATES} messages (nothing to compare the model with)')
+        raise RecordingError(f'{p}: no {bag_topic(JOINT_STATES)} messages (nothing to compare the model with)')
     t_first = min(float(a[0, 0]) for d in (cmds, reads) for a in d.values() if len(a))
     t0_ms = int(np.floor(t_first * 1000.0 + 1e-6))
     t0 = t0_ms / 1000.0

@@ -25,12 +25,9 @@ write to the complete status packet.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import math
 import os
 import select
-import struct
-import termios
 import threading
 import time
 from collections import deque
@@ -39,16 +36,17 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 import serial
-from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler
 
 from hexapod_model.bus import BusError
 from hexapod_model.description import ALL_JOINTS, BusJoint, DescriptionError, Robot, parse_joint_name
 from hexapod_model.servo import servo_theta, servo_tick
 
 from . import protocol as p
+from .config import DriverConfig
+from .port import LowLatencyPortHandler, in_waiting, write_all
+from .timing import TimingStats
 
-FAULT_POLICIES = ('limp', 'recover')
-LIMIT_POLICIES = ('clamp', 'reject')
 ALARM_BITS = p.ERR_OVERHEATING | p.ERR_OVERLOAD
 DIAG_START = 24                       # torque_enable .. moving in one READ
 DIAG_LEN = 46 - DIAG_START + 1
@@ -72,121 +70,7 @@ class PortLostError(BusError):
     """The serial port vanished or failed (unplugged adapter, I/O error)."""
 
 
-# ----------------------------------------------------------------------------- port handler
-class LowLatencyPortHandler(PortHandler):
-    """dynamixel-sdk's port handler without its 16 ms latency assumption and without busy polling.
-
-    * The stock handler sizes every reply timeout as ``2 * 16 ms + 2 ms``, the FTDI default latency
-      timer. With the adapter's latency_timer at 1 ms (udev rule) the timeout is
-      ``bytes * 10 bits / baud + 2 * latency_timer_ms + margin_ms``, so a lost reply costs ~4 ms.
-    * The stock ``readPort`` returns at once with whatever is buffered (``timeout=0``) and the
-      packet handler spins on it: a 100 % CPU loop. Here it waits in ``select`` until a byte
-      arrives or the packet deadline passes.
-    * ``writePort`` records ``clock()`` just before the instruction goes out: the sample stamp.
-    """
-
-    def __init__(self, port_name: str, latency_timer_ms: float = 1.0, margin_ms: float = 2.0,
-                 clock: Callable[[], float] = time.time):
-        super().__init__(port_name)
-        self.latency_timer_ms = float(latency_timer_ms)
-        self.margin_ms = float(margin_ms)
-        self.clock = clock
-        self.last_tx_time = math.nan
-
-    def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK API)
-        self.packet_start_time = self.getCurrentTime()
-        self.packet_timeout = (self.tx_time_per_byte * packet_length) + 2.0 * self.latency_timer_ms + self.margin_ms
-
-    def writePort(self, packet):  # noqa: N802
-        self.last_tx_time = self.clock()
-        return self.ser.write(packet)
-
-    def readPort(self, length):  # noqa: N802
-        if not self.ser.in_waiting:
-            left_ms = self.packet_start_time + self.packet_timeout - self.getCurrentTime()
-            if left_ms > 0:
-                select.select([self.ser.fd], [], [], left_ms / 1000.0)
-        return self.ser.read(length)
-
-
 # ----------------------------------------------------------------------------- data types
-@dataclass(frozen=True)
-class DriverConfig:
-    """Driver settings (the node's parameters). ``None`` = take it from the robot description."""
-
-    device: str = '/dev/ttyUSB0'
-    baud_rate: int | None = None                 # None: robot.bus.baud_rate
-    joints: tuple[BusJoint, ...] | None = None   # None: robot.bus.joints (servo id, direction, offset)
-    latency_timer_ms: float = 1.0                # USB adapter latency timer (udev rule sets 1 ms)
-    timeout_margin_ms: float = 5.0               # added to every reply timeout (host scheduling jitter)
-    startup_timeout_margin_ms: float = 50.0      # the same during verification/configuration (robustness first)
-    startup_attempts: int = 5                    # tries per transaction during start-up before giving up
-    return_delay_time: int = 0                   # register 5 [x 2 us]
-    compliance_margin: int | None = None         # None: robot.servo.compliance_margin_ticks
-    compliance_slope: int | None = None          # None: robot.servo.compliance_slope_ticks
-    torque_limit: int = 1023                     # register 34 written at start-up and on recovery
-    write_angle_limits: bool = True              # EEPROM angle limits from joint_limits_rad
-    read_retries: int = 2                        # extra attempts per read before it counts as failed
-    missing_after_failures: int = 3              # consecutive failed reads before a servo is skipped
-    reprobe_period_s: float = 1.0                # how often a skipped servo is tried again
-    reconnect_period_s: float = 0.5              # how often a lost port is reopened
-    command_timeout_s: float = 1.0               # stale-command timeout (0 disables)
-    limit_policy: str = 'clamp'                  # goals outside the joint limits: clamp or reject
-    fault_policy: str = 'limp'                   # overheating/overload: limp or recover
-    diagnostics_period_s: float = 1.0            # one diagnostics round (all servos) per period
-    read_period_s: float = 0.0                   # minimum spacing of position reads (0: back to back)
-
-    def validate(self) -> None:
-        def bad(name, why):
-            raise ValueError(f'driver parameter {name}: {why}')
-        if not self.device:
-            bad('device', 'empty device path')
-        if self.baud_rate is not None and self.baud_rate <= 0:
-            bad('baud_rate', f'must be > 0, got {self.baud_rate}')
-        if self.latency_timer_ms < 0:
-            bad('latency_timer_ms', f'must be >= 0, got {self.latency_timer_ms}')
-        if self.timeout_margin_ms < 0:
-            bad('timeout_margin_ms', f'must be >= 0, got {self.timeout_margin_ms}')
-        if self.startup_timeout_margin_ms < 0:
-            bad('startup_timeout_margin_ms', f'must be >= 0, got {self.startup_timeout_margin_ms}')
-        if not 0 <= self.return_delay_time <= 254:
-            bad('return_delay_time', f'register 5 holds 0..254 (x 2 us), got {self.return_delay_time}')
-        if self.compliance_margin is not None and not 0 <= self.compliance_margin <= 255:
-            bad('compliance_margin', f'must be 0..255 ticks, got {self.compliance_margin}')
-        if self.compliance_slope is not None and not 1 <= self.compliance_slope <= 254:
-            bad('compliance_slope', f'must be 1..254, got {self.compliance_slope}')
-        if not 1 <= self.torque_limit <= 1023:
-            bad('torque_limit', f'must be 1..1023 (0 would leave the servos limp), got {self.torque_limit}')
-        if self.startup_attempts < 1:
-            bad('startup_attempts', f'must be >= 1, got {self.startup_attempts}')
-        if self.read_retries < 0:
-            bad('read_retries', f'must be >= 0, got {self.read_retries}')
-        if self.missing_after_failures < 1:
-            bad('missing_after_failures', f'must be >= 1, got {self.missing_after_failures}')
-        for name in ('reprobe_period_s', 'reconnect_period_s', 'diagnostics_period_s'):
-            if not getattr(self, name) > 0:
-                bad(name, f'must be > 0, got {getattr(self, name)}')
-        for name in ('command_timeout_s', 'read_period_s'):
-            if not getattr(self, name) >= 0:
-                bad(name, f'must be >= 0, got {getattr(self, name)}')
-        if self.limit_policy not in LIMIT_POLICIES:
-            bad('limit_policy', f'must be one of {LIMIT_POLICIES}, got {self.limit_policy!r}')
-        if self.fault_policy == 'hold':
-            bad('fault_policy', "'hold' no longer exists: an AX-12A in alarm shutdown has zeroed its own torque "
-                                "limit, so nothing can hold the joint; use 'limp' or 'recover'")
-        if self.fault_policy not in FAULT_POLICIES:
-            bad('fault_policy', f'must be one of {FAULT_POLICIES}, got {self.fault_policy!r}')
-        if self.joints is not None:
-            names = [j.joint for j in self.joints]
-            if sorted(names) != sorted(ALL_JOINTS):
-                bad('joints', f'need exactly one entry per joint {list(ALL_JOINTS)}, got {names}')
-            ids = [j.servo_id for j in self.joints]
-            if len(set(ids)) != len(ids) or not all(0 <= i <= p.MAX_ID for i in ids):
-                bad('servo_ids', f'must be unique ids 0..{p.MAX_ID}, got {ids}')
-            if any(j.direction not in (-1, 1) for j in self.joints):
-                bad('directions', f'must be +1 or -1, got {[j.direction for j in self.joints]}')
-
-
 @dataclass(frozen=True)
 class Sample:
     """One position read: what the servo returned, stamped at the start of the transaction."""
@@ -231,54 +115,6 @@ class StepResult:
     wrote: bool = False
 
 
-@dataclass(frozen=True)
-class TimingSnapshot:
-    reads: int
-    failed_reads: int
-    t_com_mean_s: float
-    t_com_p99_s: float
-    t_com_max_s: float
-    write_mean_s: float
-
-
-class TimingStats:
-    """Windowed T_com statistics (thread-safe)."""
-
-    def __init__(self, maxlen: int = 100_000):
-        self._lock = threading.Lock()
-        self._reads: deque[float] = deque(maxlen=maxlen)
-        self._writes: deque[float] = deque(maxlen=maxlen)
-        self._failed = 0
-
-    def read(self, duration: float) -> None:
-        with self._lock:
-            self._reads.append(duration)
-
-    def failed(self) -> None:
-        with self._lock:
-            self._failed += 1
-
-    def write(self, duration: float) -> None:
-        with self._lock:
-            self._writes.append(duration)
-
-    def snapshot(self, reset: bool = True) -> TimingSnapshot:
-        with self._lock:
-            r = np.asarray(self._reads, dtype=float)
-            w = np.asarray(self._writes, dtype=float)
-            failed = self._failed
-            if reset:
-                self._reads.clear()
-                self._writes.clear()
-                self._failed = 0
-        return TimingSnapshot(
-            reads=int(r.size), failed_reads=failed,
-            t_com_mean_s=float(r.mean()) if r.size else math.nan,
-            t_com_p99_s=float(np.percentile(r, 99)) if r.size else math.nan,
-            t_com_max_s=float(r.max()) if r.size else math.nan,
-            write_mean_s=float(w.mean()) if w.size else math.nan)
-
-
 # ----------------------------------------------------------------------------- the driver core
 class DynamixelBus:
     """The AX-12A bus. Thread-safe: every transaction holds :attr:`lock`."""
@@ -292,14 +128,11 @@ class DynamixelBus:
         self.clock = clock
         self._sleep = sleep
         self.t_com_s = robot.bus.t_com_s if t_com_s is None else float(t_com_s)
-        self.baud_rate = int(config.baud_rate or robot.bus.baud_rate)
-        joints = config.joints if config.joints is not None else robot.bus.joints
-        self.mount: dict[str, BusJoint] = {j.joint: j for j in joints}
+        self.baud_rate = int(robot.bus.baud_rate)
+        self.mount: dict[str, BusJoint] = {j.joint: j for j in robot.bus.joints}   # the description's mounting
         self.joints = tuple(ALL_JOINTS)
-        self.margin = robot.servo.compliance_margin_ticks if config.compliance_margin is None \
-            else config.compliance_margin
-        self.slope = robot.servo.compliance_slope_ticks if config.compliance_slope is None \
-            else config.compliance_slope
+        self.margin = robot.servo.compliance_margin_ticks    # the model's servo law assumes these
+        self.slope = robot.servo.compliance_slope_ticks
         self.lock = threading.RLock()
         self.packet = PacketHandler(1.0)
         self.port: LowLatencyPortHandler | None = None
@@ -448,7 +281,7 @@ class DynamixelBus:
                     f'power and cable; if the servos are set to another baud rate (register 4), find them with '
                     f'`./hexapod run hexapod_driver servo_tool --device {self.config.device} --baud <rate> scan` '
                     f'(AX-12A rates: 1000000 factory default, 500000, 400000, 250000, 200000, 117647, 57600, '
-                    f'19200, 9600) and set the driver parameter baud_rate to match')
+                    f'19200, 9600) and set bus.baud_rate in the robot description (an overlay) to match')
             elif missing:
                 parts.append('no answer from ' + ', '.join(
                     f'{j} (id {i})' + (f' [{w}]' if w else '') for j, i, w in missing))
@@ -589,12 +422,12 @@ class DynamixelBus:
         fd = port.ser.fd
         rx = self._rx
         try:
-            if rx or _in_waiting(fd):
+            if rx or in_waiting(fd):
                 self.stale_bytes += len(rx) + self._discard_input(port)
                 rx.clear()
             port.last_tx_time = self.clock()
             t0 = time.perf_counter()
-            _write_all(fd, pkt)
+            write_all(fd, pkt)
             if not expect_reply:
                 return b'', COMM_SUCCESS, 0
             total = n_reply + 6
@@ -1157,18 +990,6 @@ class DynamixelBus:
 
 
 BITS_TIMES_1000 = p.BITS_PER_BYTE * 1000.0
-
-
-def _in_waiting(fd: int) -> int:
-    """Bytes waiting in the port's input buffer (TIOCINQ), without pyserial's overhead."""
-    return struct.unpack('I', fcntl.ioctl(fd, termios.TIOCINQ, b'\0\0\0\0'))[0]
-
-
-def _write_all(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        n = os.write(fd, view)
-        view = view[n:]
 
 
 def _result_text(result: int) -> str:

@@ -1,0 +1,63 @@
+"""locomotion_node's parameters (:mod:`hexapod_model.param_schema`). No ROS import.
+
+Gait, detector and the swing-down timing are read-only: the controller is built and warmed up once
+at start (the swing-down models are compiled for the gait's legs and t_des), and a change in the
+middle of a gait cycle would split a swing-down between two models. Restart the node to change
+them. ``cmd_vel_timeout_s`` is read at every use and may change at run time.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from hexapod_model.param_schema import NodeSpec, RobotSource, param
+
+from .controller import LocomotionParams
+from .detector import DETECTOR_KINDS, DetectorConfig
+from .gait import load_gaits
+
+_GAIT = LocomotionParams()
+_DET = DetectorConfig()
+
+
+@dataclass(frozen=True)
+class LocomotionNodeParams:
+    gait: str = param('tripod', 'gait (gaits.yaml)', choices=tuple(load_gaits()))
+    detector: str = param(_DET.kind, "ground detection: 'adaptive' (model threshold, Eq. 17) or 'fixed' (constant "
+                          'baseline threshold)', choices=DETECTOR_KINDS)
+    epsilon_tick: float = param(_DET.epsilon_tick, 'Eq. 17 margin [ticks]; too small stops legs early, too large '
+                                'stops late', min=0.0)
+    fixed_threshold_tick: float = param(_DET.fixed_threshold_tick, 'baseline threshold [ticks] of the fixed '
+                                        'detector', min=0.0)
+    t_des_s: float = param(_GAIT.t_des_s, 'swing-down duration [s]; shorter is faster but hits the ground harder',
+                           min=0.0, min_exclusive=True)
+    t_com_s: float = param(0.0, 'duration of one bus read [s]; 0 = from the robot description', min=0.0)
+    lift_m: float = param(_GAIT.lift_m, 'swing-up height [m]', min=0.0)
+    ground_depth_m: float = param(_GAIT.ground_depth_m, 'theta_fin this far below the nominal ground [m]; deeper '
+                                  '= faster swing-down', min=0.0)
+    landing_preload: float = param(_GAIT.landing_preload, 'a leg that found ground is leveled as carrying this '
+                                   'fraction of its share of the weight (compensates servo compliance; 0 = off, '
+                                   'for rigid servos)', min=0.0)
+    max_stride_m: float = param(0.06, 'largest foothold displacement per cycle [m]; beyond reach is clamped',
+                                min=0.0)
+    cmd_vel_timeout_s: float = param(
+        2.0, 'stop walking (finish the phase, then stand) when the last /cmd_vel is older than this [s of bus '
+        'time]; longer than the period of common publishers (ros2 topic pub: 1 s), so one late message does not '
+        'stop the robot; may change at run time', min=0.0, min_exclusive=True, read_only=False)
+    default_vx: float = param(0.0, 'forward speed [m/s] used when no /cmd_vel has been received')
+    read_timeout_s: float = param(0.0, 'give up on a position read after this wall time [s]; 0 = 2 s, or 10 s in '
+                                  'lockstep (over DDS a loaded machine delivers reads late; a lock-stepped sim '
+                                  'answers late but surely)', min=0.0)
+    lockstep: bool = param(False, 'drive a lock-stepped bus master (sim_node lockstep:=true): advance it by '
+                           'publishing commands instead of waiting for wall time; use with use_sim_time:=true')
+
+
+@dataclass(frozen=True)
+class ComposedParams:
+    """The composed ``robot`` executable's own choice, read before its nodes are made."""
+
+    hardware: str = param('sim', 'bus master composed with the controller: sim (the MuJoCo hexapod) or driver '
+                          '(the AX-12A bus on the driver\'s device: the robot, or the bus emulator)',
+                          choices=('sim', 'driver'))
+
+
+NODE = NodeSpec('hexapod_locomotion', 'locomotion_node', 'locomotion_node', (RobotSource, LocomotionNodeParams))

@@ -1,0 +1,135 @@
+"""Declare a node's parameters from :mod:`hexapod_model.param_schema` dataclasses (the ROS side).
+
+    params = NodeParams(node)
+    src = params.declare(RobotSource)                                  # robot_description, robot_overlays
+    cfg = params.declare(SimParams, defaults={'t_com_s': robot.bus.t_com_s})
+    params.on_change('real_time_factor', pacer.reanchor)
+
+Each field becomes a parameter with a :class:`ParameterDescriptor`: the description (with the
+allowed values), ``FloatingPointRange``/``IntegerRange`` from min/max, ``read_only``. A start value
+given with ``-p`` or ``--params-file`` that is refused raises :class:`ParameterError` (one line: the
+parameter and its allowed values); the nodes' ``main`` prints it and exits 1. At run time one
+on-set-parameters callback refuses bad values with the same reason; a read-only parameter is
+refused by rclpy ("Trying to set a read-only parameter"), never accepted and ignored.
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any, Callable, Mapping
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from .param_schema import ParameterError, ParamSpec, build, check, coerce, specs
+
+INT64_MAX = 2**63 - 1
+EXIT_BAD_PARAMETER = 1
+
+
+def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=spec.full_description(), read_only=spec.read_only)
+    if spec.choices is not None:
+        d.additional_constraints = 'one of: ' + ', '.join(str(c) for c in spec.choices)
+    if spec.type is float and (spec.min is not None or spec.max is not None):
+        d.floating_point_range = [FloatingPointRange(
+            from_value=float(spec.min) if spec.min is not None else -float('inf'),
+            to_value=float(spec.max) if spec.max is not None else float('inf'), step=0.0)]
+    elif spec.type is int and (spec.min is not None or spec.max is not None):
+        lo = int(spec.min) + (1 if spec.min_exclusive else 0) if spec.min is not None else -INT64_MAX
+        d.integer_range = [IntegerRange(from_value=lo, to_value=int(spec.max) if spec.max is not None else INT64_MAX,
+                                        step=0)]
+    return d
+
+
+def ros_default(spec: ParamSpec, value):
+    """The value as declared to ROS: an empty string list is [''] (ROS cannot type an empty list)."""
+    if spec.type is list:
+        return list(value) or ['']
+    return value
+
+
+class NodeParams:
+    """The declared parameters of one node, from one or more schema dataclasses."""
+
+    def __init__(self, node: Node):
+        self.node = node
+        self.specs: dict[str, ParamSpec] = {}
+        self._apply: dict[str, Callable[[Any], None]] = {}
+        node.add_on_set_parameters_callback(self._on_set)
+        node.add_post_set_parameters_callback(self._after_set)
+
+    def declare(self, schema: type, defaults: Mapping[str, Any] | None = None, **library_fields):
+        """Declare every parameter field of ``schema`` and return the instance built from their
+        values (``defaults`` replace the schema's defaults, e.g. values of the robot description;
+        ``library_fields`` fill fields that are not parameters)."""
+        defaults = dict(defaults or {})
+        table = specs(schema)
+        unknown = set(defaults) - set(table)
+        if unknown:
+            raise KeyError(f'{schema.__name__} has no parameter(s) {sorted(unknown)}')
+        values = {}
+        for name, spec in table.items():
+            default = defaults.get(name, spec.default)
+            if default is None:
+                raise TypeError(f'{schema.__name__}.{name}: the node must give a default (the schema has None)')
+            spec = self.specs[name] = _with_default(spec, default)
+            self._float_from_int(spec)
+            try:
+                self.node.declare_parameter(name, ros_default(spec, default), descriptor(spec))
+            except InvalidParameterTypeException:
+                raise ParameterError(name, f'must be {spec.allowed()}, got {self._override(name)!r}') from None
+            except InvalidParameterValueException as exc:
+                value = self._override(name)
+                why = check(spec, value) if value is not None else None
+                raise ParameterError(name, why or str(exc)) from None
+            values[name] = self.node.get_parameter(name).value
+        return build(schema, values, **library_fields)
+
+    def on_change(self, name: str, apply: Callable[[Any], None]) -> None:
+        """Call ``apply(value)`` after a run-time change of a writable parameter was accepted."""
+        if self.specs[name].read_only:
+            raise ValueError(f'parameter {name} is read-only; nothing can change it at run time')
+        self._apply[name] = apply
+
+    def value(self, name: str):
+        return coerce(self.specs[name], self.node.get_parameter(name).value)
+
+    def _float_from_int(self, spec: ParamSpec) -> None:
+        """``-p t_des_s:=1`` means 1.0: rclpy would refuse an INTEGER for a DOUBLE parameter."""
+        overrides = getattr(self.node, '_parameter_overrides', None)
+        p = overrides.get(spec.name) if overrides is not None else None
+        if spec.type is float and p is not None and type(p.value) is int:
+            overrides[spec.name] = Parameter(spec.name, value=float(p.value))
+
+    def _override(self, name: str):
+        p = getattr(self.node, '_parameter_overrides', {}).get(name)
+        return None if p is None else p.value
+
+    def _on_set(self, params) -> SetParametersResult:
+        for p in params:
+            spec = self.specs.get(p.name)
+            if spec is None:
+                continue                   # use_sim_time and other parameters rclpy declares itself
+            why = check(spec, p.value)
+            if why is not None:
+                return SetParametersResult(successful=False, reason=f'parameter {p.name}: {why}')
+        return SetParametersResult(successful=True)
+
+    def _after_set(self, params) -> None:
+        for p in params:
+            fn = self._apply.get(p.name)
+            if fn is not None:
+                fn(coerce(self.specs[p.name], p.value))
+
+
+def _with_default(spec: ParamSpec, default) -> ParamSpec:
+    from dataclasses import replace
+    return replace(spec, default=default)
+
+
+def report(node_name: str, exc: ParameterError) -> int:
+    """Print the one line for a refused start value; the exit code to use."""
+    print(f'{node_name}: {exc}', file=sys.stderr, flush=True)
+    return EXIT_BAD_PARAMETER

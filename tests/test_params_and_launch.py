@@ -1,0 +1,180 @@
+"""Parameter files and launch files (``launch`` itself is not installable here, so its files are
+checked by structure): each node's config/<executable>.yaml is what its schema declares, each node
+starts with its file and declares exactly the file's keys, a bad start value of each node is one
+line and exit code 1, and every executable, parameter file and parameter a launch file names exists
+in the install space or is declared by that node."""
+import ast
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from hexapod_driver.config import NODE as DRIVER  # noqa: E402
+from hexapod_locomotion.params import NODE as LOCOMOTION  # noqa: E402
+from hexapod_model.param_schema import MODEL_NODE, params_yaml  # noqa: E402
+from hexapod_sim.params import NODE as SIM  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+NODES = {n.executable: n for n in (DRIVER, SIM, MODEL_NODE, LOCOMOTION)}
+ROS_DECLARED = {'use_sim_time', 'start_type_description_service'}     # rclpy declares these on every node
+LAUNCH_FILES = sorted((REPO / 'hexapod_locomotion' / 'launch').glob('*.launch.py'))
+
+
+def install_prefix(package: str) -> Path:
+    from ament_index_python.packages import get_package_prefix
+    return Path(get_package_prefix(package))
+
+
+def node_env():
+    return dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+
+
+@pytest.mark.parametrize('exe', list(NODES))
+def test_parameter_file_is_the_schema_and_is_installed(exe):
+    node = NODES[exe]
+    src = REPO / node.package / 'config' / f'{exe}.yaml'
+    assert src.read_text() == params_yaml(node), f'{src} is stale: ./hexapod shell python tools/params_files.py'
+    installed = install_prefix(node.package) / 'share' / node.package / 'config' / f'{exe}.yaml'
+    assert installed.is_file(), installed
+
+
+def _start_in_process(exe, ctx, tmp_path):
+    """The node object started in ``ctx`` (whose arguments carry --params-file); (node, cleanup)."""
+    if exe == 'sim_node':
+        from hexapod_sim.sim_node import SimNode
+        n = SimNode(context=ctx)
+        return n, n.close
+    if exe == 'model_node':
+        from hexapod_model.model_node import ModelNode
+        return ModelNode(context=ctx), lambda: None
+    if exe == 'locomotion_node':
+        from hexapod_locomotion.locomotion_node import LocomotionNode
+        n = LocomotionNode(context=ctx)          # waits for a bus master in its thread; stopped below
+        return n, lambda: None
+    from hexapod_driver.driver_node import DriverNode
+    from hexapod_driver.emulator import BusEmulator
+    emu = BusEmulator().__enter__()
+    try:
+        n = DriverNode(context=ctx, parameter_overrides=[rclpy.parameter.Parameter('device', value=emu.port)])
+    except BaseException:
+        emu.__exit__(None, None, None)
+        raise
+
+    def cleanup():
+        n.shutdown_bus()
+        emu.__exit__(None, None, None)
+    return n, cleanup
+
+
+@pytest.mark.parametrize('exe', list(NODES))
+def test_each_node_starts_with_its_file_and_declares_exactly_its_keys(exe, tmp_path):
+    import yaml
+    node = NODES[exe]
+    path = install_prefix(node.package) / 'share' / node.package / 'config' / f'{exe}.yaml'
+    keys = set(yaml.safe_load(path.read_text())[node.node_name]['ros__parameters'])
+    assert keys == set(node.names())
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, args=['--ros-args', '--params-file', str(path)])
+    try:
+        n, cleanup = _start_in_process(exe, ctx, tmp_path)
+        try:
+            assert n.get_name() == node.node_name
+            declared = set(n.list_parameters([], 0).names) - ROS_DECLARED
+            assert declared == keys
+        finally:
+            cleanup()
+            n.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+BAD_START = {
+    'driver_node': ('fault_policy:=hard', "parameter fault_policy: must be one of limp, recover, got 'hard'"),
+    'sim_node': ('terrain:=moon', "parameter terrain: must be one of flat, blocks, stairs, rough, mockup, got 'moon'"),
+    'model_node': ('robot_overlays:=[7]', 'parameter robot_overlays: must be a list of strings'),
+    'locomotion_node': ('t_des_s:=-0.5', 'parameter t_des_s: must be a finite number > 0, got -0.5'),
+}
+
+
+@pytest.mark.parametrize('exe', list(NODES))
+def test_each_node_refuses_a_bad_start_value_in_one_line(exe):
+    node = NODES[exe]
+    prm, line = BAD_START[exe]
+    exe_path = install_prefix(node.package) / 'lib' / node.package / exe
+    r = subprocess.run([str(exe_path), '--ros-args', '-p', prm], env=node_env(), capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and line in lines[0], r.stderr
+    assert 'Traceback' not in r.stdout + r.stderr
+
+
+# ------------------------------------------------------------------------------------ launch files
+def launch_nodes(path: Path) -> list[dict]:
+    """Every ``Node(...)`` of a launch file: package, executable, name, parameter files
+    (``config(package, file)`` calls) and the keys of the parameter dicts, resolved through the
+    module-level and function-local names the file assigns."""
+    tree = ast.parse(path.read_text())
+    names = {}
+    for a in ast.walk(tree):
+        if isinstance(a, ast.Assign) and len(a.targets) == 1 and isinstance(a.targets[0], ast.Name):
+            names[a.targets[0].id] = a.value
+    out = []
+    for call in ast.walk(tree):
+        if not (isinstance(call, ast.Call) and getattr(call.func, 'id', None) == 'Node'):
+            continue
+        kw = {k.arg: k.value for k in call.keywords}
+        node = {k: kw[k].value for k in ('package', 'executable', 'name') if isinstance(kw.get(k), ast.Constant)}
+        node['files'], node['keys'] = [], set()
+        params = kw.get('parameters')
+        for item in (params.elts if isinstance(params, ast.List) else []):
+            if isinstance(item, ast.Name):
+                item = names[item.id]
+            if isinstance(item, ast.Call) and getattr(item.func, 'id', None) == 'config':
+                node['files'].append(tuple(a.value for a in item.args))
+            elif isinstance(item, ast.Dict):
+                node['keys'] |= {k.value for k in item.keys}
+            else:
+                raise AssertionError(f'{path.name}: cannot read parameter entry {ast.dump(item)}')
+        out.append(node)
+    return out
+
+
+def test_there_are_a_robot_and_a_simulation_launch_file_and_they_are_installed():
+    assert [p.name for p in LAUNCH_FILES] == ['robot.launch.py', 'sim.launch.py']
+    share = install_prefix('hexapod_locomotion') / 'share' / 'hexapod_locomotion' / 'launch'
+    for p in LAUNCH_FILES:
+        assert (share / p.name).is_file(), share / p.name
+    execs = {p.name: sorted(n['executable'] for n in launch_nodes(p)) for p in LAUNCH_FILES}
+    assert execs == {'robot.launch.py': ['driver_node', 'locomotion_node', 'model_node'],
+                     'sim.launch.py': ['locomotion_node', 'model_node', 'sim_node']}
+
+
+@pytest.mark.parametrize('launch', LAUNCH_FILES, ids=lambda p: p.name)
+def test_launch_file_names_installed_executables_files_and_declared_parameters(launch):
+    import yaml
+    nodes = launch_nodes(launch)
+    assert nodes
+    for n in nodes:
+        spec = NODES[n['executable']]
+        assert n['package'] == spec.package and n['name'] == spec.node_name, n
+        exe = install_prefix(n['package']) / 'lib' / n['package'] / n['executable']
+        assert exe.is_file() and os.access(exe, os.X_OK), exe
+        assert n['files'] == [(spec.package, f'{spec.executable}.yaml')], n
+        for pkg, file in n['files']:
+            path = install_prefix(pkg) / 'share' / pkg / 'config' / file
+            assert path.is_file(), path
+            assert spec.node_name in yaml.safe_load(path.read_text()), f'{path} does not address {spec.node_name}'
+        undeclared = n['keys'] - set(spec.names()) - ROS_DECLARED
+        assert not undeclared, f'{launch.name}: {n["executable"]} does not declare {sorted(undeclared)}'
+
+
+def test_the_launch_files_are_python_launch_files():
+    for p in LAUNCH_FILES:
+        tree = ast.parse(p.read_text())
+        assert any(isinstance(f, ast.FunctionDef) and f.name == 'generate_launch_description' for f in tree.body)
+        compile(p.read_text(), str(p), 'exec')
