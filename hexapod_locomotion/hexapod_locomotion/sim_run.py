@@ -134,6 +134,9 @@ class ProbeBus:
     def _maybe_probe(self) -> None:
         if self.sim.now() >= self._next_probe - 1e-12:
             self._probe()
+        rec = self.recorder
+        if rec is not None and rec.tf_due(self.sim.now()):     # TF of the sim's truth in the bag
+            rec.write_tf(self.sim.now(), ALL_JOINTS, self.sim.true_joint_angles(), self.sim.body_pose())
 
     def _probe(self) -> None:
         t = self.sim.now()
@@ -260,7 +263,7 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None) -> TrialResu
     recorder = None
     if cfg.record:
         from hexapod_sim.recorder import Recorder
-        recorder = Recorder(Path(cfg.record))
+        recorder = Recorder(Path(cfg.record), robot=robot)
     frames, on_probe, renderer = [], None, None
     if cfg.video:
         import mujoco

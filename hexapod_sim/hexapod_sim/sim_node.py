@@ -136,7 +136,7 @@ class SimNode(Node):
         self.recorder = None
         if g('record'):
             path = resolve_bag_dir(g('record'))
-            self.recorder = Recorder(path)
+            self.recorder = Recorder(path, robot=robot)
             self.get_logger().info(f'recording to {path}')
 
         qos = QoSProfile(depth=QOS_DEPTH)
@@ -356,6 +356,9 @@ class SimNode(Node):
             w, x, y, z = (float(v) for v in ev.quat_wxyz)
             p.pose.orientation.w, p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z = w, x, y, z
             self._send(contract.SIM_TRUTH_POSE, p, ev.t_s)
+            with self._lock:
+                if self.recorder is not None and self.recorder.tf_due(ev.t_s):   # TF of the truth in the bag
+                    self.recorder.write_tf(ev.t_s, ALL_JOINTS, ev.joint_angles_rad, (ev.position_m, ev.quat_wxyz))
 
     def close(self) -> None:
         """Finalise the bag (safe to call twice, also after the ROS context was shut down)."""
