@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
+from hexapod_model import diagnostics
+from hexapod_model.contract import (DIAGNOSTICS, GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
                                     SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN, stamp_parts)
 from hexapod_model.description import ALL_JOINTS, Robot, joint_name, load_robot, parse_joint_name
 from hexapod_model.kinematics import forward
@@ -187,6 +188,11 @@ class ProbeBus:
                             'voltage_v': float(st.voltage_v[i]), 'load_fraction': float(st.load_fraction[i]),
                             'error_bits': int(st.error_bits[i]), 'responding': True,
                             'torque_enabled': bool(st.torque_enabled[i])} for i, j in enumerate(ALL_JOINTS)]}, t)
+            rec.write(DIAGNOSTICS, MSG_TYPES[DIAGNOSTICS], diagnostics.array_dict([diagnostics.servo_status(
+                self.sim.robot, 'sim', j, int(ids[i]), temperature_c=float(st.temperature_c[i]),
+                voltage_v=float(st.voltage_v[i]), load_fraction=float(st.load_fraction[i]),
+                error_bits=int(st.error_bits[i]), responding=True, torque_enabled=bool(st.torque_enabled[i]))
+                for i, j in enumerate(ALL_JOINTS)], t), t)
 
     def record_swing_start(self, phase: SwingDownPhase) -> None:
         if self.recorder is None:

@@ -5,7 +5,8 @@ In: ``/joint_commands`` (sensor_msgs/JointState: goals, one sync write per messa
 (hexapod_msgs/SetReadSchedule: the schedule, acknowledged once applied) and ``/emergency_stop``
 (std_srvs/Trigger).
 Out: ``/joint_states`` (one message per read, stamped with the sample time), ``/servo_diagnostics``,
-``/bus_timing``, ``/imu``, ``/power``, ``/clock`` and the evaluation-only truth
+``/bus_timing``, ``/diagnostics`` (every servo with each servo-diagnostics round, the bus with each
+bus-timing window), ``/imu``, ``/power``, ``/clock`` and the evaluation-only truth
 ``/sim/foot_contacts`` and ``/sim/body_pose``. All stamps are simulated time.
 
 Pacing: ``real_time_factor`` > 0 keeps simulated time at that multiple of wall time; 0 runs as fast
@@ -27,6 +28,7 @@ import threading
 
 import rclpy
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy._rclpy_pybind11 import RCLError
@@ -38,7 +40,7 @@ from sensor_msgs.msg import BatteryState, Imu, JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
-from hexapod_model import contract
+from hexapod_model import contract, diagnostics
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
 from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus,
                               SwingDownStart)
@@ -133,6 +135,7 @@ class SimNode(Node):
         self.lockstep = bool(g('lockstep'))
         self._lock = threading.RLock()      # the sim, its loop and the bag: executor vs in-process controller
         self._local: LocalSimBus | None = None
+        self._last_timing_t_s = 0.0         # start of the /bus_timing window (bus health on /diagnostics)
         self.recorder = None
         if g('record'):
             path = resolve_bag_dir(g('record'))
@@ -149,6 +152,7 @@ class SimNode(Node):
             contract.CLOCK: self.create_publisher(Clock, contract.CLOCK, 100),
             contract.SIM_TRUTH_CONTACTS: self.create_publisher(Float64MultiArray, contract.SIM_TRUTH_CONTACTS, 100),
             contract.SIM_TRUTH_POSE: self.create_publisher(PoseStamped, contract.SIM_TRUTH_POSE, 100),
+            contract.DIAGNOSTICS: self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, 10),
         }
         self._cmd_sub = self.create_subscription(JointState, contract.JOINT_COMMANDS, self._on_command, qos)
         self._sched_sub = self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self._on_schedule, 10)
@@ -336,6 +340,11 @@ class SimNode(Node):
                 s.message = _error_text(int(ev.error_bits[i]), bool(ev.torque_enabled[i]))
                 m.servos.append(s)
             self._send(contract.SERVO_DIAGNOSTICS, m, ev.t_s)
+            self._diagnostics([diagnostics.servo_status(
+                self.sim.robot, self.get_name(), name, int(ids[i]), temperature_c=float(ev.temperature_c[i]),
+                voltage_v=float(ev.voltage_v[i]), load_fraction=float(ev.load_fraction[i]),
+                error_bits=int(ev.error_bits[i]), responding=True, torque_enabled=bool(ev.torque_enabled[i]),
+                torque_limit=None) for i, name in enumerate(ALL_JOINTS)], ev.t_s)
         elif isinstance(ev, BusTimingSample):
             m = BusTiming()
             m.header.stamp = stamp(ev.t_s)
@@ -344,6 +353,12 @@ class SimNode(Node):
             m.t_com_mean_s = m.t_com_p99_s = m.t_com_max_s = float(ev.t_com_s)
             m.write_mean_s = float(ev.t_write_s)
             self._send(contract.BUS_TIMING, m, ev.t_s)
+            window = ev.t_s - self._last_timing_t_s
+            self._last_timing_t_s = ev.t_s
+            t_com = float(ev.t_com_s)
+            self._diagnostics([diagnostics.bus_status(
+                self.sim.robot, self.get_name(), window_s=window, reads=ev.reads, failed_reads=0, t_com_mean_s=t_com,
+                t_com_p99_s=t_com, t_com_max_s=t_com, write_mean_s=float(ev.t_write_s))], ev.t_s)
         elif isinstance(ev, TruthSample):
             m = Float64MultiArray()
             m.layout.dim = [MultiArrayDimension(label=lab, size=n, stride=n) for lab, n in TRUTH_LAYOUT]
@@ -359,6 +374,14 @@ class SimNode(Node):
             with self._lock:
                 if self.recorder is not None and self.recorder.tf_due(ev.t_s):   # TF of the truth in the bag
                     self.recorder.write_tf(ev.t_s, ALL_JOINTS, ev.joint_angles_rad, (ev.position_m, ev.quat_wxyz))
+
+    def _diagnostics(self, statuses, t_s: float) -> None:
+        """/diagnostics (simulated time stamps); recorded as plain data (the byte level field)."""
+        self.pub[contract.DIAGNOSTICS].publish(diagnostics.diagnostic_array(statuses, stamp(t_s)))
+        if self.recorder is not None:
+            with self._lock:
+                self.recorder.write(contract.DIAGNOSTICS, contract.MSG_TYPES[contract.DIAGNOSTICS],
+                                    diagnostics.array_dict(statuses, t_s), t_s)
 
     def close(self) -> None:
         """Finalise the bag (safe to call twice, also after the ROS context was shut down)."""
