@@ -58,7 +58,7 @@ from hexapod_model import contract
 __all__ = [
     'BagError', 'BagWarning', 'MessageEncodeError', 'BagMessage', 'TopicInfo', 'BagWriter',
     'BagReader', 'joint_series', 'message_definition', 'type_hash', 'normalize_type_name',
-    'DEFAULT_QOS_PROFILE', 'recover_bag',
+    'DEFAULT_QOS_PROFILE', 'recover_bag', 'encode_message',
 ]
 
 MCAP_MAGIC = b'\x89MCAP0\r\n'
@@ -494,7 +494,8 @@ class BagWriter:
         return self._encode(_WTopic('', full, text, '', (), 0, _parse_definitions(full, text),
                                     serialize_dynamic(full, text)[full]), msg)
 
-    def _encode(self, t: _WTopic, msg: Any) -> bytes:
+    @staticmethod
+    def _encode(t: _WTopic, msg: Any) -> bytes:
         if isinstance(msg, (bytes, bytearray, memoryview)):
             data = bytes(msg)
             if len(data) < 4 or data[0] != 0 or data[1] not in (0, 1):
@@ -671,6 +672,19 @@ class _FileScan:
     complete: bool = False                           # footer + trailing magic present
     readable_bytes: int = 0                          # end of the last complete record
     problems: list = field(default_factory=list)     # human-readable warnings
+
+
+@lru_cache(maxsize=None)
+def _type_encoder(msg_type: str) -> _WTopic:
+    full = normalize_type_name(msg_type)
+    text = message_definition(full)
+    return _WTopic('', full, text, '', (), 0, _parse_definitions(full, text), serialize_dynamic(full, text)[full])
+
+
+def encode_message(msg_type: str, msg: Any) -> bytes:
+    """CDR bytes of ``msg`` (dict / object / ROS message) as :class:`BagWriter` writes it, without a
+    bag (the live view sends the same bytes)."""
+    return BagWriter._encode(_type_encoder(msg_type), msg)
 
 
 def _opname(op: int) -> str:

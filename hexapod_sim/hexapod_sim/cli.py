@@ -4,6 +4,7 @@
     ./hexapod sim --video out.gif --duration 4 [--terrain mockup]       GIF of a scripted tripod gait
     ./hexapod sim --urdf hexapod.urdf [--overlay X.yaml]                write the robot's URDF
     ./hexapod sim [--terrain mockup] [--rtf 1] [--record auto]          run sim_node (ROS) instead
+    ./hexapod sim --foxglove [PORT]                                     ... with a Foxglove live view
 
 Rendering is offscreen on the CPU (``MUJOCO_GL=osmesa``, Debian package ``libosmesa6``).
 """
@@ -20,9 +21,10 @@ import argparse  # noqa: E402
 import sys  # noqa: E402
 
 from hexapod_model.cli_common import (add_overlay_option, finite_float, make_parser, nonnegative_float,  # noqa: E402
-                                      nonnegative_int, output_file, positive_float, positive_int)
+                                      nonnegative_int, output_file, port_number, positive_float, positive_int)
 from hexapod_model.description import DescriptionError, load_robot  # noqa: E402
 
+from .live import DEFAULT_PORT as DEFAULT_LIVE_PORT  # noqa: E402
 from .terrain import TERRAINS  # noqa: E402
 
 
@@ -52,6 +54,8 @@ def build_parser():
     node.add_argument('--rtf', type=nonnegative_float, default=1.0, help='real-time factor, 0 = as fast as possible')
     node.add_argument('--lockstep', action='store_true', help='one read cycle per /joint_commands message')
     node.add_argument('--record', default='', help="bag: 'auto', a name under bags/, or a path (default: no bag)")
+    node.add_argument('--foxglove', metavar='PORT', nargs='?', type=port_number, const=DEFAULT_LIVE_PORT,
+                      help=f'serve a Foxglove live view on ws://127.0.0.1:PORT (default {DEFAULT_LIVE_PORT})')
     node.add_argument('--t-com', type=positive_float, default=None,
                       help='duration of one read [s] (default: the description\'s bus.t_com_s; 0.016 stock USB)')
     return ap
@@ -71,6 +75,8 @@ def main(argv=None) -> int:
             ros += ['-p', f'record:={args.record}']
         if args.t_com is not None:
             ros += ['-p', f't_com_s:={float(args.t_com)}']
+        if args.foxglove is not None:
+            ros += ['-p', 'foxglove:=true', '-p', f'foxglove_port:={args.foxglove}']
         if args.overlay:
             ros += ['-p', 'robot_overlays:=[' + ','.join(f'"{p}"' for p in args.overlay) + ']']
         sim_node.main(ros)

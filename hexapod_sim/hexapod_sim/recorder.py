@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from hexapod_model import contract
-from hexapod_model.bagio import DEFAULT_QOS_PROFILE, BagWriter
+from hexapod_model.bagio import DEFAULT_QOS_PROFILE, BagWriter, encode_message
 from hexapod_model.description import Robot, load_robot
 from hexapod_model.tf_tree import TfTree
 from hexapod_model.urdf import urdf_xml
@@ -208,18 +208,20 @@ class Recorder:
     """Write messages of several topics to one bag; times are nanoseconds of simulated time.
 
     ``robot``: the robot of the URDF and TF (default: the packaged description); ``tf_rate_hz`` 0
-    records neither TF nor the robot description.
+    records neither TF nor the robot description. ``bag_dir`` None writes no bag: only the ``live``
+    view (:class:`hexapod_sim.live.LiveView`) gets the messages.
     """
 
-    def __init__(self, bag_dir: str | os.PathLike, flush_period_s: float = FLUSH_PERIOD_S,
-                 robot: Robot | None = None, tf_rate_hz: float = TF_RATE_HZ, **writer_kw: Any):
-        self.path = Path(bag_dir)
+    def __init__(self, bag_dir: str | os.PathLike | None, flush_period_s: float = FLUSH_PERIOD_S,
+                 robot: Robot | None = None, tf_rate_hz: float = TF_RATE_HZ, live=None, **writer_kw: Any):
+        self.path = Path(bag_dir) if bag_dir is not None else None
+        self.live = live                           # a hexapod_sim.live.LiveView also gets every message
         self._tf = TfTree(robot if robot is not None else load_robot()) if tf_rate_hz > 0 else None
         self._tf_period_ns = int(round(1e9 / tf_rate_hz)) if tf_rate_hz > 0 else 0
         self._next_tf_ns: int | None = None        # None: robot description and /tf_static not yet written
         self._tf_truth = False                     # joint angles come from write_tf(), not /joint_states
         self._last_t_ns: int | None = None         # latest log time written (a /tf of it may be due)
-        self._writer = BagWriter(self.path, flush_period_s=flush_period_s, **writer_kw)
+        self._writer = BagWriter(self.path, flush_period_s=flush_period_s, **writer_kw) if self.path else None
         self.count = 0
 
     def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
@@ -235,7 +237,15 @@ class Recorder:
         if hasattr(type(msg), 'get_fields_and_field_types'):
             fast = _FAST.get(msg_type)
             msg = fast(msg) if fast is not None else ros_to_plain(msg)
-        self._writer.write(topic, msg_type, msg, t_ns)
+        self._emit(topic, msg_type, msg, t_ns)
+
+    def _emit(self, topic: str, msg_type: str, msg: Any, t_ns: int) -> None:
+        if self.live is not None:
+            if not isinstance(msg, bytes):
+                msg = encode_message(msg_type, msg)      # once, for the bag and the live view
+            self.live.log(topic, msg_type, msg, t_ns)
+        if self._writer is not None:
+            self._writer.write(topic, msg_type, msg, t_ns)
         self.count += 1
 
     def tf_due(self, t_s: float) -> bool:
@@ -269,13 +279,13 @@ class Recorder:
             return
         self._next_tf_ns = t_ns
         sec, nsec = divmod(t_ns, 1_000_000_000)
-        for topic in (contract.ROBOT_DESCRIPTION, contract.TF_STATIC):
-            self._writer.add_topic(topic, contract.MSG_TYPES[topic], qos_profiles=[LATCHED_QOS])
-        self._writer.write(contract.ROBOT_DESCRIPTION, contract.MSG_TYPES[contract.ROBOT_DESCRIPTION],
-                           {'data': urdf_xml(self._tf.robot)}, t_ns)
-        self._writer.write(contract.TF_STATIC, contract.MSG_TYPES[contract.TF_STATIC],
-                           cdr_tf_entries([(sec, nsec, *e) for e in self._tf.static_entries()]), t_ns)
-        self.count += 2
+        if self._writer is not None:
+            for topic in (contract.ROBOT_DESCRIPTION, contract.TF_STATIC):
+                self._writer.add_topic(topic, contract.MSG_TYPES[topic], qos_profiles=[LATCHED_QOS])
+        self._emit(contract.ROBOT_DESCRIPTION, contract.MSG_TYPES[contract.ROBOT_DESCRIPTION],
+                   {'data': urdf_xml(self._tf.robot)}, t_ns)
+        self._emit(contract.TF_STATIC, contract.MSG_TYPES[contract.TF_STATIC],
+                   cdr_tf_entries([(sec, nsec, *e) for e in self._tf.static_entries()]), t_ns)
 
     def _write_tf(self, t_ns: int) -> None:
         entries = self._tf.dynamic_entries()
@@ -283,15 +293,15 @@ class Recorder:
         if not entries:
             return
         sec, nsec = divmod(t_ns, 1_000_000_000)
-        self._writer.write(contract.TF, contract.MSG_TYPES[contract.TF],
-                           cdr_tf_entries([(sec, nsec, *e) for e in entries]), t_ns)
-        self.count += 1
+        self._emit(contract.TF, contract.MSG_TYPES[contract.TF], cdr_tf_entries([(sec, nsec, *e) for e in entries]),
+                   t_ns)
 
     def close(self) -> None:
         if self._tf is not None and self._last_t_ns is not None and self._last_t_ns >= self._next_tf_ns \
                 and not self._tf_truth:
             self._write_tf(self._last_t_ns)
-        self._writer.close()
+        if self._writer is not None:
+            self._writer.close()
 
     def __enter__(self) -> 'Recorder':
         return self

@@ -18,7 +18,12 @@ command published later (two topics are not ordered), and that command's cycle w
 the old schedule.
 
 ``record``: '' (off), 'auto' (``bags/sim_<UTC time>``), a name (``bags/<name>``) or a path: every
-topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag.
+topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag,
+with ``/robot_description``, ``/tf_static`` and ``/tf`` (hexapod_sim.recorder).
+
+``/robot_description`` (std_msgs/String, transient local): the URDF of the description.
+``foxglove:=true`` (``foxglove_port``, default 8765): a Foxglove WebSocket live view on 127.0.0.1
+with what a bag would hold (hexapod_sim.live).
 """
 from __future__ import annotations
 
@@ -34,18 +39,21 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 from std_srvs.srv import Trigger
 
 from hexapod_model import contract, diagnostics
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
+from hexapod_model.urdf import urdf_xml
 from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus,
                               SwingDownStart)
 from hexapod_msgs.srv import SetReadSchedule
 
+from .live import DEFAULT_PORT as DEFAULT_LIVE_PORT
+from .live import LiveView, LiveViewError
 from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from .recorder import Recorder, resolve_bag_dir
 from .sim import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoState, SimError
@@ -106,6 +114,11 @@ class SimNode(Node):
         P('clock_rate_hz', 1000.0, ParameterDescriptor(description='/clock rate in simulated time [Hz].', **ro))
         P('ambient_temperature_c', 22.0, ParameterDescriptor(description='Ambient temperature [C].', **ro))
         P('initial_temperature_c', 37.0, ParameterDescriptor(description='Servo temperature at start [C].', **ro))
+        P('foxglove', False, ParameterDescriptor(
+            description='Serve a Foxglove WebSocket live view (robot model, TF, joint states, ground detection) '
+                        'on 127.0.0.1.', **ro))
+        P('foxglove_port', DEFAULT_LIVE_PORT, ParameterDescriptor(
+            description='Port of the Foxglove live view (0 = any free port).', **ro))
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         g = lambda name: self.get_parameter(name).value  # noqa: E731
@@ -137,11 +150,22 @@ class SimNode(Node):
         self._local: LocalSimBus | None = None
         self._last_timing_t_s = 0.0         # start of the /bus_timing window (bus health on /diagnostics)
         self.recorder = None
-        if g('record'):
-            path = resolve_bag_dir(g('record'))
-            self.recorder = Recorder(path, robot=robot)
-            self.get_logger().info(f'recording to {path}')
+        self.live = None
+        if g('foxglove'):
+            try:
+                self.live = LiveView(int(g('foxglove_port')), name='hexapod sim_node')
+            except LiveViewError as exc:
+                raise SystemExit(f'sim_node: {exc}') from None
+            self.get_logger().info(f'Foxglove live view on {self.live.url}')
+        if g('record') or self.live is not None:     # the live view gets what a bag would hold
+            path = resolve_bag_dir(g('record')) if g('record') else None
+            self.recorder = Recorder(path, robot=robot, live=self.live)
+            if path is not None:
+                self.get_logger().info(f'recording to {path}')
 
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self._description_pub = self.create_publisher(String, contract.ROBOT_DESCRIPTION, latched)
+        self._description_pub.publish(String(data=urdf_xml(robot)))
         qos = QoSProfile(depth=QOS_DEPTH)
         self.pub = {
             contract.JOINT_STATES: self.create_publisher(JointState, contract.JOINT_STATES, qos),
@@ -390,12 +414,16 @@ class SimNode(Node):
         if self.recorder is not None:
             with self._lock:
                 self.recorder.close()
-            text = f'bag closed: {self.recorder.path} ({self.recorder.count} messages)'
-            if self.context.ok():
-                self.get_logger().info(text)
-            else:                                   # after Ctrl-C the logger's publisher is gone
-                print(f'[sim_node] {text}', file=sys.stderr)
+            if self.recorder.path is not None:
+                text = f'bag closed: {self.recorder.path} ({self.recorder.count} messages)'
+                if self.context.ok():
+                    self.get_logger().info(text)
+                else:                                   # after Ctrl-C the logger's publisher is gone
+                    print(f'[sim_node] {text}', file=sys.stderr)
             self.recorder = None
+        if self.live is not None:
+            self.live.close()
+            self.live = None
 
 
 def _type_name(msg) -> str:
