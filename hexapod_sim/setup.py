@@ -25,6 +25,7 @@ setup(
             'sim = hexapod_sim.cli:main',
             'sim_node = hexapod_sim.sim_node:main',
             'bench_sim = hexapod_sim.bench_sim:main',
+            'tf_figure = hexapod_sim.tf_figure:main',
         ],
     },
 )
