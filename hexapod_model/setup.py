@@ -22,6 +22,7 @@ setup(
     entry_points={
         'console_scripts': [
             'model_node = hexapod_model.model_node:main',
+            'robot_state = hexapod_model.robot_state:main',
             'bench_model = hexapod_model.bench_model:main',
         ],
     },

@@ -28,6 +28,7 @@ setup(
             'bench_sim = hexapod_sim.bench_sim:main',
             'discrepancy = hexapod_sim.discrepancy.cli:main',
             'discrepancy_bench = hexapod_sim.discrepancy.bench:main',
+            'tf_figure = hexapod_sim.tf_figure:main',
         ],
         # The MuJoCo hexapod as a backend of the driver's bus emulator (bus_emulator --backend sim).
         'hexapod_driver.emulator_backends': [

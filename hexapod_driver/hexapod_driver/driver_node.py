@@ -9,7 +9,9 @@ In:  /joint_commands (sensor_msgs/JointState), /read_schedule (hexapod_msgs/Read
      /set_read_schedule (hexapod_msgs/SetReadSchedule, the same with an answer),
      /emergency_stop (std_srvs/Trigger).
 Out: /joint_states (one message per read, stamped at the start of the read transaction),
-     /servo_diagnostics (hexapod_msgs/ServoDiagnostics), /bus_timing (hexapod_msgs/BusTiming).
+     /servo_diagnostics (hexapod_msgs/ServoDiagnostics), /bus_timing (hexapod_msgs/BusTiming),
+     /diagnostics (diagnostic_msgs/DiagnosticArray: every servo and the bus, each timing period
+     and at once on an error; the mapping is hexapod_model.diagnostics).
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import threading
 import traceback
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
@@ -27,7 +30,7 @@ from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from hexapod_model import contract
+from hexapod_model import contract, diagnostics
 from hexapod_model.bus import BusError
 from hexapod_model.description import ALL_JOINTS, DescriptionError
 from hexapod_model.node_params import NodeParams
@@ -82,6 +85,8 @@ class DriverNode(Node):
         self.pub_states = self.create_publisher(JointState, contract.JOINT_STATES, QoSProfile(depth=200))
         self.pub_diag = self.create_publisher(ServoDiagnostics, contract.SERVO_DIAGNOSTICS, 10)
         self.pub_timing = self.create_publisher(BusTiming, contract.BUS_TIMING, 10)
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, 10)
+        self._timing_t0 = self.get_clock().now()
         self._subs = [self.create_subscription(JointState, contract.JOINT_COMMANDS, self.on_command, 10),
                       self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self.on_schedule, 10)]
         self._local: LocalDriverBus | None = None
@@ -185,7 +190,7 @@ class DriverNode(Node):
             if not self._watchdog_fired:
                 self._watchdog_fired = True
                 self.get_logger().error(text)
-                self.pub_diag.publish(self._error_diagnostics(f'ERROR {text}'))
+                self._publish_error(f'ERROR {text}')
         elif self._watchdog_fired:
             self._watchdog_fired = False
             self.get_logger().info('watchdog: bus transactions complete again')
@@ -198,6 +203,33 @@ class DriverNode(Node):
         msg.t_com_mean_s, msg.t_com_p99_s, msg.t_com_max_s = snap.t_com_mean_s, snap.t_com_p99_s, snap.t_com_max_s
         msg.write_mean_s = snap.write_mean_s
         self.pub_timing.publish(msg)
+        now = self.get_clock().now()
+        window_s, self._timing_t0 = (now - self._timing_t0).nanoseconds * 1e-9, now
+        bus = diagnostics.bus_status(self.core.robot, self.get_name(), window_s=window_s, reads=snap.reads,
+                                     failed_reads=snap.failed_reads, t_com_mean_s=snap.t_com_mean_s,
+                                     t_com_p99_s=snap.t_com_p99_s, t_com_max_s=snap.t_com_max_s,
+                                     write_mean_s=snap.write_mean_s)
+        self.pub_diagnostics.publish(diagnostics.diagnostic_array([bus, *self._servo_statuses()], now.to_msg()))
+
+    def _servo_statuses(self, responding: bool | None = None, note: str = '') -> list:
+        out = []
+        for j in ALL_JOINTS:
+            st = self.core.states[j]
+            out.append(diagnostics.servo_status(
+                self.core.robot, self.get_name(), j, st.servo_id, temperature_c=st.temperature_c,
+                voltage_v=st.voltage_v, load_fraction=st.load_fraction, error_bits=st.error_bits,
+                responding=st.responding if responding is None else responding,
+                torque_enabled=st.torque_enabled, torque_limit=st.torque_limit, note=note or st.message))
+        return out
+
+    def _publish_error(self, text: str) -> None:
+        """An ERROR on /servo_diagnostics and /diagnostics (watchdog, bus-loop crash)."""
+        self.pub_diag.publish(self._error_diagnostics(text))
+        nan = float('nan')
+        bus = diagnostics.bus_status(self.core.robot, self.get_name(), window_s=0.0, reads=0, failed_reads=0,
+                                     t_com_mean_s=nan, t_com_p99_s=nan, t_com_max_s=nan, write_mean_s=nan, note=text)
+        stamp = self.get_clock().now().to_msg()
+        self.pub_diagnostics.publish(diagnostics.diagnostic_array([bus, *self._servo_statuses(False, text)], stamp))
 
     def _bus_loop(self) -> None:
         steps = 0
@@ -220,8 +252,7 @@ class DriverNode(Node):
     def _bus_loop_crashed(self, tb: str) -> None:
         if self.context.ok():            # first word out before the torque-off round (which takes a while)
             try:
-                self.pub_diag.publish(self._error_diagnostics(
-                    f'ERROR bus loop crashed, turning torque off: {tb.strip().splitlines()[-1]}'))
+                self._publish_error(f'ERROR bus loop crashed, turning torque off: {tb.strip().splitlines()[-1]}')
             except Exception:            # noqa: BLE001 - the context may be going down meanwhile
                 pass
         ok, torque = self.core.shutdown()
@@ -229,7 +260,7 @@ class DriverNode(Node):
         if self.context.ok():
             self.get_logger().error(f'{text}\n{tb}')
             try:
-                self.pub_diag.publish(self._error_diagnostics(f'ERROR {text}: {tb.strip().splitlines()[-1]}'))
+                self._publish_error(f'ERROR {text}: {tb.strip().splitlines()[-1]}')
             except Exception:            # noqa: BLE001 - the context may be going down meanwhile
                 pass
         else:

@@ -377,6 +377,42 @@ def test_overheating_servo_is_limp_others_commandable_and_recover_restores(robot
     assert 'torque limit 1023 restored' in text
 
 
+def test_diagnostics_topic_reports_every_servo_and_the_bus(robot, ros):
+    """/diagnostics (diagnostic_msgs/DiagnosticArray) from the real process: 18 servos and the bus,
+    all OK; an overheating servo turns ERROR with its temperature, error bits and torque limit
+    while the others and the bus stay OK."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    node, ex = ros
+    with BusEmulator(robot) as emu:
+        proc, out = start_node_env(emu.port, ['fault_policy:=recover'])
+        got = []
+        sub = node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, got.append, 10)
+        try:
+            wait_for(ex, lambda: got and len(got[-1].status) == 19 and got[-1].status[1].values[2].value != 'unknown'
+                     and all(s.level == b'\x00' for s in got[-1].status[1:]), 30.0, proc, 'servos OK on /diagnostics')
+            bus = got[-1].status[0]
+            values = {kv.key: kv.value for kv in bus.values}
+            # the bus may WARN on a loaded machine (emulated reads slower than the model's T_com), never ERROR
+            assert bus.name == 'hexapod_driver: bus' and bus.level in (b'\x00', b'\x01'), bus.message
+            assert float(values['read_rate_hz']) > 20 and float(values['t_com_mean_ms']) > 0
+            names = [s.name for s in got[-1].status[1:]]
+            assert names == [f'hexapod_driver: servo {j} (id {i})' for j, i in
+                             ((bj.joint, bj.servo_id) for bj in robot.bus.joints)]
+            emu.faults.set_temperature(6, 85.0)                     # leg2_tibia
+
+            def tibia():
+                return next(s for s in got[-1].status if 'leg2_tibia' in s.name)
+            wait_for(ex, lambda: tibia().level == b'\x02', 20.0, proc, 'leg2_tibia ERROR on /diagnostics')
+            v = {kv.key: kv.value for kv in tibia().values}
+            assert v['temperature_c'] == '85.0' and 'overheating' in v['error_bits'] and v['torque_limit'] == '0%'
+            assert 'overheating error' in tibia().message and tibia().hardware_id == 'dynamixel id 6'
+            assert [s.level for s in got[-1].status[1:] if 'leg2_tibia' not in s.name] == [b'\x00'] * 17
+        finally:
+            rc, text = out.finish(proc)
+            node.destroy_subscription(sub)
+    assert rc == 0, text
+
+
 def test_emergency_stop_twice_with_different_outcomes(robot, ros):
     node, ex = ros
     with BusEmulator(robot) as emu:

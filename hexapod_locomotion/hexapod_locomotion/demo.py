@@ -12,7 +12,7 @@ import sys
 import time
 
 from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, fail, finite_float, make_parser,
-                                      nonnegative_int, output_file, positive_float)
+                                      nonnegative_int, output_file, port_number, positive_float)
 
 from .trial_runner import TrialConfig, run_trial
 
@@ -44,6 +44,7 @@ def summary_lines(res) -> list[str]:
 
 
 def build_parser():
+    from hexapod_sim.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
     from hexapod_sim.render import VIDEO_EXTENSIONS
     from hexapod_sim.terrain import MOCKUP_BLOCKS_X_M, MOCKUP_STAIRS_X_M, TERRAINS
 
@@ -65,6 +66,10 @@ def build_parser():
     ap.add_argument('--course-end', type=finite_float, default=2.6, help='stop when the trunk passes this x [m]')
     ap.add_argument('--record', default='auto',
                     help="bag directory; 'auto' = bags/demo_<UTC time>; '' = do not record")
+    ap.add_argument('--foxglove', metavar='PORT', nargs='?', type=port_number, const=DEFAULT_LIVE_PORT,
+                    help=f'serve the walk live to the Foxglove app on ws://127.0.0.1:PORT (default '
+                         f'{DEFAULT_LIVE_PORT}): robot model, TF, joint states, ground detection; paces the '
+                         f'simulation to real time')
     add_overlay_option(ap)
     ap.add_argument('--json', metavar='FILE', type=output_file(('.json',)), help='also write the full results as JSON')
     ap.add_argument('--video', metavar='GIF', type=output_file(VIDEO_EXTENSIONS),
@@ -91,6 +96,14 @@ def main(argv=None) -> int:
             bag = str(check_bag_dir(resolve_bag_dir(args.record, prefix='demo')))
         except RecorderError as exc:
             fail(ap, str(exc))
+    live = None
+    if args.foxglove is not None:
+        from hexapod_sim.live import LiveView, LiveViewError
+        try:
+            live = LiveView(args.foxglove, name='hexapod demo')
+        except LiveViewError as exc:
+            fail(ap, str(exc))
+        print(f'live view: {live.url} (Foxglove app: Open connection -> Foxglove WebSocket)', flush=True)
     cfg = TrialConfig(gait=args.gait, detector=args.detector, t_des_s=args.t_des, terrain=args.terrain,
                       seed=args.seed, duration_s=args.duration, course_end_m=args.course_end, record=bag,
                       start_x_m=args.start_x, video=args.video, overlays=tuple(args.overlay))
@@ -111,7 +124,11 @@ def main(argv=None) -> int:
         bar.clear()
         print(f'writing GIF {args.video} ({n_frames} frames)...', file=sys.stderr, flush=True)
 
-    res = run_trial(cfg, progress=progress, on_video_write=on_video)
+    try:
+        res = run_trial(cfg, progress=progress, on_video_write=on_video, live=live)
+    finally:
+        if live is not None:
+            live.close()
     bar.close()
     print(f'done in {time.monotonic() - t0:.0f} s of wall time')
     for line in summary_lines(res):

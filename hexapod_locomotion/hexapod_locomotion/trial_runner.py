@@ -9,12 +9,14 @@ never sees the truth. Everything runs on simulated time, so a trial is determini
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
+from hexapod_model import diagnostics
+from hexapod_model.contract import (DIAGNOSTICS, GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
                                     SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN, stamp_parts)
 from hexapod_model.description import ALL_JOINTS, Robot, joint_name, load_robot, parse_joint_name
 from hexapod_model.kinematics import forward
@@ -74,8 +76,9 @@ class ProbeBus:
 
     deadline_s: float = math.inf
 
-    def __init__(self, sim, probe_period_s: float = 0.05, recorder=None, on_probe=None):
+    def __init__(self, sim, probe_period_s: float = 0.05, recorder=None, on_probe=None, real_time: bool = False):
         self.sim = sim
+        self._wall0 = (time.monotonic() - sim.now()) if real_time else None    # pace to wall time (live view)
         self.on_probe = on_probe
         self.t_com_s = sim.t_com_s
         self.recorder = recorder
@@ -134,6 +137,11 @@ class ProbeBus:
     def _maybe_probe(self) -> None:
         if self.sim.now() >= self._next_probe - 1e-12:
             self._probe()
+        rec = self.recorder
+        if rec is not None and rec.tf_due(self.sim.now()):     # TF of the sim's truth in the bag
+            rec.write_tf(self.sim.now(), ALL_JOINTS, self.sim.true_joint_angles(), self.sim.body_pose())
+            if self._wall0 is not None:                          # never ahead of the wall clock
+                time.sleep(max(0.0, self._wall0 + self.sim.now() - time.monotonic()))
 
     def _probe(self) -> None:
         t = self.sim.now()
@@ -184,6 +192,11 @@ class ProbeBus:
                             'voltage_v': float(st.voltage_v[i]), 'load_fraction': float(st.load_fraction[i]),
                             'error_bits': int(st.error_bits[i]), 'responding': True,
                             'torque_enabled': bool(st.torque_enabled[i])} for i, j in enumerate(ALL_JOINTS)]}, t)
+            rec.write(DIAGNOSTICS, MSG_TYPES[DIAGNOSTICS], diagnostics.array_dict([diagnostics.servo_status(
+                self.sim.robot, 'sim', j, int(ids[i]), temperature_c=float(st.temperature_c[i]),
+                voltage_v=float(st.voltage_v[i]), load_fraction=float(st.load_fraction[i]),
+                error_bits=int(st.error_bits[i]), responding=True, torque_enabled=bool(st.torque_enabled[i]))
+                for i, j in enumerate(ALL_JOINTS)], t), t)
 
     def record_swing_start(self, phase: SwingDownPhase) -> None:
         if self.recorder is None:
@@ -248,9 +261,11 @@ def _detection_events(robot: Robot, probe: ProbeBus, rep: PhaseReport, controlle
     return out
 
 
-def run_trial(cfg: TrialConfig, progress=None, on_video_write=None) -> TrialResult:
+def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -> TrialResult:
     """Walk one trial; ``progress(sim_time_s, distance_m)`` is called after every phase,
-    ``on_video_write(n_frames)`` before the GIF is written.
+    ``on_video_write(n_frames)`` before the GIF is written. ``live``: a
+    :class:`hexapod_sim.live.LiveView` that gets every recorded topic as it happens (the walk is
+    then paced to real time).
 
     The walk ends at ``cfg.duration_s`` of simulated walking time within one control period (the
     phase in progress is cut off and not counted), at the course end, or when the robot falls."""
@@ -258,9 +273,9 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None) -> TrialResu
     robot = load_robot(overlays=cfg.overlays)
     sim = HexapodSim(robot, terrain=cfg.terrain, seed=cfg.seed, t_com_s=cfg.t_com_s, start_xy_m=(cfg.start_x_m, 0.0))
     recorder = None
-    if cfg.record:
+    if cfg.record or live is not None:
         from hexapod_sim.recorder import Recorder
-        recorder = Recorder(Path(cfg.record))
+        recorder = Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live)
     frames, on_probe, renderer = [], None, None
     if cfg.video:
         import mujoco
@@ -275,7 +290,7 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None) -> TrialResu
             if count[0] % every == 0:
                 frames.append(Image.fromarray(render_frame(s, renderer, distance=0.8, azimuth=120.0)))
             count[0] += 1
-    probe = ProbeBus(sim, cfg.probe_period_s, recorder, on_probe)
+    probe = ProbeBus(sim, cfg.probe_period_s, recorder, on_probe, real_time=live is not None)
     reports: list[PhaseReport] = []
     det = DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
     controller = GaitController(robot, get_gait(cfg.gait), LocomotionParams(t_des_s=cfg.t_des_s), det,

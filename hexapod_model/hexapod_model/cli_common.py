@@ -131,6 +131,14 @@ def nonnegative_int(text: str) -> int:
     return v
 
 
+def port_number(text: str) -> int:
+    """argparse type: a TCP port 0..65535 (0: any free port)."""
+    v = _int(text)
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f'{text}: a port must be 0..65535 (0 = any free port)')
+    return v
+
+
 def existing_file(text: str) -> str:
     """argparse type: a file that exists (e.g. an overlay to read)."""
     if not Path(text).is_file():

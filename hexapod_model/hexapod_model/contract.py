@@ -41,6 +41,11 @@ GROUND_DETECTION = 'ground_detection'       # hexapod_msgs/msg/LegGroundDetectio
 SWING_DOWN = 'swing_down'                   # hexapod_msgs/msg/SwingDownStart (controller)
 CMD_VEL = 'cmd_vel'                         # geometry_msgs/msg/Twist (controller input)
 PREDICT_SWING_DOWN = 'predict_swing_down'   # hexapod_msgs/srv/PredictSwingDown (model node)
+ROBOT_DESCRIPTION = 'robot_description'     # std_msgs/msg/String, the URDF, transient local (sim, robot_state)
+# tf and diagnostics keep the absolute names the ROS tools listen on (remap them for a namespaced robot)
+TF = '/tf'                                  # tf2_msgs/msg/TFMessage: world -> base_link, base_link -> links
+TF_STATIC = '/tf_static'                    # tf2_msgs/msg/TFMessage: the fixed joints, transient local
+DIAGNOSTICS = '/diagnostics'                # diagnostic_msgs/msg/DiagnosticArray: per servo + bus health
 # Evaluation-only ground truth published by the sim; never consumed by any estimator/controller.
 SIM_TRUTH_CONTACTS = 'sim/foot_contacts'    # hexapod_msgs-free: std_msgs/msg/Float64MultiArray
 SIM_TRUTH_POSE = 'sim/body_pose'            # geometry_msgs/msg/PoseStamped
@@ -69,4 +74,8 @@ MSG_TYPES = {
     CMD_VEL: 'geometry_msgs/msg/Twist',
     SIM_TRUTH_CONTACTS: 'std_msgs/msg/Float64MultiArray',
     SIM_TRUTH_POSE: 'geometry_msgs/msg/PoseStamped',
+    ROBOT_DESCRIPTION: 'std_msgs/msg/String',
+    TF: 'tf2_msgs/msg/TFMessage',
+    TF_STATIC: 'tf2_msgs/msg/TFMessage',
+    DIAGNOSTICS: 'diagnostic_msgs/msg/DiagnosticArray',
 }

@@ -59,6 +59,7 @@ class TruthSample:
     contacts: FootContacts
     position_m: np.ndarray
     quat_wxyz: np.ndarray
+    joint_angles_rad: np.ndarray | None = None     # true angles of ALL_JOINTS (for TF)
 
 
 @dataclass(frozen=True)
@@ -198,7 +199,7 @@ class SimBusLoop:
             out.append(sim.servo_state())
         if self._truth.due(now) is not None:
             pos, quat = sim.body_pose()
-            out.append(TruthSample(now, sim.foot_contacts(), pos, quat))
+            out.append(TruthSample(now, sim.foot_contacts(), pos, quat, sim.true_joint_angles()))
         if self._timing.due(now) is not None:
             c = dict(sim.bus_stats)
             out.append(BusTimingSample(now, c['reads'] - self._last_counts['reads'],

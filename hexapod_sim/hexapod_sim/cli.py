@@ -2,7 +2,9 @@
 
     ./hexapod sim --render out.png [--terrain blocks] [--start-x 0.8]   PNG after settling
     ./hexapod sim --video out.gif --duration 4 [--terrain mockup]       GIF of a scripted tripod gait
+    ./hexapod sim --urdf hexapod.urdf [--overlay X.yaml]                write the robot's URDF
     ./hexapod sim [--terrain mockup] [--rtf 1] [--record auto]          run sim_node (ROS) instead
+    ./hexapod sim --foxglove [PORT]                                     ... with a Foxglove live view
 
 Rendering is offscreen on the CPU (``MUJOCO_GL=osmesa``, Debian package ``libosmesa6``).
 """
@@ -19,9 +21,10 @@ import argparse  # noqa: E402
 import sys  # noqa: E402
 
 from hexapod_model.cli_common import (add_overlay_option, finite_float, make_parser, nonnegative_float,  # noqa: E402
-                                      nonnegative_int, output_file, positive_float, positive_int)
+                                      nonnegative_int, output_file, port_number, positive_float, positive_int)
 from hexapod_model.description import DescriptionError, load_robot  # noqa: E402
 
+from .live import DEFAULT_PORT as DEFAULT_LIVE_PORT  # noqa: E402
 from .terrain import TERRAINS  # noqa: E402
 
 
@@ -34,6 +37,8 @@ def build_parser():
                     help='write a picture of the robot standing on the terrain')
     ap.add_argument('--video', metavar='GIF', type=output_file(VIDEO_EXTENSIONS),
                     help='write a clip of the robot doing a scripted tripod gait')
+    ap.add_argument('--urdf', metavar='URDF', type=output_file(('.urdf',)),
+                    help="write the robot's URDF (from the description and --overlay files) and exit")
     ap.add_argument('--duration', type=positive_float, default=4.0, help='clip length in simulated seconds')
     ap.add_argument('--settle', type=nonnegative_float, default=1.0,
                     help='simulated seconds to stand before the picture is taken')
@@ -45,10 +50,12 @@ def build_parser():
     ap.add_argument('--azimuth', type=finite_float, default=140.0, help='camera azimuth [deg]')
     ap.add_argument('--elevation', type=finite_float, default=-25.0, help='camera elevation [deg]')
     ap.add_argument('--distance', type=positive_float, default=0.9, help='camera distance from the trunk [m]')
-    node = ap.add_argument_group('sim node (when neither --render nor --video is given)')
+    node = ap.add_argument_group('sim node (when none of --render, --video, --urdf is given)')
     node.add_argument('--rtf', type=nonnegative_float, default=1.0, help='real-time factor, 0 = as fast as possible')
     node.add_argument('--lockstep', action='store_true', help='one read cycle per /joint_commands message')
     node.add_argument('--record', default='', help="bag: 'auto', a name under bags/, or a path (default: no bag)")
+    node.add_argument('--foxglove', metavar='PORT', nargs='?', type=port_number, const=DEFAULT_LIVE_PORT,
+                      help=f'serve a Foxglove live view on ws://127.0.0.1:PORT (default {DEFAULT_LIVE_PORT})')
     node.add_argument('--t-com', type=positive_float, default=None,
                       help='duration of one read [s] (default: the description\'s bus.t_com_s; 0.016 stock USB)')
     return ap
@@ -57,6 +64,8 @@ def build_parser():
 def main(argv=None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    if args.urdf is not None:
+        return _write_urdf(ap, args)
     if args.render is None and args.video is None:
         from . import sim_node
         ros = ['sim', '--ros-args', '-p', f'terrain:={args.terrain}', '-p', f'seed:={args.seed}',
@@ -66,6 +75,8 @@ def main(argv=None) -> int:
             ros += ['-p', f'record:={args.record}']
         if args.t_com is not None:
             ros += ['-p', f't_com_s:={float(args.t_com)}']
+        if args.foxglove is not None:
+            ros += ['-p', 'foxglove:=true', '-p', f'foxglove_port:={args.foxglove}']
         if args.overlay:
             ros += ['-p', 'robot_overlays:=[' + ','.join(f'"{p}"' for p in args.overlay) + ']']
         sim_node.main(ros)
@@ -91,6 +102,23 @@ def main(argv=None) -> int:
     except (RenderError, SimError, DescriptionError, ValueError) as exc:
         print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 2
+    return 0
+
+
+def _write_urdf(ap, args) -> int:
+    from hexapod_model.urdf import write_urdf
+    if args.render or args.video:
+        ap.error('--urdf writes the URDF only; give --render/--video in another call')
+    try:
+        out = write_urdf(load_robot(overlays=args.overlay), args.urdf)
+    except DescriptionError as exc:
+        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f'{ap.prog}: error: cannot write {args.urdf}: {exc.strerror or exc}', file=sys.stderr)
+        return 2
+    extra = f' with {len(args.overlay)} overlay(s)' if args.overlay else ''
+    print(f'wrote {out} (URDF of the robot description{extra})')
     return 0
 
 

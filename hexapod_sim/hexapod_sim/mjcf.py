@@ -26,8 +26,9 @@ potentiometer sits on the output shaft, so the position the firmware sees is mot
 Effects that act in the firmware or on the bus (static friction, torque saturation, dead-band,
 readout delay) are applied by :mod:`hexapod_sim.plant`.
 
-Sim-only geometry and contact values (not in the robot description, so named once here) are
-project nominal values [N].
+The shapes, colours and inertials shared with the URDF are in :mod:`hexapod_model.shapes`; the
+sim-only contact values (not in the robot description, so named once here) are project nominal
+values [N].
 """
 from __future__ import annotations
 
@@ -38,20 +39,17 @@ import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import forward
+from hexapod_model.shapes import (FOOT_RADIUS_M, FOOT_RGBA, LINK_RADIUS_M, LINK_RGBA, ROBOT_RGBA,  # noqa: F401
+                                  SERVO_HALF_SIZE_M, link_inertial, link_principal_inertia, trunk_geometry,
+                                  trunk_inertia)
 
 from .terrain import Terrain, make_terrain, _mat_to_quat
 
 # ----------------------------------------------------------------------------- sim nominal values [N]
 TIMESTEP_S = 0.001             # physics step = the firmware period (1 ms or finer keeps the firmware grid)
-FOOT_RADIUS_M = 0.008          # rubber foot-tip sphere
 FOOT_FRICTION = 1.0            # rubber on wood
-LINK_RADIUS_M = 0.007          # link capsules (visual; the tibia capsule also collides)
-TRUNK_MARGIN_M = 0.02          # trunk plate reaches this far beyond the leg mounts
-TRUNK_HALF_HEIGHT_M = 0.02
-SERVO_HALF_SIZE_M = (0.025, 0.016, 0.019)   # AX-12A case 50 x 32 x 38 mm (visual only)
 SPAWN_CLEARANCE_M = 0.0005     # the robot is spawned this far above the terrain under its feet
 FIXED_BASE_HEIGHT_M = 0.40     # trunk height when welded in the air (fixed_base=True)
-INERTIA_AXIAL_FRACTION = 0.1   # link inertia about its own axis, relative to the transverse one
 # Dry friction as a (nearly) hard constraint. MuJoCo's default impedance (0.9) lets a joint loaded
 # below its friction level creep (a femur held by a 0.3 N m break-away torque slid 60 ticks in 2 s);
 # at 0.999 it creeps 0.02 tick/s (0.9999: 0.002 tick/s but ~10 % slower: more Newton iterations),
@@ -64,10 +62,6 @@ CONTACT_IMPRATIO = 100
 BACKLASH_SOLIMP = '0.99 0.999 0.001 0.5 2'
 ROTOR_MASS_KG = 1e-6           # backlash rotor body: negligible (the rotor inertia is the armature)
 ROTOR_INERTIA_KGM2 = 1e-10
-
-ROBOT_RGBA = (0.15, 0.15, 0.17, 1.0)
-LINK_RGBA = (0.85, 0.85, 0.88, 1.0)
-FOOT_RGBA = (0.9, 0.3, 0.1, 1.0)
 
 
 @dataclass(frozen=True)
@@ -100,25 +94,6 @@ def servo_range_rad(robot: Robot) -> tuple[float, float]:
     """Physical travel of an AX-12A in joint angle: ticks 0..max_tick around the centre tick."""
     s = robot.servo
     return (-s.center_tick * s.rad_per_tick, (s.max_tick - s.center_tick) * s.rad_per_tick)
-
-
-def link_inertial(robot: Robot, leg: int, role: str) -> tuple[float, float, float]:
-    """(mass, COM distance along the link, inertia about the COM) including a tibia payload.
-
-    A payload (``mass_error`` effect) is a point mass at the tibia tip, combined with the tibia
-    link exactly as :class:`hexapod_model.swing_model.LegModel` does.
-    """
-    link = robot.links[role]
-    m, lc, i = link.mass_kg, link.com_from_joint_m, link.inertia_about_com_kgm2
-    if role == 'tibia':
-        payload = robot.leg_payload_kg(leg)
-        if payload > 0:
-            a3 = robot.dh['tibia'].a_m
-            m_tot = m + payload
-            lc_new = (m * lc + payload * a3) / m_tot
-            i = i + m * (lc - lc_new) ** 2 + payload * (a3 - lc_new) ** 2
-            m, lc = m_tot, lc_new
-    return m, lc, i
 
 
 def home_foot_height_m(robot: Robot) -> float:
@@ -175,9 +150,9 @@ def _leg_xml(robot: Robot, leg: int, backlash: set[str]) -> list[str]:
             pos = (a, 0.0, d)
             R = _rx(alpha) @ _rz(dh.theta_off_rad)
         q = _mat_to_quat(R)
-        m, lc, inertia = link_inertial(robot, leg, role)
+        m, lc, _ = link_inertial(robot, leg, role)
         inertial = (f'<inertial pos="{lc:.9g} 0 0" mass="{m:.9g}" '
-                    f'diaginertia="{INERTIA_AXIAL_FRACTION * inertia:.9g} {inertia:.9g} {inertia:.9g}"/>')
+                    f'diaginertia="{_fmt(link_principal_inertia(robot, leg, role))}"/>')
         if name in backlash:
             # motor hinge -> massless rotor body -> backlash hinge -> link body
             lines.append(f'{ind}<body name="{name}_rotor" pos="{_fmt(pos)}" quat="{_fmt(q)}">')
@@ -202,22 +177,11 @@ def _leg_xml(robot: Robot, leg: int, backlash: set[str]) -> list[str]:
     return lines
 
 
-def _trunk_geometry(robot: Robot) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-    """Half sizes of the main trunk plate and of the cross plate reaching the middle mounts."""
-    px = max(abs(m.px_m) for m in robot.legs)
-    corner_py = max((abs(m.py_m) for m in robot.legs if abs(m.px_m) > 1e-9), default=0.05)
-    mid_py = max(abs(m.py_m) for m in robot.legs)
-    main = (px + TRUNK_MARGIN_M, corner_py + TRUNK_MARGIN_M, TRUNK_HALF_HEIGHT_M)
-    cross = (0.05, mid_py + TRUNK_MARGIN_M / 2, TRUNK_HALF_HEIGHT_M * 0.9)
-    return main, cross
-
-
 def robot_body_xml(robot: Robot, fixed_base: bool, base_pos_m, backlash: set[str]) -> str:
     """The ``<body name="trunk">`` element with all six legs, trunk origin at ``base_pos_m``."""
-    main, cross = _trunk_geometry(robot)
+    main, cross = trunk_geometry(robot)
     mb = robot.body_mass_kg
-    hx, hy, hz = (2 * v for v in main)
-    ixx, iyy, izz = mb * (hy ** 2 + hz ** 2) / 12, mb * (hx ** 2 + hz ** 2) / 12, mb * (hx ** 2 + hy ** 2) / 12
+    ixx, iyy, izz = trunk_inertia(robot)
     lines = [f'<body name="trunk" pos="{_fmt(base_pos_m)}">']
     if not fixed_base:
         lines.append('  <freejoint name="root"/>')

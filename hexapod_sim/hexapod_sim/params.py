@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 from hexapod_model.param_schema import NodeSpec, RobotSource, param
 
+from .live import DEFAULT_PORT as DEFAULT_LIVE_PORT
 from .plant import DEFAULT_AMBIENT_C, DEFAULT_START_TEMPERATURE_C
 from .terrain import TERRAINS
 
@@ -36,6 +37,9 @@ class SimParams:
     clock_rate_hz: float = param(1000.0, '/clock rate in simulated time [Hz]; 0 off', min=0.0)
     ambient_temperature_c: float = param(DEFAULT_AMBIENT_C, 'ambient temperature [C]')
     initial_temperature_c: float = param(DEFAULT_START_TEMPERATURE_C, 'servo temperature at start [C]')
+    foxglove: bool = param(False, 'serve a Foxglove WebSocket live view (robot model, TF, joint states, ground '
+                           'detection) on 127.0.0.1')
+    foxglove_port: int = param(DEFAULT_LIVE_PORT, 'port of the Foxglove live view (0 = any free port)', min=0, max=65535)
 
     @staticmethod
     def period(rate_hz: float) -> float:

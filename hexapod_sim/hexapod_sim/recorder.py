@@ -14,6 +14,13 @@ types (JointState and Clock at 1 kHz, Imu at 400 Hz, the 100 Hz truth topics) ar
 by the ``cdr_*`` functions below (little-endian CDR, zero padding; a test checks them byte for
 byte against the bag writer's encoder): the generic encoder is pure Python and would cap the
 recording rate.
+
+Every bag also carries the robot for 3D views (Foxglove, RViz): ``/robot_description`` (the URDF
+of the robot description, std_msgs/String) and ``/tf_static`` (the URDF's fixed joints), both
+once at the first message and offered transient local as their publishers do, and ``/tf``
+(tf2_msgs/TFMessage) at :data:`TF_RATE_HZ` of log time: ``world -> base_link`` from
+``/sim/body_pose`` and ``base_link -> ... -> leg{l}_{role}`` from the latest ``/joint_states`` of
+each joint, or from the true joint angles a simulator hands to :meth:`Recorder.write_tf`.
 """
 from __future__ import annotations
 
@@ -23,9 +30,15 @@ import struct
 from pathlib import Path
 from typing import Any
 
-from hexapod_sim.bagio import BagWriter
+from hexapod_model import contract
+from hexapod_model.description import Robot, load_robot
+from hexapod_model.tf_tree import TfTree
+from hexapod_model.urdf import urdf_xml
+from hexapod_sim.bagio import DEFAULT_QOS_PROFILE, BagWriter, encode_message
 
 FLUSH_PERIOD_S = 1.0          # at most this much is lost on a crash
+TF_RATE_HZ = 50.0             # /tf in log time: smooth in Foxglove, ~20 % of the bag's messages
+LATCHED_QOS = {**DEFAULT_QOS_PROFILE, 'depth': 1, 'durability': 'transient_local'}
 
 
 def default_bag_root() -> Path:
@@ -173,29 +186,122 @@ def cdr_float64_multi_array(msg) -> bytes:
     return bytes(buf)
 
 
+def cdr_tf_entries(entries) -> bytes:
+    """``tf2_msgs/msg/TFMessage`` as CDR from (sec, nanosec, parent, child, xyz, quat xyzw) tuples."""
+    buf = bytearray(_CDR_LE)
+    buf.extend(struct.pack('<I', len(entries)))
+    for sec, nsec, parent, child, xyz, q in entries:
+        _pad(buf, 4)
+        buf.extend(_TIME.pack(sec, nsec))
+        _string(buf, parent)
+        _string(buf, child)
+        _fixed_doubles(buf, (*xyz, *q))
+    return bytes(buf)
+
+
 _FAST = {'sensor_msgs/msg/JointState': cdr_joint_state, 'rosgraph_msgs/msg/Clock': cdr_clock,
          'sensor_msgs/msg/Imu': cdr_imu, 'geometry_msgs/msg/PoseStamped': cdr_pose_stamped,
          'std_msgs/msg/Float64MultiArray': cdr_float64_multi_array}
 
 
 class Recorder:
-    """Write messages of several topics to one bag; times are nanoseconds of simulated time."""
+    """Write messages of several topics to one bag; times are nanoseconds of simulated time.
 
-    def __init__(self, bag_dir: str | os.PathLike, flush_period_s: float = FLUSH_PERIOD_S, **writer_kw: Any):
-        self.path = Path(bag_dir)
-        self._writer = BagWriter(self.path, flush_period_s=flush_period_s, **writer_kw)
+    ``robot``: the robot of the URDF and TF (default: the packaged description); ``tf_rate_hz`` 0
+    records neither TF nor the robot description. ``bag_dir`` None writes no bag: only the ``live``
+    view (:class:`hexapod_sim.live.LiveView`) gets the messages.
+    """
+
+    def __init__(self, bag_dir: str | os.PathLike | None, flush_period_s: float = FLUSH_PERIOD_S,
+                 robot: Robot | None = None, tf_rate_hz: float = TF_RATE_HZ, live=None, **writer_kw: Any):
+        self.path = Path(bag_dir) if bag_dir is not None else None
+        self.live = live                           # a hexapod_sim.live.LiveView also gets every message
+        self._tf = TfTree(robot if robot is not None else load_robot()) if tf_rate_hz > 0 else None
+        self._tf_period_ns = int(round(1e9 / tf_rate_hz)) if tf_rate_hz > 0 else 0
+        self._next_tf_ns: int | None = None        # None: robot description and /tf_static not yet written
+        self._tf_truth = False                     # joint angles come from write_tf(), not /joint_states
+        self._last_t_ns: int | None = None         # latest log time written (a /tf of it may be due)
+        self._writer = BagWriter(self.path, flush_period_s=flush_period_s, **writer_kw) if self.path else None
         self.count = 0
 
     def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
         """Record ``msg`` (a ROS message or a nested dict) on ``topic`` at simulated time ``t_s``."""
+        t_ns = int(round(t_s * 1e9))
+        if self._tf is not None:
+            self._robot_once(t_ns)
+            last = self._last_t_ns
+            if last is not None and t_ns > last and last >= self._next_tf_ns and not self._tf_truth:
+                self._write_tf(last)        # the state after every message of time ``last``
+            self._track(topic, msg)
+            self._last_t_ns = t_ns if last is None else max(last, t_ns)
         if hasattr(type(msg), 'get_fields_and_field_types'):
             fast = _FAST.get(msg_type)
             msg = fast(msg) if fast is not None else ros_to_plain(msg)
-        self._writer.write(topic, msg_type, msg, int(round(t_s * 1e9)))
+        self._emit(topic, msg_type, msg, t_ns)
+
+    def _emit(self, topic: str, msg_type: str, msg: Any, t_ns: int) -> None:
+        if self.live is not None:
+            if not isinstance(msg, bytes):
+                msg = encode_message(msg_type, msg)      # once, for the bag and the live view
+            self.live.log(topic, msg_type, msg, t_ns)
+        if self._writer is not None:
+            self._writer.write(topic, msg_type, msg, t_ns)
         self.count += 1
 
+    def tf_due(self, t_s: float) -> bool:
+        """True when the next /tf message is due at ``t_s`` (so a simulator fetches its truth only then)."""
+        return self._tf is not None and (self._next_tf_ns is None or int(round(t_s * 1e9)) >= self._next_tf_ns)
+
+    def write_tf(self, t_s: float, joint_names, joint_angles, body_pose=None) -> None:
+        """Record /tf at ``t_s`` from true joint angles and body pose ``(xyz, quat wxyz)``; from then on
+        /joint_states no longer move the recorded links (the truth is the better picture)."""
+        if self._tf is None:
+            return
+        t_ns = int(round(t_s * 1e9))
+        self._tf_truth = True
+        self._tf.set_positions(joint_names, [float(v) for v in joint_angles])
+        if body_pose is not None:
+            self._tf.set_body_pose(*body_pose)
+        self._robot_once(t_ns)
+        self._write_tf(t_ns)
+
+    def _track(self, topic: str, msg: Any) -> None:
+        get = (lambda o, k: o[k]) if isinstance(msg, dict) else getattr
+        if topic == contract.JOINT_STATES and not self._tf_truth:
+            self._tf.set_positions(get(msg, 'name'), get(msg, 'position'))
+        elif topic == contract.SIM_TRUTH_POSE and not self._tf_truth:
+            pose = get(msg, 'pose')
+            p, q = get(pose, 'position'), get(pose, 'orientation')
+            self._tf.set_body_pose([get(p, k) for k in 'xyz'], [get(q, k) for k in 'wxyz'])
+
+    def _robot_once(self, t_ns: int) -> None:
+        if self._next_tf_ns is not None:
+            return
+        self._next_tf_ns = t_ns
+        sec, nsec = divmod(t_ns, 1_000_000_000)
+        if self._writer is not None:
+            for topic in (contract.ROBOT_DESCRIPTION, contract.TF_STATIC):
+                self._writer.add_topic(topic, contract.MSG_TYPES[topic], qos_profiles=[LATCHED_QOS])
+        self._emit(contract.ROBOT_DESCRIPTION, contract.MSG_TYPES[contract.ROBOT_DESCRIPTION],
+                   {'data': urdf_xml(self._tf.robot)}, t_ns)
+        self._emit(contract.TF_STATIC, contract.MSG_TYPES[contract.TF_STATIC],
+                   cdr_tf_entries([(sec, nsec, *e) for e in self._tf.static_entries()]), t_ns)
+
+    def _write_tf(self, t_ns: int) -> None:
+        entries = self._tf.dynamic_entries()
+        self._next_tf_ns = max(self._next_tf_ns, t_ns - t_ns % self._tf_period_ns + self._tf_period_ns)
+        if not entries:
+            return
+        sec, nsec = divmod(t_ns, 1_000_000_000)
+        self._emit(contract.TF, contract.MSG_TYPES[contract.TF], cdr_tf_entries([(sec, nsec, *e) for e in entries]),
+                   t_ns)
+
     def close(self) -> None:
-        self._writer.close()
+        if self._tf is not None and self._last_t_ns is not None and self._last_t_ns >= self._next_tf_ns \
+                and not self._tf_truth:
+            self._write_tf(self._last_t_ns)
+        if self._writer is not None:
+            self._writer.close()
 
     def __enter__(self) -> 'Recorder':
         return self

@@ -5,7 +5,8 @@ In: ``/joint_commands`` (sensor_msgs/JointState: goals, one sync write per messa
 (hexapod_msgs/SetReadSchedule: the schedule, acknowledged once applied) and ``/emergency_stop``
 (std_srvs/Trigger).
 Out: ``/joint_states`` (one message per read, stamped with the sample time), ``/servo_diagnostics``,
-``/bus_timing``, ``/imu``, ``/power``, ``/clock`` and the evaluation-only truth
+``/bus_timing``, ``/diagnostics`` (every servo with each servo-diagnostics round, the bus with each
+bus-timing window), ``/imu``, ``/power``, ``/clock`` and the evaluation-only truth
 ``/sim/foot_contacts`` and ``/sim/body_pose``. All stamps are simulated time.
 
 Pacing: ``real_time_factor`` > 0 keeps simulated time at that multiple of wall time; 0 runs as fast
@@ -17,7 +18,12 @@ command published later (two topics are not ordered), and that command's cycle w
 the old schedule.
 
 ``record``: '' (off), 'auto' (``bags/sim_<UTC time>``), a name (``bags/<name>``) or a path: every
-topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag.
+topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag,
+with ``/robot_description``, ``/tf_static`` and ``/tf`` (hexapod_sim.recorder).
+
+``/robot_description`` (std_msgs/String, transient local): the URDF of the description.
+``foxglove:=true`` (``foxglove_port``, default 8765): a Foxglove WebSocket live view on 127.0.0.1
+with what a bag would hold (hexapod_sim.live).
 """
 from __future__ import annotations
 
@@ -26,24 +32,27 @@ import threading
 
 import rclpy
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 from std_srvs.srv import Trigger
 
-from hexapod_model import contract
+from hexapod_model import contract, diagnostics
 from hexapod_model.description import ALL_JOINTS, DescriptionError
 from hexapod_model.node_params import NodeParams, report
 from hexapod_model.param_schema import ParameterError, RobotSource
+from hexapod_model.urdf import urdf_xml
 from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus,
                               SwingDownStart)
 from hexapod_msgs.srv import SetReadSchedule
 
+from .live import LiveView, LiveViewError
 from .params import SimParams
 from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from .recorder import Recorder, resolve_bag_dir
@@ -82,12 +91,24 @@ class SimNode(Node):
         self.lockstep = p.lockstep
         self._lock = threading.RLock()      # the sim, its loop and the bag: executor vs in-process controller
         self._local: LocalSimBus | None = None
+        self._last_timing_t_s = 0.0         # start of the /bus_timing window (bus health on /diagnostics)
         self.recorder = None
-        if p.record:
-            path = resolve_bag_dir(p.record)
-            self.recorder = Recorder(path)
-            self.get_logger().info(f'recording to {path}')
+        self.live = None
+        if p.foxglove:
+            try:
+                self.live = LiveView(p.foxglove_port, name='hexapod sim_node')
+            except LiveViewError as exc:
+                raise SystemExit(f'sim_node: {exc}') from None
+            self.get_logger().info(f'Foxglove live view on {self.live.url}')
+        if p.record or self.live is not None:     # the live view gets what a bag would hold
+            path = resolve_bag_dir(p.record) if p.record else None
+            self.recorder = Recorder(path, robot=robot, live=self.live)
+            if path is not None:
+                self.get_logger().info(f'recording to {path}')
 
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self._description_pub = self.create_publisher(String, contract.ROBOT_DESCRIPTION, latched)
+        self._description_pub.publish(String(data=urdf_xml(robot)))
         qos = QoSProfile(depth=QOS_DEPTH)
         self.pub = {
             contract.JOINT_STATES: self.create_publisher(JointState, contract.JOINT_STATES, qos),
@@ -98,6 +119,7 @@ class SimNode(Node):
             contract.CLOCK: self.create_publisher(Clock, contract.CLOCK, 100),
             contract.SIM_TRUTH_CONTACTS: self.create_publisher(Float64MultiArray, contract.SIM_TRUTH_CONTACTS, 100),
             contract.SIM_TRUTH_POSE: self.create_publisher(PoseStamped, contract.SIM_TRUTH_POSE, 100),
+            contract.DIAGNOSTICS: self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, 10),
         }
         self._cmd_sub = self.create_subscription(JointState, contract.JOINT_COMMANDS, self._on_command, qos)
         self._sched_sub = self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self._on_schedule, 10)
@@ -274,6 +296,11 @@ class SimNode(Node):
                 s.message = _error_text(int(ev.error_bits[i]), bool(ev.torque_enabled[i]))
                 m.servos.append(s)
             self._send(contract.SERVO_DIAGNOSTICS, m, ev.t_s)
+            self._diagnostics([diagnostics.servo_status(
+                self.sim.robot, self.get_name(), name, int(ids[i]), temperature_c=float(ev.temperature_c[i]),
+                voltage_v=float(ev.voltage_v[i]), load_fraction=float(ev.load_fraction[i]),
+                error_bits=int(ev.error_bits[i]), responding=True, torque_enabled=bool(ev.torque_enabled[i]),
+                torque_limit=None) for i, name in enumerate(ALL_JOINTS)], ev.t_s)
         elif isinstance(ev, BusTimingSample):
             m = BusTiming()
             m.header.stamp = stamp(ev.t_s)
@@ -282,6 +309,12 @@ class SimNode(Node):
             m.t_com_mean_s = m.t_com_p99_s = m.t_com_max_s = float(ev.t_com_s)
             m.write_mean_s = float(ev.t_write_s)
             self._send(contract.BUS_TIMING, m, ev.t_s)
+            window = ev.t_s - self._last_timing_t_s
+            self._last_timing_t_s = ev.t_s
+            t_com = float(ev.t_com_s)
+            self._diagnostics([diagnostics.bus_status(
+                self.sim.robot, self.get_name(), window_s=window, reads=ev.reads, failed_reads=0, t_com_mean_s=t_com,
+                t_com_p99_s=t_com, t_com_max_s=t_com, write_mean_s=float(ev.t_write_s))], ev.t_s)
         elif isinstance(ev, TruthSample):
             m = Float64MultiArray()
             m.layout.dim = [MultiArrayDimension(label=lab, size=n, stride=n) for lab, n in TRUTH_LAYOUT]
@@ -294,6 +327,17 @@ class SimNode(Node):
             w, x, y, z = (float(v) for v in ev.quat_wxyz)
             p.pose.orientation.w, p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z = w, x, y, z
             self._send(contract.SIM_TRUTH_POSE, p, ev.t_s)
+            with self._lock:
+                if self.recorder is not None and self.recorder.tf_due(ev.t_s):   # TF of the truth in the bag
+                    self.recorder.write_tf(ev.t_s, ALL_JOINTS, ev.joint_angles_rad, (ev.position_m, ev.quat_wxyz))
+
+    def _diagnostics(self, statuses, t_s: float) -> None:
+        """/diagnostics (simulated time stamps); recorded as plain data (the byte level field)."""
+        self.pub[contract.DIAGNOSTICS].publish(diagnostics.diagnostic_array(statuses, stamp(t_s)))
+        if self.recorder is not None:
+            with self._lock:
+                self.recorder.write(contract.DIAGNOSTICS, contract.MSG_TYPES[contract.DIAGNOSTICS],
+                                    diagnostics.array_dict(statuses, t_s), t_s)
 
     def close(self) -> None:
         """Finalise the bag (safe to call twice, also after the ROS context was shut down)."""
@@ -302,12 +346,16 @@ class SimNode(Node):
         if self.recorder is not None:
             with self._lock:
                 self.recorder.close()
-            text = f'bag closed: {self.recorder.path} ({self.recorder.count} messages)'
-            if self.context.ok():
-                self.get_logger().info(text)
-            else:                                   # after Ctrl-C the logger's publisher is gone
-                print(f'[sim_node] {text}', file=sys.stderr)
+            if self.recorder.path is not None:
+                text = f'bag closed: {self.recorder.path} ({self.recorder.count} messages)'
+                if self.context.ok():
+                    self.get_logger().info(text)
+                else:                                   # after Ctrl-C the logger's publisher is gone
+                    print(f'[sim_node] {text}', file=sys.stderr)
             self.recorder = None
+        if self.live is not None:
+            self.live.close()
+            self.live = None
 
 
 def _type_name(msg) -> str:

@@ -174,7 +174,32 @@ def test_embedded_definitions_match_installed_interfaces():
                 break
     if checked == 0:
         pytest.skip('no ROS interface packages on AMENT_PREFIX_PATH to compare the embedded copies with')
-    assert checked == len(embedded)
+    # tf2_msgs has no wheel: its upstream text is embedded and its hash is recomputed from that text
+    assert checked == len(embedded) - 1
+    assert embedded['tf2_msgs/msg/TFMessage']['msg'] == 'geometry_msgs/TransformStamped[] transforms\n'
+
+
+def test_embedded_tf2_msgs_hash_is_rosidls_hash_of_its_text(tmp_path):
+    """The RIHS01 hash of the embedded tf2_msgs/msg/TFMessage, as rosidl computes it at build time."""
+    adapter = pytest.importorskip('rosidl_adapter.msg')
+    type_description = pytest.importorskip('rosidl_generator_type_description')
+    includes = []
+    for pkg in ('geometry_msgs', 'std_msgs', 'builtin_interfaces'):
+        share = next((Path(p) / 'share' / pkg for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)
+                      if p and (Path(p) / 'share' / pkg / 'msg').is_dir()), None)
+        if share is None:
+            pytest.skip(f'{pkg} is not installed (its type descriptions are needed for the hash)')
+        includes.append(f'{pkg}:{share}')
+    entry = json.loads(bagio._EMBEDDED_PATH.read_text())['types']['tf2_msgs/msg/TFMessage']
+    (tmp_path / 'tf2_msgs' / 'msg').mkdir(parents=True)
+    (tmp_path / 'tf2_msgs' / 'msg' / 'TFMessage.msg').write_text(entry['msg'])
+    adapter.convert_msg_to_idl(tmp_path / 'tf2_msgs', 'tf2_msgs', Path('msg/TFMessage.msg'), tmp_path / 'idl')
+    args = tmp_path / 'args.json'
+    args.write_text(json.dumps({'package_name': 'tf2_msgs', 'output_dir': str(tmp_path / 'out'),
+                                'idl_tuples': [f'{tmp_path / "idl"}:TFMessage.idl'], 'include_paths': includes}))
+    (out,) = type_description.generate_type_hash(str(args))
+    hashes = json.loads(Path(out).read_text())['type_hashes']
+    assert entry['rihs01'] == next(h['hash_string'] for h in hashes if h['type_name'] == 'tf2_msgs/msg/TFMessage')
 
 
 def test_definitions_work_without_ros(tmp_path):

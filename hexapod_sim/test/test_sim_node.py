@@ -217,3 +217,39 @@ def test_paced_run_does_not_outrun_the_real_time_factor(ctx):
 def test_error_bits_match_the_servo_status_message():
     assert sim_mod.ERR_OVERHEATING == ServoStatus.ERR_OVERHEATING
     assert sim_mod.ERR_ANGLE_LIMIT == ServoStatus.ERR_ANGLE_LIMIT
+
+
+def test_diagnostics_and_robot_description_over_ros(ctx):
+    """/diagnostics (diagnostic_msgs): every servo and the bus of the simulated robot, OK, in
+    simulated time; /robot_description (transient local) reaches a late subscriber."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from std_msgs.msg import String
+    from hexapod_model.urdf import urdf_xml
+    sim = SimNode(context=ctx, parameter_overrides=[
+        Parameter('real_time_factor', value=0.0), Parameter('bus_timing_rate_hz', value=10.0)])
+    node = rclpy.create_node('diag_probe', context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(sim)
+    ex.add_node(node)
+    diags, desc = [], []
+    try:
+        for _ in range(20):
+            ex.spin_once(timeout_sec=0.01)           # the description goes out before anyone listens
+        node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, diags.append, 100)
+        node.create_subscription(String, contract.ROBOT_DESCRIPTION, desc.append,
+                                 QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        names = lambda: {s.name for m in diags for s in m.status}  # noqa: E731
+        spin_until(ex, lambda: desc and len(names()) == 19, timeout=60.0)
+        assert desc[0].data == urdf_xml(sim.sim.robot)
+        assert all(s.level == b'\x00' for m in diags for s in m.status), [
+            (s.name, s.message) for m in diags for s in m.status if s.level != b'\x00']
+        bus = next(s for m in diags for s in m.status if s.name == 'sim_node: bus')
+        values = {kv.key: kv.value for kv in bus.values}
+        assert float(values['t_com_mean_ms']) == pytest.approx(sim.sim.t_com_s * 1e3)
+        assert float(values['read_rate_hz']) == pytest.approx(1.0 / sim.sim.t_com_s, rel=0.05)
+        assert stamp_ns(diags[-1]) <= int(sim.sim.now() * 1e9)             # simulated time
+    finally:
+        sim.close()
+        node.destroy_node()
+        sim.destroy_node()

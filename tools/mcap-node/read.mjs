@@ -1,6 +1,6 @@
 #!/usr/bin/env node
 // Dump an MCAP bag as JSON with @mcap/core (an MCAP reader independent of the Python one), for
-// cross-checks of the bags written by hexapod_model.bagio.
+// cross-checks of the bags written by hexapod_sim.bagio.
 //
 //   node tools/mcap-node/read.mjs BAG [--stream]
 //

@@ -8,6 +8,7 @@ import time
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -162,7 +163,8 @@ class BagWriter:
         return self._encode(_WTopic('', full, text, '', (), 0, parse_definitions(full, text),
                                     encoder_for(full, text)), msg)
 
-    def _encode(self, t: _WTopic, msg: Any) -> bytes:
+    @staticmethod
+    def _encode(t: _WTopic, msg: Any) -> bytes:
         if isinstance(msg, (bytes, bytearray, memoryview)):
             data = bytes(msg)
             if len(data) < 4 or data[0] != 0 or data[1] not in (0, 1):
@@ -311,6 +313,19 @@ class BagWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+@lru_cache(maxsize=None)
+def _type_encoder(msg_type: str) -> _WTopic:
+    full = normalize_type_name(msg_type)
+    text = message_definition(full)
+    return _WTopic('', full, text, '', (), 0, parse_definitions(full, text), encoder_for(full, text))
+
+
+def encode_message(msg_type: str, msg: Any) -> bytes:
+    """CDR bytes of ``msg`` (dict / object / ROS message) as :class:`BagWriter` writes it, without a
+    bag (the live view sends the same bytes)."""
+    return BagWriter._encode(_type_encoder(msg_type), msg)
 
 
 def _bag_topic(topic) -> str:
