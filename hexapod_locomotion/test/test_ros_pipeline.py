@@ -13,10 +13,11 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
+from hexapod_model.contract import stamp_seconds  # noqa: E402
+from hexapod_model.testing import installed_executable  # noqa: E402
 
-def _exe(pkg, name):
-    from ament_index_python.packages import get_package_prefix
-    return os.path.join(get_package_prefix(pkg), 'lib', pkg, name)
+
+_exe = installed_executable
 
 
 @pytest.fixture
@@ -67,7 +68,7 @@ def test_locomotion_node_walks_the_sim_node(nodes):
     first_stop, stamps = {}, {}
     for m in seen['reads']:
         key = (m.swing_start.sec, m.swing_start.nanosec, m.leg)
-        stamps.setdefault(key, []).append(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9)
+        stamps.setdefault(key, []).append(stamp_seconds(m.header.stamp))
         if m.stopped:
             first_stop.setdefault(key, m.stop_reason)
     assert sum(r == 1 for r in first_stop.values()) >= 18          # ground found by 18+ leg swing-downs

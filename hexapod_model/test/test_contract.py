@@ -1,4 +1,6 @@
 """Header stamps of the recording contract."""
+import pytest
+
 from hexapod_model.contract import stamp_parts
 
 
@@ -6,3 +8,21 @@ def test_stamp_parts_carries_into_seconds():
     assert stamp_parts(12.000345) == (12, 345000)
     assert stamp_parts(1.9999999999) == (2, 0)          # rounds up into the next second, not (1, 0)
     assert stamp_parts(0.0) == (0, 0)
+
+
+def test_stamp_conversions_are_one_pair_in_every_form():
+    from builtin_interfaces.msg import Time
+
+    from hexapod_model.contract import (stamp_dict, stamp_dict_ns, stamp_msg, stamp_ns, stamp_parts_ns,
+                                        stamp_seconds)
+    for t in (0.0, 0.001, 12.000345, 1.9999999999, 1234.5678901):
+        sec, nanosec = stamp_parts(t)
+        msg = stamp_msg(t)
+        assert isinstance(msg, Time) and (msg.sec, msg.nanosec) == (sec, nanosec)
+        assert stamp_dict(t) == {'sec': sec, 'nanosec': nanosec}
+        assert stamp_seconds(msg) == stamp_seconds(stamp_dict(t)) == pytest.approx(t, abs=5e-10)
+        assert stamp_ns(msg) == stamp_ns(stamp_dict(t)) == int(round(t * 1e9))
+        assert stamp_parts_ns(stamp_ns(msg)) == (sec, nanosec)
+        assert stamp_dict_ns(stamp_ns(msg)) == stamp_dict(t)
+    # the float the pre-existing readers computed (sec + nanosec * 1e-9), so results do not move
+    assert stamp_seconds(Time(sec=3, nanosec=7)) == 3 + 7 * 1e-9

@@ -37,7 +37,7 @@ def make_bag(path, n=90, seed_gap_ms=(4, 9, 15, 23)):
         t = T0
         for i in range(n):
             t += seed_gap_ms[i % len(seed_gap_ms)] * 1_000_000
-            stamp = {'sec': t // 10**9, 'nanosec': t % 10**9}
+            stamp = contract.stamp_dict_ns(t)
             if i % 3 == 0:
                 w.write(contract.JOINT_STATES, JS, {'header': {'stamp': stamp}, 'name': ['leg1_femur'],
                                                     'position': [0.01 * i]}, t)
@@ -150,7 +150,7 @@ def test_window_and_clock(ros, tmp_path):
     assert sorted((t, d) for t, d, _ in rx.got) == sorted((m.topic, m.msg) for m in want)
     for topic in reader.topics():
         assert [d for t, d, _ in rx.got if t == topic] == [m.msg for m in want if m.topic == topic]
-    clocks = [c.clock.sec * 10**9 + c.clock.nanosec for c in rx.clock]
+    clocks = [contract.stamp_ns(c.clock) for c in rx.clock]
     assert stats.clock_published >= 5 and len(clocks) >= 5          # 0.2 s wall at 50 Hz
     assert clocks == sorted(clocks) and begin <= clocks[0] and clocks[-1] <= end
     with pytest.raises(ValueError, match='past the end of the bag'):
