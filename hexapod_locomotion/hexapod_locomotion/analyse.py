@@ -24,7 +24,7 @@ import numpy as np
 from hexapod_model.bagio import BagError, BagReader, BagWarning
 from hexapod_model.cli_common import add_no_progress_option, make_parser, output_file, plot_extensions
 from hexapod_model.contract import GROUND_DETECTION, IMU, JOINT_STATES, POWER, SIM_TRUTH_POSE, SWING_DOWN, stamp_seconds
-from hexapod_model.description import DescriptionError, load_robot, parse_joint_name
+from hexapod_model.description import LEGS, DescriptionError, load_robot, parse_joint_name
 from hexapod_model.swing_model import LegModel
 
 from .detector import DetectorError, phase_from_fields, replay_swing_down
@@ -116,7 +116,7 @@ def analyse(path: str, robot=None, keep_traces: int = 6, progress: bool = False)
     """
     robot = robot or load_robot()
     swings, femur_reads, recorded, power, pose, imu, bag_warnings = load_bag(path)
-    models = {leg: LegModel(robot, leg) for leg in range(1, 7)}
+    models = {leg: LegModel(robot, leg) for leg in LEGS}
     times = np.array([r[0] for r in femur_reads])
     verdicts: list[LegVerdict] = []
     traces: list[SwingTrace] = []

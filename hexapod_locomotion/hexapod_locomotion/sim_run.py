@@ -16,7 +16,7 @@ import numpy as np
 
 from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
                                     SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN, stamp_dict)
-from hexapod_model.description import ALL_JOINTS, Robot, joint_name, load_robot, parse_joint_name
+from hexapod_model.description import ALL_JOINTS, LEGS, Robot, joint_name, load_robot, parse_joint_name
 from hexapod_model.kinematics import forward
 
 from .controller import GaitController, LocomotionError, LocomotionParams, PhaseReport, VelocityCommand
@@ -84,7 +84,7 @@ class ProbeBus:
         self.imu_t: list[float] = []
         self.imu_rpy: list[tuple] = []
         self.imu_acc_z: list[float] = []
-        self.femur_reads: dict[int, list[tuple]] = {leg: [] for leg in range(1, 7)}
+        self.femur_reads: dict[int, list[tuple]] = {leg: [] for leg in LEGS}
         self._probe()
 
     # -- ServoBus
@@ -338,8 +338,8 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None) -> TrialResu
     stability = swing_down_variances(np.array(probe.imu_t), rpy[:, 0] if len(rpy) else [], rpy[:, 1] if len(rpy) else [],
                                      np.array(probe.imu_acc_z), intervals) if len(rpy) else []
     temps = np.array(probe.temps)
-    fem = [ALL_JOINTS.index(joint_name(leg, 'femur')) for leg in range(1, 7)]
-    tib = [ALL_JOINTS.index(joint_name(leg, 'tibia')) for leg in range(1, 7)]
+    fem = [ALL_JOINTS.index(joint_name(leg, 'femur')) for leg in LEGS]
+    tib = [ALL_JOINTS.index(joint_name(leg, 'tibia')) for leg in LEGS]
     step = max(1, int(round(1.0 / cfg.probe_period_s)))
     return TrialResult(
         config=asdict(cfg), sim_time_s=float(sim.now() - walk_start), distance_m=float(xyz[-1, 0] - x0),

@@ -13,7 +13,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from .contract import PREDICT_SWING_DOWN
-from .description import DescriptionError, load_robot
+from .description import LEGS, DescriptionError, load_robot
 from .swing_model import LegModel, SwingDownError, predict_swing_down
 
 
@@ -26,7 +26,7 @@ class ModelNode(Node):
             description='overlay YAML files merged over the description (e.g. identified effects)'))
         overlays = [o for o in self.get_parameter('robot_overlays').value if o]
         self.robot = load_robot(self.get_parameter('robot_description').value or None, overlays)
-        self.models = {leg: LegModel(self.robot, leg) for leg in range(1, 7)}
+        self.models = {leg: LegModel(self.robot, leg) for leg in LEGS}
         from hexapod_msgs.srv import PredictSwingDown
         self.srv = self.create_service(PredictSwingDown, PREDICT_SWING_DOWN, self.on_request)
         self.get_logger().info(f'serving {PREDICT_SWING_DOWN} for robot {self.robot.name!r}')

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hexapod_model.calibration import calibration_plan
-from hexapod_model.description import Effect, load_robot
+from hexapod_model.description import JOINT_ROLES, Effect, load_robot
 from hexapod_model.discrepancy import analyse
 from hexapod_model.discrepancy.effects import CANDIDATES
 from hexapod_model.discrepancy.report import text_report, to_json
@@ -72,7 +72,7 @@ def test_clean_recording_gives_no_effect(robot):
 
 def test_two_effects_at_once_are_both_found(robot):
     legs = (1, 3)
-    every = tuple(f'leg{leg}_{r}' for leg in legs for r in ('coxa', 'femur', 'tibia'))
+    every = tuple(f'leg{leg}_{r}' for leg in legs for r in JOINT_ROLES)
     truth = [Effect('backlash', ('leg3_tibia',), {'width_rad': math.radians(1.2)}),
              Effect('readout_delay', every, {'delay_s': 0.004})]
     rec = model_recording(robot.with_effects(truth), calibration_plan(robot, legs=legs, phases=('tibia', 'coxa')))
