@@ -77,3 +77,11 @@ def test_bus_time_of_a_position_read_at_1mbps():
     assert p.read_bus_time_s(2, 1_000_000, 250 * p.RETURN_DELAY_UNIT_S) == pytest.approx(660e-6)
     assert p.baud_of_register(1) == 1_000_000
     assert p.sync_write_bytes(18, 2) == 8 + 18 * 3
+
+
+def test_error_bits_are_the_servo_modules():
+    """The status bits are defined once, with the servo in hexapod_model; the protocol re-exports them."""
+    from hexapod_model import servo
+    for n in (n for n in dir(servo) if n.startswith('ERR_')):
+        assert getattr(p, n) is getattr(servo, n), n
+    assert p.describe_error is servo.describe_error

@@ -21,8 +21,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 from hexapod_model import contract, testing  # noqa: E402
 from hexapod_model.description import ALL_JOINTS, load_robot  # noqa: E402
 from hexapod_model.servo import theta_to_tick  # noqa: E402
-from hexapod_msgs.msg import ReadSchedule, ServoDiagnostics, ServoStatus  # noqa: E402
-from hexapod_sim import sim as sim_mod  # noqa: E402
+from hexapod_msgs.msg import ReadSchedule, ServoDiagnostics  # noqa: E402
 from hexapod_sim.sim_node import SimNode  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
@@ -207,8 +206,3 @@ def test_paced_run_does_not_outrun_the_real_time_factor(ctx):
     finally:
         sim.close()
         sim.destroy_node()
-
-
-def test_error_bits_match_the_servo_status_message():
-    assert sim_mod.ERR_OVERHEATING == ServoStatus.ERR_OVERHEATING
-    assert sim_mod.ERR_ANGLE_LIMIT == ServoStatus.ERR_ANGLE_LIMIT
