@@ -32,6 +32,7 @@ project nominal values [N].
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -339,3 +340,33 @@ def scene(robot: Robot, terrain: str | Terrain = 'flat', seed: int = 0, fixed_ba
 '''
     return Scene(xml=xml, terrain=ter, fixed_base=fixed_base, spawn_height_m=base_h,
                  backlash_joints=tuple(n for n in order if n in backlash), timestep_s=timestep_s)
+
+
+def mjcf_file_text(robot: Robot, terrain: str = 'flat', seed: int = 0,
+                   start_xy_m: tuple[float, float] = (0.0, 0.0), overlays=()) -> str:
+    """The scene of :func:`scene` as the text of one stand-alone MJCF file, with a header that says
+    where it came from (the text is the same string the simulator compiles, so nothing can differ)."""
+    sc = scene(robot, terrain, seed=seed, start_xy_m=start_xy_m)
+    how = f'--terrain {terrain} --seed {seed}'
+    if tuple(start_xy_m) != (0.0, 0.0):
+        how += f' --start-x {start_xy_m[0]:g} --start-y {start_xy_m[1]:g}'
+    for o in overlays or ():
+        how += f' --overlay {o}'
+    header = (f'<!-- Generated from the robot description ({robot.name}) by hexapod_sim.mjcf; do not edit.\n'
+              f'     Regenerate: ./hexapod sim --mjcf OUT.xml {how}\n'
+              f'     View: python -m mujoco.viewer --mjcf OUT.xml -->\n')
+    return header + sc.xml
+
+
+def write_mjcf(robot: Robot, path, **kwargs) -> str:
+    """Write :func:`mjcf_file_text` to ``path`` (replaced atomically); returns the path written."""
+    text = mjcf_file_text(robot, **kwargs)
+    tmp = f'{path}.tmp{os.getpid()}'
+    try:
+        with open(tmp, 'w', encoding='utf-8') as f:
+            f.write(text)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return str(path)
