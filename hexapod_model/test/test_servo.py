@@ -26,7 +26,7 @@ def test_error_bits_are_the_servo_status_messages():
     assert servo.describe_error(0) == ''
 
 
-@pytest.mark.parametrize('direction,offset', itertools.product((1, -1), (0, 7, -13)))
+@pytest.mark.parametrize('direction,offset', list(itertools.product((1, -1), (0, 7, -13))))
 def test_joint_tick_of_servo_tick_undoes_the_mounting_exactly(robot, direction, offset):
     s = robot.servo
     bj = BusJoint('leg1_femur', 1, direction, offset)
