@@ -106,6 +106,7 @@ def test_lockstep_graph_walks_and_turns_by_cmd_vel():
     assert 'Traceback' not in ''.join(outs), outs
 
 
+@pytest.mark.realtime
 def test_realtime_graph_with_default_parameters_accepts_the_sim_reads():
     """Two processes in real time, every parameter at its default (the sim stamps in sim time, the
     controller runs without use_sim_time): the controller accepts the reads, finds ground and walks."""
@@ -126,6 +127,7 @@ def test_realtime_graph_with_default_parameters_accepts_the_sim_reads():
     assert 'Traceback' not in ''.join(outs), outs
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_composed_robot_walks_in_real_time_and_stops_cleanly(sig):
     """``hexapod_locomotion robot`` (sim + model + locomotion in one process, defaults, real time):

@@ -186,6 +186,7 @@ def _check_bag_with_independent_readers(bag: Path, probe: Probe):
     assert theirs == sorted(raw)
 
 
+@pytest.mark.realtime
 def test_paced_run_does_not_outrun_the_real_time_factor(ctx):
     sim = SimNode(context=ctx, parameter_overrides=[Parameter('real_time_factor', value=1.0)])
     ex = SingleThreadedExecutor(context=ctx)
