@@ -156,7 +156,8 @@ class SimNode(Node):
             self.create_subscription(Twist, contract.CMD_VEL,
                                      lambda m: self._record(contract.CMD_VEL, m, self.sim.now()), 10)
         self.create_service(Trigger, contract.EMERGENCY_STOP, self._on_estop)
-        self._timer = self.create_timer(TIMER_PERIOD_S, self._on_timer)
+        # lock-step advances in _on_command only: a timer would just wake the executor 500 times a second
+        self._timer = None if self.lockstep else self.create_timer(TIMER_PERIOD_S, self._on_timer)
         self.get_logger().info(
             f'sim ready: terrain={g("terrain")} seed={g("seed")} t_com={self.sim.t_com_s * 1e3:g} ms '
             f'{"lockstep" if self.lockstep else f"real_time_factor={self.pacer.rtf:g}"} '
@@ -255,8 +256,6 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ stepping
     def _on_timer(self) -> None:
-        if self.lockstep:
-            return                      # the simulation advances in _on_command only
         with self._lock:
             target = self.pacer.target()
             if target is not None and target - self.sim.now() > MAX_LAG_S:
