@@ -92,7 +92,7 @@ def test_lockstep_graph_walks_and_turns_by_cmd_vel():
     """Lock-step sim_node + locomotion_node, driven only by /cmd_vel (no default_vx): no deadlock
     between the /cmd_vel callback and the reads it must not wait for; walks > 5 cm and turns."""
     procs = [_start('hexapod_sim', 'sim_node', 'terrain:=flat', 'lockstep:=true')]
-    procs.append(_start('hexapod_locomotion', 'locomotion_node', 'use_sim_time:=true', 'lockstep:=true',
+    procs.append(_start('hexapod_locomotion', 'locomotion_node', 'lockstep:=true',
                         't_des_s:=0.5'))
     probe = Probe(vx=0.05, wz=0.15)
     try:

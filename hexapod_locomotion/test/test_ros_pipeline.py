@@ -14,21 +14,25 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 
 from hexapod_model.contract import stamp_seconds  # noqa: E402
-from hexapod_model.testing import installed_executable  # noqa: E402
+from hexapod_model.testing import installed_executable, node_env  # noqa: E402
 
 
 _exe = installed_executable
 
 
+DOMAIN_ID = 140 + os.getpid() % 40          # 140..179: this file's processes and probe
+
+
 @pytest.fixture
 def nodes():
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    env = node_env(DOMAIN_ID)
+    # no start-up pause: locomotion_node waits for a bus master (its schedule service and a
+    # subscriber to its commands) before it sends anything, whichever process comes up first
     procs = [subprocess.Popen([_exe('hexapod_sim', 'sim_node'), '--ros-args', '-p', 'terrain:=flat',
                                '-p', 'lockstep:=true'], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                               text=True)]
-    time.sleep(1.0)
     procs.append(subprocess.Popen([_exe('hexapod_locomotion', 'locomotion_node'), '--ros-args',
-                                   '-p', 'use_sim_time:=true', '-p', 'lockstep:=true', '-p', 'default_vx:=0.05',
+                                   '-p', 'lockstep:=true', '-p', 'default_vx:=0.05',
                                    '-p', 't_des_s:=0.5'], env=env, stdout=subprocess.PIPE,
                                   stderr=subprocess.STDOUT, text=True))
     yield procs
@@ -43,7 +47,7 @@ def test_locomotion_node_walks_the_sim_node(nodes):
     from rclpy.executors import SingleThreadedExecutor
 
     ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
+    rclpy.init(context=ctx, domain_id=DOMAIN_ID)
     node = rclpy.create_node('pipeline_probe', context=ctx)
     seen = {'swing': [], 'reads': [], 'x': []}
     node.create_subscription(SwingDownStart, '/swing_down', lambda m: seen['swing'].append(m), 10)
