@@ -125,8 +125,11 @@ def test_driver_node_serves_the_topic_contract(robot, ros):
                                     emu.servo(1).get('goal_position') == expected), 10.0, proc, 'goal on servo 1')
             command(node, cmd_pub, ['leg2_coxa'], [math.nan])
             command(node, cmd_pub, ['leg9_coxa'], [0.1])
-            t_end = time.monotonic() + 0.5
-            spin_until(ex, lambda: time.monotonic() > t_end, 2.0, proc, 'time to pass')
+            # a valid command sent after them: once it is on servo 1, the two before it were handled
+            # (one subscription, in order) - no fixed wait decides that nothing else arrived
+            after = round(512 + 0.2 / robot.servo.rad_per_tick)
+            command(node, cmd_pub, ['leg1_coxa'], [0.2])
+            spin_until(ex, lambda: emu.servo(1).get('goal_position') == after, 10.0, proc, 'the later goal on servo 1')
             assert emu.servo(4).get('goal_position') == 512
 
             # the schedule: only the femurs of legs 1 and 2, alternating
