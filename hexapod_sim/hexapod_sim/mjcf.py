@@ -39,6 +39,7 @@ import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import forward
+from hexapod_model.servo import tick_to_theta
 
 from .terrain import Terrain, make_terrain, _mat_to_quat
 
@@ -100,7 +101,7 @@ def _rx(a: float) -> np.ndarray:
 def servo_range_rad(robot: Robot) -> tuple[float, float]:
     """Physical travel of an AX-12A in joint angle: ticks 0..max_tick around the centre tick."""
     s = robot.servo
-    return (-s.center_tick * s.rad_per_tick, (s.max_tick - s.center_tick) * s.rad_per_tick)
+    return (float(tick_to_theta(0, s)), float(tick_to_theta(s.max_tick, s)))
 
 
 def link_inertial(robot: Robot, leg: int, role: str) -> tuple[float, float, float]:
