@@ -190,6 +190,10 @@ class LocomotionNode(Node):
                 self.failed = True
                 self.get_logger().error(f'locomotion stopped by a middleware error:\n{traceback.format_exc()}')
         except Exception:      # noqa: BLE001 - a bug: say where, and let main() end the process non-zero
+            if not self.context.ok():
+                # the context went away under this thread (SIGINT/SIGTERM): rclpy's bindings then raise
+                # other errors than RCLError too (a TypeError from a handle already invalid): a normal stop
+                return
             self.failed = True
             self.get_logger().error(f'locomotion stopped by an unexpected error:\n{traceback.format_exc()}')
 
