@@ -26,7 +26,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
@@ -41,10 +40,6 @@ from hexapod_msgs.srv import SetReadSchedule
 from .config import NODE, DriverConfig, DriverNodeParams, robot_defaults
 from .dynamixel_bus import CommandError, DynamixelBus
 from .local_bus import LocalDriverBus
-
-
-def _stamp(t: float):
-    return Time(nanoseconds=int(round(t * 1e9))).to_msg()
 
 
 EXIT_OK = 0                 # clean shutdown (Ctrl-C, SIGTERM)
@@ -146,7 +141,7 @@ class DriverNode(Node):
 
     # ------------------------------------------------------------------ callbacks
     def on_command(self, msg: JointState) -> None:
-        stamp = Time.from_msg(msg.header.stamp).nanoseconds * 1e-9
+        stamp = contract.stamp_seconds(msg.header.stamp)
         try:
             warnings = self.core.set_command(list(msg.name), list(msg.position), stamp or None)
         except CommandError as exc:
@@ -284,7 +279,7 @@ class DriverNode(Node):
     def _publish(self, res) -> None:
         for s in res.samples:
             js = JointState()
-            js.header.stamp = _stamp(s.stamp)
+            js.header.stamp = contract.stamp_msg(s.stamp)
             js.name = [s.joint]
             js.position = [s.theta_rad]
             self.pub_states.publish(js)

@@ -20,6 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterable, Iterator
 
+# Status-packet error bits: defined once with the servo in hexapod_model, re-exported here (p.ERR_*)
+from hexapod_model.servo import (ERR_ANGLE_LIMIT, ERR_CHECKSUM, ERR_INPUT_VOLTAGE, ERR_INSTRUCTION,  # noqa: F401
+                                 ERR_OVERHEATING, ERR_OVERLOAD, ERR_RANGE, ERROR_BIT_NAMES, describe_error)
+
 HEADER = b'\xff\xff'
 BROADCAST_ID = 0xFE
 MAX_ID = 253
@@ -36,24 +40,6 @@ SYNC_WRITE = 0x83
 BULK_READ = 0x92          # MX/AX-18 only: an AX-12A does not answer it
 INSTRUCTION_NAMES = {PING: 'PING', READ: 'READ', WRITE: 'WRITE', REG_WRITE: 'REG_WRITE',
                      ACTION: 'ACTION', RESET: 'RESET', SYNC_WRITE: 'SYNC_WRITE', BULK_READ: 'BULK_READ'}
-
-# Status-packet error bits (same values as hexapod_msgs/ServoStatus ERR_*)
-ERR_INPUT_VOLTAGE = 0x01
-ERR_ANGLE_LIMIT = 0x02
-ERR_OVERHEATING = 0x04
-ERR_RANGE = 0x08
-ERR_CHECKSUM = 0x10
-ERR_OVERLOAD = 0x20
-ERR_INSTRUCTION = 0x40
-ERROR_BIT_NAMES = (
-    (ERR_INPUT_VOLTAGE, 'input voltage out of range'),
-    (ERR_ANGLE_LIMIT, 'goal outside the angle limits'),
-    (ERR_OVERHEATING, 'overheating'),
-    (ERR_RANGE, 'value out of range'),
-    (ERR_CHECKSUM, 'instruction checksum error'),
-    (ERR_OVERLOAD, 'overload'),
-    (ERR_INSTRUCTION, 'instruction error'),
-)
 
 # Status return level (address 16)
 RETURN_PING_ONLY = 0
@@ -177,11 +163,6 @@ class PacketParser:
     def pending(self) -> int:
         """Bytes received but not yet forming a complete packet."""
         return len(self._buf)
-
-
-def describe_error(bits: int) -> str:
-    """Human-readable list of the error bits set in a status-packet error byte ('' if none)."""
-    return ', '.join(name for bit, name in ERROR_BIT_NAMES if bits & bit)
 
 
 # ----------------------------------------------------------------------------- control table

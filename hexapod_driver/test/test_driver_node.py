@@ -13,11 +13,10 @@ import time
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from hexapod_model import contract  # noqa: E402
+from hexapod_model import contract, testing  # noqa: E402
 from hexapod_model.description import ALL_JOINTS, load_robot  # noqa: E402
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics  # noqa: E402
 from hexapod_msgs.srv import SetReadSchedule  # noqa: E402
@@ -29,9 +28,7 @@ PARAMS = ['timeout_margin_ms:=25.0', 'diagnostics_period_s:=0.3', 'timing_period
 
 
 def node_env():
-    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               PYTHONUNBUFFERED='1')
-    return env
+    return testing.node_env(DOMAIN_ID)
 
 
 def start_node(port, extra=()):
@@ -59,16 +56,8 @@ def robot():
 
 @pytest.fixture(scope='module')
 def ros():
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=DOMAIN_ID)
-    node = rclpy.create_node('driver_node_test', context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    yield node, ex
-    ex.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=ctx)
+    with testing.ros_probe('driver_node_test', DOMAIN_ID) as probe:
+        yield probe
 
 
 class Inbox:
@@ -84,15 +73,11 @@ class Inbox:
 
 
 def spin_until(ex, cond, timeout, proc=None, what=''):
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        ex.spin_once(timeout_sec=0.05)
-        if cond():
-            return
+    def alive():
         if proc is not None and proc.poll() is not None:
             raise AssertionError(f'driver_node exited ({proc.returncode}) while waiting for {what}:\n'
                                  f'{proc.communicate()[0]}')
-    raise AssertionError(f'timed out waiting for {what}')
+    testing.spin_until(ex, cond, timeout, what or 'a condition', alive=alive)
 
 
 def call_idempotent(ex, client, request, timeout, proc, what):
@@ -130,7 +115,7 @@ def test_driver_node_serves_the_topic_contract(robot, ros):
             assert all(len(m.name) == len(m.position) == 1 for m in inbox.states)
             idx = [ALL_JOINTS.index(n) for n in names]
             assert all((b - a) % 18 == 1 for a, b in zip(idx, idx[1:]))
-            stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in inbox.states]
+            stamps = [contract.stamp_seconds(m.header.stamp) for m in inbox.states]
             assert all(b > a for a, b in zip(stamps, stamps[1:]))
             assert abs(stamps[-1] - time.time()) < 5.0                  # ROS (system) time
 
@@ -140,8 +125,11 @@ def test_driver_node_serves_the_topic_contract(robot, ros):
                                     emu.servo(1).get('goal_position') == expected), 10.0, proc, 'goal on servo 1')
             command(node, cmd_pub, ['leg2_coxa'], [math.nan])
             command(node, cmd_pub, ['leg9_coxa'], [0.1])
-            t_end = time.monotonic() + 0.5
-            spin_until(ex, lambda: time.monotonic() > t_end, 2.0, proc, 'time to pass')
+            # a valid command sent after them: once it is on servo 1, the two before it were handled
+            # (one subscription, in order) - no fixed wait decides that nothing else arrived
+            after = round(512 + 0.2 / robot.servo.rad_per_tick)
+            command(node, cmd_pub, ['leg1_coxa'], [0.2])
+            spin_until(ex, lambda: emu.servo(1).get('goal_position') == after, 10.0, proc, 'the later goal on servo 1')
             assert emu.servo(4).get('goal_position') == 512
 
             # the schedule: only the femurs of legs 1 and 2, alternating
@@ -320,7 +308,7 @@ def test_noisy_bus_keeps_reading_and_never_invents_a_position(robot, ros):
     # every published position is the answer the servo gave to exactly that request
     by_id = {bj.joint: bj.servo_id for bj in robot.bus.joints}
     for m in inbox.states[::7]:
-        stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+        stamp = contract.stamp_seconds(m.header.stamp)
         e = request_of(emu, by_id[m.name[0]], stamp)
         assert e is not None and e in clean, (m, e)
         assert sample_tick(robot, m) == e.reply_params[0] | e.reply_params[1] << 8
@@ -468,7 +456,7 @@ def test_late_replies_are_never_paired_with_the_wrong_request_and_the_cause_is_n
     samples = [m for m in inbox.states if m.name[0] == 'leg1_coxa']
     ticks = set()
     for m in samples:
-        stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+        stamp = contract.stamp_seconds(m.header.stamp)
         e = request_of(emu, 1, stamp)
         assert e is not None and e.replied, m
         assert sample_tick(robot, m) == e.reply_params[0] | e.reply_params[1] << 8, 'reply paired with another request'

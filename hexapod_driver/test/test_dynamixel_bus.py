@@ -28,10 +28,27 @@ def emu(robot, tmp_path):
         yield e
 
 
-def make_bus(robot, emu, **kw):
-    bus = DynamixelBus(robot, DriverConfig(device=emu.port, **{**BASE, **kw}))
+def make_bus(robot, emu, clock=None, **kw):
+    bus = (DynamixelBus(robot, DriverConfig(device=emu.port, **{**BASE, **kw})) if clock is None else
+           DynamixelBus(robot, DriverConfig(device=emu.port, **{**BASE, **kw}), clock=clock, sleep=clock.sleep))
     bus.start()
     return bus
+
+
+class ManualClock:
+    """Simulated time for the driver and the emulator alike: it moves only when the test (or a
+    sleep of the code under test) moves it, so timeouts are decided by the test, not by the load."""
+
+    def __init__(self, t0: float = 1000.0):
+        self.t = t0
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep(self, dt: float) -> None:
+        self.t += max(dt, 0.0)
+
+    advance = sleep
 
 
 @pytest.fixture
@@ -135,9 +152,11 @@ def test_bad_commands_never_reach_the_bus(robot, emu, bus):
         bus.set_command(['leg1_coxa', 'leg1_femur'], [0.0])
     with pytest.raises(CommandError, match='duplicate'):
         bus.set_command(['leg1_coxa', 'leg1_coxa'], [0.0, 0.1])
-    stale = DynamixelBus(robot, DriverConfig(device=emu.port, **{**BASE, 'command_timeout_s': 0.5}))
-    with pytest.raises(CommandError, match='stale command'):
-        stale.set_command(['leg1_coxa'], [0.0], stamp=time.time() - 2.0)
+    clock = ManualClock()
+    stale = DynamixelBus(robot, DriverConfig(device=emu.port, **{**BASE, 'command_timeout_s': 0.5}), clock=clock)
+    with pytest.raises(CommandError, match=r'stale command: stamped 0.501 s ago \(command_timeout_s=0.5\)'):
+        stale.set_command(['leg1_coxa'], [0.0], stamp=clock() - 0.501)
+    assert stale.set_command(['leg1_coxa'], [0.0], stamp=clock() - 0.499) == []     # just fresh enough
     strict = DynamixelBus(robot, DriverConfig(device=emu.port, **{**BASE, 'limit_policy': 'reject'}))
     with pytest.raises(CommandError, match=r'leg1_coxa: goal 1.5000 rad outside the joint limits \[-1.0, 1.0\]'):
         strict.validate_goals({'leg1_coxa': 1.5})
@@ -329,17 +348,29 @@ def test_port_vanishes_is_survived_and_reconnected(robot, emu, bus):
 
 
 def test_stale_command_stream_holds_position(robot, emu):
-    b = make_bus(robot, emu, command_timeout_s=0.1)
+    """The driver's clock is the test's (ManualClock): the command goes stale when the test says so,
+    not when a loaded machine happens to take 0.1 s; what the servo did is read from the emulator."""
+    clock = ManualClock()
+    b = make_bus(robot, emu, clock=clock, command_timeout_s=0.1)
     try:
         emu.servo(1).set_register('moving_speed', 100)              # 11 rpm = 227 ticks/s
         b.set_command(['leg1_coxa'], [0.9])                        # 461 ticks away: ~2 s
         steps_until(b, lambda r: r.wrote)
-        seen = steps_until(b, lambda r: any('holding' in t for _l, t in r.events))
+        t_cmd = clock()
+        clock.advance(0.09)                                        # younger than the timeout: nothing
+        assert not any('holding' in t for t in events([b.step() for _ in range(3)]))
+        emu.log.clear()
+        clock.advance(0.06)
+        seen = [b.step()]
+        assert any(f'no command for {clock() - t_cmd:.2f} s (command_timeout_s=0.1): holding' in t
+                   for t in events(seen))
         goal = emu.servo(1).get('goal_position')
         assert 512 < goal < b.to_tick('leg1_coxa', 0.9)           # held where it was, not at the old goal
-        assert any('no command for' in t for t in events(seen))
-        time.sleep(0.1)
-        assert abs(emu.present_tick(1) - goal) <= 1
+        # the hold wrote exactly the position servo 1 reported to the hold's read, in one SYNC_WRITE
+        read = next(e for e in emu.log if e.servo_id == 1 and e.instruction == p.READ and e.address == 36)
+        assert read.reply_params[0] | read.reply_params[1] << 8 == goal
+        assert [e.instruction for e in emu.log].count(p.SYNC_WRITE) == 1
+        assert emu.present_tick(1, t=emu.now() + 1.0) == goal      # the servo's model comes to rest there
     finally:
         b.close()
 
@@ -362,6 +393,7 @@ def test_close_turns_torque_off(robot, emu):
     assert b.close() == []                                         # idempotent
 
 
+@pytest.mark.realtime
 def test_reads_are_paced_and_goals_do_not_wait_for_the_read_slot(robot, emu):
     import threading
     b = make_bus(robot, emu, read_period_s=0.1)     # long periods: scheduling jitter on a loaded machine is far smaller

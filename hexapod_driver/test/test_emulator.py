@@ -147,7 +147,7 @@ def test_return_delay_time_is_honoured(emu, line):
         assert line.read(8, 36, 2) is not None
     slow = list(emu.log)[-5:]
     assert [e.reply_delay_s for e in slow] == [pytest.approx(0.5e-3)] * 5
-    assert all(e.wall_reply - e.wall >= 0.45e-3 for e in slow)    # it really waited (two clocks: margin)
+    assert all(e.t_reply - e.t >= 0.5e-3 - 1e-9 for e in slow)     # it really waited (on its own clock)
     assert line.txrx(8, p.WRITE, [5, 0]).code == 0
     for _ in range(5):
         assert line.read(8, 36, 2) is not None
@@ -224,17 +224,32 @@ def test_ideal_servo_moves_on_the_firmware_grid_at_the_moving_speed(robot):
     assert be.sample(2.0, 0)[0] == 600                      # limp: no motion
 
 
-def test_emulated_servo_follows_goal_through_the_pty(emu, line):
-    line.txrx(13, p.WRITE, [32, 100, 0])                     # moving speed 100 x 0.111 rpm
+def test_emulated_servo_follows_goal_through_the_pty(robot, emu, line):
+    """Every position read over the pty is the servo model's position at the emulator's own logged
+    arrival time of that READ (no wall-clock sleep decides what the servo should report)."""
+    units = 30                                               # moving speed 30 x 0.111 rpm: ~1.3 s to travel
+    line.txrx(13, p.WRITE, [32, units, 0])
     line.txrx(13, p.WRITE, [24, 1])
     line.txrx(13, p.WRITE, [30, 0x58, 0x02])                 # goal 600
-    rate = 100 * p.MOVING_SPEED_UNIT_RPM / 60 * 1024 / 300 * 360   # ticks/s
-    time.sleep(0.1)
-    mid = u16(line.read(13, 36, 2).params)
-    assert 512 < mid < 600
-    time.sleep((600 - 512) / rate + 0.05)
-    assert u16(line.read(13, 36, 2).params) == 600
+    reads = []
+    deadline = time.monotonic() + 30.0                       # failure bound only
+    while not reads or reads[-1] != 600:
+        assert time.monotonic() < deadline, f'servo 13 did not reach 600: {reads[-5:]}'
+        reads.append(u16(line.read(13, 36, 2).params))
     assert line.read(13, 46, 1).params == b'\x00'            # no longer moving
+    log = [e for e in emu.log if e.servo_id == 13]
+    t_torque = next(e.t for e in log if e.instruction == p.WRITE and e.address == 24)
+    t_goal = next(e.t for e in log if e.instruction == p.WRITE and e.address == 30)
+    sampled = [(e.t, u16(e.reply_params)) for e in log if e.instruction == p.READ and e.address == 36]
+    assert [v for _, v in sampled] == reads                  # the log holds every read, in order
+    slot = next(s.slot for s in emu.servos if s.servo_id == 13)
+    model = IdealServoBackend(robot)
+    sv = robot.servo
+    model.speed_ticks_per_s = lambda _slot: units * p.MOVING_SPEED_UNIT_RPM / 60.0 * sv.ticks_per_range * 360.0 / sv.range_deg
+    model.torque(t_torque, slot, True)
+    model.goals(t_goal, {slot: 600})
+    assert [v for _, v in sampled] == [int(round(model.sample(t, slot)[0])) for t, _ in sampled]
+    assert all(b >= a for a, b in zip(reads, reads[1:]))     # it moved towards the goal, never back
 
 
 class FakeServoBus:
@@ -334,6 +349,7 @@ def test_servo_at_another_baud_does_not_answer(robot):
         ser.close()
 
 
+@pytest.mark.realtime
 def test_reply_latency_holds_replies_back_without_blocking_instructions(robot):
     with BusEmulator(robot) as emu:
         emu.faults.set_reply_latency(0.3)

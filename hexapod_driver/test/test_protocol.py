@@ -88,3 +88,9 @@ def test_error_bit_masks_of_the_diagnostics_are_the_protocols():
     for bit, (name, _) in dg.ERROR_BITS.items():
         const = 'ERR_' + name.upper().replace(' ', '_')
         assert getattr(ServoStatus, const) == bit and getattr(protocol, const) == bit
+def test_error_bits_are_the_servo_modules():
+    """The status bits are defined once, with the servo in hexapod_model; the protocol re-exports them."""
+    from hexapod_model import servo
+    for n in (n for n in dir(servo) if n.startswith('ERR_')):
+        assert getattr(p, n) is getattr(servo, n), n
+    assert p.describe_error is servo.describe_error

@@ -24,8 +24,8 @@ import numpy as np
 from hexapod_sim.bagio import BagError, BagReader, BagWarning
 from hexapod_model.cli_common import add_no_progress_option, make_parser, output_file, plot_extensions
 from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_STATES, POWER, SIM_TRUTH_POSE, SWING_DOWN,
-                                   topic_key)
-from hexapod_model.description import DescriptionError, load_robot, parse_joint_name
+                                   stamp_seconds, topic_key)
+from hexapod_model.description import LEGS, DescriptionError, load_robot, parse_joint_name
 from hexapod_model.swing_model import LegModel
 
 from .detector import DetectorError, phase_from_fields, replay_swing_down
@@ -34,10 +34,6 @@ from .metrics import MetricsError, cost_of_transport, roll_pitch_yaw, swing_down
 
 class AnalysisError(RuntimeError):
     """The bag cannot be analysed (the message says what is missing)."""
-
-
-def _t(stamp) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
 
 
 @dataclass
@@ -84,7 +80,7 @@ def load_bag(path: str):
     for bag_name, _type, t_ns, msg in messages:
         topic = topic_key(bag_name)
         if topic == SWING_DOWN:
-            swings.append((_t(msg.header.stamp), msg))
+            swings.append((stamp_seconds(msg.header.stamp), msg))
         elif topic == JOINT_STATES:
             for name, pos in zip(msg.name, msg.position):
                 try:
@@ -92,20 +88,20 @@ def load_bag(path: str):
                 except DescriptionError:
                     continue
                 if role == 'femur':
-                    femur_reads.append((_t(msg.header.stamp), leg, float(pos)))
+                    femur_reads.append((stamp_seconds(msg.header.stamp), leg, float(pos)))
         elif topic == GROUND_DETECTION:
-            start = round(_t(msg.swing_start), 6)
+            start = round(stamp_seconds(msg.swing_start), 6)
             if msg.stopped and msg.leg not in recorded[start]:
-                recorded[start][msg.leg] = (_t(msg.header.stamp) - _t(msg.swing_start), int(msg.stop_reason))
+                recorded[start][msg.leg] = (stamp_seconds(msg.header.stamp) - stamp_seconds(msg.swing_start), int(msg.stop_reason))
         elif topic == POWER:
-            power.append((_t(msg.header.stamp), abs(msg.voltage * msg.current)))
+            power.append((stamp_seconds(msg.header.stamp), abs(msg.voltage * msg.current)))
         elif topic == SIM_TRUTH_POSE:
             p = msg.pose.position
-            pose.append((_t(msg.header.stamp), p.x, p.y, p.z))
+            pose.append((stamp_seconds(msg.header.stamp), p.x, p.y, p.z))
         elif topic == IMU:
             q = msg.orientation
             roll, pitch, _ = roll_pitch_yaw((q.w, q.x, q.y, q.z))
-            imu.append((_t(msg.header.stamp), roll, pitch, msg.linear_acceleration.z))
+            imu.append((stamp_seconds(msg.header.stamp), roll, pitch, msg.linear_acceleration.z))
     if not swings:
         raise AnalysisError(f'{path}: /{SWING_DOWN} has no messages - the recording contains no swing-down')
     femur_reads.sort(key=lambda r: r[0])
@@ -122,7 +118,7 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
     """
     robot = robot or load_robot()
     swings, femur_reads, recorded, power, pose, imu, bag_warnings = load_bag(path)
-    models = {leg: LegModel(robot, leg) for leg in range(1, 7)}
+    models = {leg: LegModel(robot, leg) for leg in LEGS}
     times = np.array([r[0] for r in femur_reads])
     verdicts: list[LegVerdict] = []
     traces: list[SwingTrace] = []

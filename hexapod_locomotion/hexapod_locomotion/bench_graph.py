@@ -35,6 +35,8 @@ import time
 
 import numpy as np
 
+from hexapod_model.contract import stamp_seconds
+
 ROUTES = ('composed', 'dds', 'driver')
 
 
@@ -87,11 +89,11 @@ class _Probe:
     def _swing(self, m):
         self.first_swing.set()
         if self.measuring:
-            self.swings.append(_t(m.header.stamp))
+            self.swings.append(stamp_seconds(m.header.stamp))
 
     def _pose(self, m):
         if self.measuring:
-            self.pose.append((_t(m.header.stamp), m.pose.position.x))
+            self.pose.append((stamp_seconds(m.header.stamp), m.pose.position.x))
 
     def _contacts(self, m):
         # the truth topic has no header: the sim publishes it with the pose, same stamp
@@ -100,12 +102,8 @@ class _Probe:
 
     def _read(self, m):
         if self.measuring:
-            self.reads.setdefault((round(_t(m.swing_start), 6), m.leg), []).append(
-                (_t(m.header.stamp), bool(m.stopped), int(m.stop_reason)))
-
-
-def _t(stamp) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
+            self.reads.setdefault((round(stamp_seconds(m.swing_start), 6), m.leg), []).append(
+                (stamp_seconds(m.header.stamp), bool(m.stopped), int(m.stop_reason)))
 
 
 def run_route(route: str, args, workdir: str) -> dict:

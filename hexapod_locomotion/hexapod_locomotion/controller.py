@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 
 from hexapod_model.bus import ServoBus
-from hexapod_model.description import ALL_JOINTS, Robot, joint_name
+from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import UnreachableTargetError, forward, inverse, stance_feet
 from hexapod_model.leveling import LevelingError, level_body
 from hexapod_model.swing_model import LegModel, predict_swing_down
@@ -133,7 +133,7 @@ class GaitController:
         self.on_read = on_read
         self.on_phase = on_phase
         self.on_swing_start = on_swing_start
-        self.models = {leg: LegModel(robot, leg) for leg in range(1, 7)}
+        self.models = {leg: LegModel(robot, leg) for leg in LEGS}
         self.neutral = stance_feet(robot)                   # (6, 3) body frame
         self.body_height_m = -float(self.neutral[0, 2])
         self.goals = self._stance_goals()
@@ -151,11 +151,11 @@ class GaitController:
     # ------------------------------------------------------------------ helpers
     def _stance_goals(self) -> dict[str, float]:
         th = self.robot.default_stance_rad
-        return {joint_name(leg, r): th[i] for leg in range(1, 7) for i, r in enumerate(('coxa', 'femur', 'tibia'))}
+        return {joint_name(leg, r): th[i] for leg in LEGS for i, r in enumerate(JOINT_ROLES)}
 
     def leg_angles(self, leg: int) -> np.ndarray:
         """Commanded (coxa, femur, tibia) angles of ``leg``."""
-        return np.array([self.goals[joint_name(leg, r)] for r in ('coxa', 'femur', 'tibia')])
+        return np.array([self.goals[joint_name(leg, r)] for r in JOINT_ROLES])
 
     def foot(self, leg: int) -> np.ndarray:
         """Commanded foot-tip position of ``leg`` in the body frame."""
@@ -272,7 +272,7 @@ class GaitController:
             else:
                 raise LocomotionError(f'leg {leg}: no reachable target near {np.round(foot, 3).tolist()}') from exc
             warnings.append(f'{exc}; target pulled towards the neutral foothold')
-        return {joint_name(leg, r): float(v) for r, v in zip(('coxa', 'femur', 'tibia'), th)}
+        return {joint_name(leg, r): float(v) for r, v in zip(JOINT_ROLES, th)}
 
     def _fin_angles(self, leg: int, foot, warnings: list[str]) -> np.ndarray:
         """theta_fin: the foot straight below its current position, ground_depth_m under the nominal ground."""
@@ -317,8 +317,8 @@ class GaitController:
         load for the AX-12A's compliance), so mixing measured and commanded positions would place
         some feet systematically high and unload them; with all commanded feet on one plane the
         compliant servos share the load like equal springs."""
-        support = [leg for leg in range(1, 7) if leg not in missed]
-        feet = np.array([self.foot(leg) for leg in range(1, 7)])
+        support = [leg for leg in LEGS if leg not in missed]
+        feet = np.array([self.foot(leg) for leg in LEGS])
         # the legs that will carry the body while the next group swings; three or fewer carry it by
         # statics whatever their preload, which then only squeezes the feet (tripod: +7 W)
         n_next = len([leg for leg in support if leg not in self.gait.swing_legs(self.phase_index + 1)])
@@ -343,9 +343,9 @@ class GaitController:
                 moved[leg - 1] = self.neutral[leg - 1]
             try:
                 target = {}
-                for leg in range(1, 7):
+                for leg in LEGS:
                     th = inverse(self.robot, leg, moved[leg - 1])
-                    target.update({joint_name(leg, r): float(v) for r, v in zip(('coxa', 'femur', 'tibia'), th)})
+                    target.update({joint_name(leg, r): float(v) for r, v in zip(JOINT_ROLES, th)})
                 break
             except UnreachableTargetError as exc:
                 warnings.append(f'leveling: {exc}; shortening the body motion')

@@ -13,7 +13,7 @@ from typing import Mapping
 
 import yaml
 
-LEGS = (1, 2, 3, 4, 5, 6)
+from hexapod_model.description import LEGS
 
 
 class GaitError(ValueError):

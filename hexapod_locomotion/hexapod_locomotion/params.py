@@ -48,7 +48,8 @@ class LocomotionNodeParams:
                                   'lockstep (over DDS a loaded machine delivers reads late; a lock-stepped sim '
                                   'answers late but surely)', min=0.0)
     lockstep: bool = param(False, 'drive a lock-stepped bus master (sim_node lockstep:=true): advance it by '
-                           'publishing commands instead of waiting for wall time; use with use_sim_time:=true')
+                           'publishing commands instead of waiting for wall time (the time is the reads\' stamps: '
+                           'use_sim_time is not needed and only adds a /clock subscription)')
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,8 @@ import time
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
 from hexapod_model.bus import BusError
-from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE, SET_READ_SCHEDULE, stamp_parts
+from hexapod_model.contract import (JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE, SET_READ_SCHEDULE, stamp_parts,
+                                    stamp_seconds)
 from hexapod_model.description import ALL_JOINTS
 
 
@@ -69,7 +70,7 @@ class RosBus:
 
     # -- subscription callback (executor thread)
     def _on_state(self, msg) -> None:
-        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        t = stamp_seconds(msg.header.stamp)
         with self._cv:
             for i, name in enumerate(msg.name):
                 if i < len(msg.position):
@@ -156,7 +157,7 @@ class RosBus:
         msg.name = list(goals_rad)
         msg.position = [float(v) for v in goals_rad.values()]
         self._publish(msg)
-        self._last_write = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        self._last_write = stamp_seconds(msg.header.stamp)
         return self._last_write
 
     def _advance(self) -> None:

@@ -17,8 +17,8 @@ import numpy as np
 
 from hexapod_model import diagnostics
 from hexapod_model.contract import (DIAGNOSTICS, GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
-                                    SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN, stamp_parts)
-from hexapod_model.description import ALL_JOINTS, Robot, joint_name, load_robot, parse_joint_name
+                                    SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN, stamp_dict, stamp_parts)
+from hexapod_model.description import ALL_JOINTS, LEGS, Robot, joint_name, load_robot, parse_joint_name
 from hexapod_model.kinematics import forward
 
 from .controller import GaitController, LocomotionError, LocomotionParams, PhaseReport, VelocityCommand
@@ -53,13 +53,8 @@ class TrialConfig:
     video_fps: float = 10.0
 
 
-def _stamp(t_s: float) -> dict:
-    sec, nanosec = stamp_parts(t_s)
-    return {'sec': sec, 'nanosec': nanosec}
-
-
 def joint_state_msg(t_s: float, names, positions) -> dict:
-    return {'header': {'stamp': _stamp(t_s)}, 'name': list(names), 'position': [float(p) for p in positions]}
+    return {'header': {'stamp': stamp_dict(t_s)}, 'name': list(names), 'position': [float(p) for p in positions]}
 
 
 class TimeLimitReached(Exception):
@@ -92,7 +87,7 @@ class ProbeBus:
         self.imu_t: list[float] = []
         self.imu_rpy: list[tuple] = []
         self.imu_acc_z: list[float] = []
-        self.femur_reads: dict[int, list[tuple]] = {leg: [] for leg in range(1, 7)}
+        self.femur_reads: dict[int, list[tuple]] = {leg: [] for leg in LEGS}
         self._probe()
 
     # -- ServoBus
@@ -167,17 +162,17 @@ class ProbeBus:
         for s in imu:
             w, x, y, z = (float(v) for v in s.quat_wxyz)
             rec.write(IMU, MSG_TYPES[IMU], {
-                'header': {'stamp': _stamp(s.t_s), 'frame_id': 'trunk'},
+                'header': {'stamp': stamp_dict(s.t_s), 'frame_id': 'trunk'},
                 'orientation': {'x': x, 'y': y, 'z': z, 'w': w},
                 'angular_velocity': dict(zip('xyz', (float(v) for v in s.ang_vel_rad_s))),
                 'linear_acceleration': dict(zip('xyz', (float(v) for v in s.lin_acc_mps2)))}, s.t_s)
-        rec.write(POWER, MSG_TYPES[POWER], {'header': {'stamp': _stamp(t)}, 'voltage': bat.voltage_v,
+        rec.write(POWER, MSG_TYPES[POWER], {'header': {'stamp': stamp_dict(t)}, 'voltage': bat.voltage_v,
                                             'current': -bat.current_a, 'present': True,
                                             'temperature': float('nan'), 'charge': float('nan'),
                                             'capacity': float('nan'), 'design_capacity': float('nan'),
                                             'percentage': float('nan')}, t)
         rec.write(SIM_TRUTH_POSE, MSG_TYPES[SIM_TRUTH_POSE], {
-            'header': {'stamp': _stamp(t), 'frame_id': 'world'},
+            'header': {'stamp': stamp_dict(t), 'frame_id': 'world'},
             'pose': {'position': dict(zip('xyz', (float(v) for v in pos))),
                      'orientation': dict(zip('wxyz', (float(v) for v in quat)))}}, t)
         contacts = self.sim.foot_contacts()
@@ -187,7 +182,7 @@ class ProbeBus:
             st = self.sim.servo_state()
             ids = self.sim.servo_ids
             rec.write(SERVO_DIAGNOSTICS, MSG_TYPES[SERVO_DIAGNOSTICS], {
-                'header': {'stamp': _stamp(t)},
+                'header': {'stamp': stamp_dict(t)},
                 'servos': [{'joint_name': j, 'id': int(ids[i]), 'temperature_c': float(st.temperature_c[i]),
                             'voltage_v': float(st.voltage_v[i]), 'load_fraction': float(st.load_fraction[i]),
                             'error_bits': int(st.error_bits[i]), 'responding': True,
@@ -202,14 +197,14 @@ class ProbeBus:
         if self.recorder is None:
             return
         self.recorder.write(SWING_DOWN, MSG_TYPES[SWING_DOWN],
-                            {'header': {'stamp': _stamp(phase.t_start_s)}, **swing_start_fields(phase)}, phase.t_start_s)
+                            {'header': {'stamp': stamp_dict(phase.t_start_s)}, **swing_start_fields(phase)}, phase.t_start_s)
 
     def record_detection(self, r: ReadResult) -> None:
         if self.recorder is None:
             return
         self.recorder.write(GROUND_DETECTION, MSG_TYPES[GROUND_DETECTION], {
-            'header': {'stamp': _stamp(r.stamp_s), 'frame_id': joint_name(r.leg, 'femur')},
-            'leg': r.leg, 'detector': r.detector, 'swing_start': _stamp(r.stamp_s - r.t_swing_s),
+            'header': {'stamp': stamp_dict(r.stamp_s), 'frame_id': joint_name(r.leg, 'femur')},
+            'leg': r.leg, 'detector': r.detector, 'swing_start': stamp_dict(r.stamp_s - r.t_swing_s),
             't_swing_s': r.t_swing_s, 'theta_des_tick': r.theta_des_tick, 'theta_real_tick': r.theta_real_tick,
             'theta_est_tick': r.theta_est_tick, 'err_tick': r.err_tick, 'err_est_tick': r.err_est_tick,
             'threshold_tick': r.threshold_tick, 'stopped': r.stopped, 'stop_reason': r.stop_reason}, r.stamp_s)
@@ -358,8 +353,8 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     stability = swing_down_variances(np.array(probe.imu_t), rpy[:, 0] if len(rpy) else [], rpy[:, 1] if len(rpy) else [],
                                      np.array(probe.imu_acc_z), intervals) if len(rpy) else []
     temps = np.array(probe.temps)
-    fem = [ALL_JOINTS.index(joint_name(leg, 'femur')) for leg in range(1, 7)]
-    tib = [ALL_JOINTS.index(joint_name(leg, 'tibia')) for leg in range(1, 7)]
+    fem = [ALL_JOINTS.index(joint_name(leg, 'femur')) for leg in LEGS]
+    tib = [ALL_JOINTS.index(joint_name(leg, 'tibia')) for leg in LEGS]
     step = max(1, int(round(1.0 / cfg.probe_period_s)))
     return TrialResult(
         config=asdict(cfg), sim_time_s=float(sim.now() - walk_start), distance_m=float(xyz[-1, 0] - x0),

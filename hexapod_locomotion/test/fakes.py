@@ -9,7 +9,7 @@ import math
 import numpy as np
 from scipy.optimize import brentq
 
-from hexapod_model.description import parse_joint_name
+from hexapod_model.description import JOINT_ROLES, parse_joint_name
 from hexapod_model.kinematics import forward
 from hexapod_model.servo import quantize_tick, theta_to_tick, tick_to_theta
 
@@ -35,7 +35,7 @@ class KinematicGroundBus:
         return self.t
 
     def _femur_actual(self, leg):
-        g = [self.goals.get(f'leg{leg}_{r}', 0.0) for r in ('coxa', 'femur', 'tibia')]
+        g = [self.goals.get(f'leg{leg}_{r}', 0.0) for r in JOINT_ROLES]
         if self.ground_z_m is None or forward(self.robot, leg, g)[2] >= self.ground_z_m:
             return g[1]
         f = lambda th2: forward(self.robot, leg, [g[0], th2, g[2]])[2] - self.ground_z_m

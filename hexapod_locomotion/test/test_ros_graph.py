@@ -13,10 +13,11 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
+from hexapod_model.contract import stamp_seconds  # noqa: E402
+from hexapod_model.testing import installed_executable  # noqa: E402
 
-def _exe(pkg, name):
-    from ament_index_python.packages import get_package_prefix
-    return os.path.join(get_package_prefix(pkg), 'lib', pkg, name)
+
+_exe = installed_executable
 
 
 def _start(pkg, exe, *params, remap=()):
@@ -51,7 +52,7 @@ class Probe:
     def _on_pose(self, m):
         q = m.pose.orientation
         yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
-        self.pose.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.pose.position.x, yaw))
+        self.pose.append((stamp_seconds(m.header.stamp), m.pose.position.x, yaw))
 
     def wait(self, done, procs, limit_s=240):
         deadline = time.monotonic() + limit_s
@@ -92,7 +93,7 @@ def test_lockstep_graph_walks_and_turns_by_cmd_vel():
     """Lock-step sim_node + locomotion_node, driven only by /cmd_vel (no default_vx): no deadlock
     between the /cmd_vel callback and the reads it must not wait for; walks > 5 cm and turns."""
     procs = [_start('hexapod_sim', 'sim_node', 'terrain:=flat', 'lockstep:=true')]
-    procs.append(_start('hexapod_locomotion', 'locomotion_node', 'use_sim_time:=true', 'lockstep:=true',
+    procs.append(_start('hexapod_locomotion', 'locomotion_node', 'lockstep:=true',
                         't_des_s:=0.5'))
     probe = Probe(vx=0.05, wz=0.15)
     try:
@@ -106,6 +107,7 @@ def test_lockstep_graph_walks_and_turns_by_cmd_vel():
     assert 'Traceback' not in ''.join(outs), outs
 
 
+@pytest.mark.realtime
 def test_realtime_graph_with_default_parameters_accepts_the_sim_reads():
     """Two processes in real time, every parameter at its default (the sim stamps in sim time, the
     controller runs without use_sim_time): the controller accepts the reads, finds ground and walks."""
@@ -119,13 +121,14 @@ def test_realtime_graph_with_default_parameters_accepts_the_sim_reads():
     assert 'locomotion stopped' not in outs[1], outs[1][-3000:]
     assert len(probe.swings) >= 3, outs[1][-3000:]
     sim_t = [p[0] for p in probe.pose]
-    stamps = [r.header.stamp.sec + r.header.stamp.nanosec * 1e-9 for r in probe.reads]
+    stamps = [stamp_seconds(r.header.stamp) for r in probe.reads]
     assert stamps and min(sim_t) - 1 <= min(stamps) and max(stamps) <= max(sim_t) + 1   # on the sim's clock
     assert any(r.stopped and r.stop_reason == 1 for r in probe.reads), outs[1][-3000:]
     assert [p.returncode for p in procs] == [0, 0], outs
     assert 'Traceback' not in ''.join(outs), outs
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_composed_robot_walks_in_real_time_and_stops_cleanly(sig):
     """``hexapod_locomotion robot`` (sim + model + locomotion in one process, defaults, real time):
@@ -142,7 +145,7 @@ def test_composed_robot_walks_in_real_time_and_stops_cleanly(sig):
     by_swing = {}
     for r in probe.reads:
         by_swing.setdefault((r.swing_start.sec, r.swing_start.nanosec, r.leg), []).append(
-            r.header.stamp.sec + r.header.stamp.nanosec * 1e-9)
+            stamp_seconds(r.header.stamp))
     gaps = sorted(b - a for v in by_swing.values() for a, b in zip(sorted(v), sorted(v)[1:]))
     assert gaps and gaps[0] > 0.003 - 1e-6, gaps[:5]
     assert procs[0].returncode == 0, outs

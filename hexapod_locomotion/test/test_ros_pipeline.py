@@ -13,21 +13,26 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
+from hexapod_model.contract import stamp_seconds  # noqa: E402
+from hexapod_model.testing import installed_executable, node_env  # noqa: E402
 
-def _exe(pkg, name):
-    from ament_index_python.packages import get_package_prefix
-    return os.path.join(get_package_prefix(pkg), 'lib', pkg, name)
+
+_exe = installed_executable
+
+
+DOMAIN_ID = 140 + os.getpid() % 40          # 140..179: this file's processes and probe
 
 
 @pytest.fixture
 def nodes():
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    env = node_env(DOMAIN_ID)
+    # no start-up pause: locomotion_node waits for a bus master (its schedule service and a
+    # subscriber to its commands) before it sends anything, whichever process comes up first
     procs = [subprocess.Popen([_exe('hexapod_sim', 'sim_node'), '--ros-args', '-p', 'terrain:=flat',
                                '-p', 'lockstep:=true'], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                               text=True)]
-    time.sleep(1.0)
     procs.append(subprocess.Popen([_exe('hexapod_locomotion', 'locomotion_node'), '--ros-args',
-                                   '-p', 'use_sim_time:=true', '-p', 'lockstep:=true', '-p', 'default_vx:=0.05',
+                                   '-p', 'lockstep:=true', '-p', 'default_vx:=0.05',
                                    '-p', 't_des_s:=0.5'], env=env, stdout=subprocess.PIPE,
                                   stderr=subprocess.STDOUT, text=True))
     yield procs
@@ -42,7 +47,7 @@ def test_locomotion_node_walks_the_sim_node(nodes):
     from rclpy.executors import SingleThreadedExecutor
 
     ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
+    rclpy.init(context=ctx, domain_id=DOMAIN_ID)
     node = rclpy.create_node('pipeline_probe', context=ctx)
     seen = {'swing': [], 'reads': [], 'x': []}
     node.create_subscription(SwingDownStart, '/swing_down', lambda m: seen['swing'].append(m), 10)
@@ -67,7 +72,7 @@ def test_locomotion_node_walks_the_sim_node(nodes):
     first_stop, stamps = {}, {}
     for m in seen['reads']:
         key = (m.swing_start.sec, m.swing_start.nanosec, m.leg)
-        stamps.setdefault(key, []).append(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9)
+        stamps.setdefault(key, []).append(stamp_seconds(m.header.stamp))
         if m.stopped:
             first_stop.setdefault(key, m.stop_reason)
     assert sum(r == 1 for r in first_stop.values()) >= 18          # ground found by 18+ leg swing-downs

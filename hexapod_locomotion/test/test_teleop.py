@@ -12,7 +12,6 @@ import subprocess
 import termios
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
@@ -113,33 +112,25 @@ def test_rate_warning_against_the_timeout():
 
 rclpy = pytest.importorskip('rclpy')
 from geometry_msgs.msg import Twist  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+
+from hexapod_model.testing import installed_executable, node_env, ros_probe  # noqa: E402
 
 
 def executable(name):
     """The installed console script, found as `ros2 run hexapod_locomotion NAME` finds it."""
-    from ament_index_python.packages import get_package_prefix
-    path = Path(get_package_prefix('hexapod_locomotion'), 'lib', 'hexapod_locomotion', name)
+    path = installed_executable('hexapod_locomotion', name)
     assert os.access(path, os.X_OK), f'{path} missing: ./hexapod build'
-    return str(path)
+    return path
 
 
 def proc_env():
-    return dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-                PYTHONUNBUFFERED='1')
+    return node_env(DOMAIN_ID)
 
 
 @pytest.fixture(scope='module')
 def ros():
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=DOMAIN_ID)
-    node = rclpy.create_node('teleop_test', context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    yield node, ex
-    ex.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=ctx)
+    with ros_probe('teleop_test', DOMAIN_ID) as probe:
+        yield probe
 
 
 class Inbox:

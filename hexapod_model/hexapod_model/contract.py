@@ -20,10 +20,52 @@ names were made relative and ``joint_states`` are the same contract topic.
 """
 
 
+NS_PER_S = 1_000_000_000
+
+
+# Stamps: the one conversion between seconds (float) and builtin_interfaces/Time (sec, nanosec).
+# Bags and messages alike use these, so a stamp written and read back is the same number everywhere.
+
 def stamp_parts(t_s: float) -> tuple[int, int]:
     """(sec, nanosec) of a header stamp for a time in seconds (rounded to whole nanoseconds)."""
-    ns = int(round(t_s * 1e9))
-    return ns // 1_000_000_000, ns % 1_000_000_000
+    return stamp_parts_ns(int(round(t_s * 1e9)))
+
+
+def stamp_parts_ns(t_ns: int) -> tuple[int, int]:
+    """(sec, nanosec) of a header stamp for a time in integer nanoseconds (bag record times)."""
+    return divmod(int(t_ns), NS_PER_S)
+
+
+def stamp_dict(t_s: float) -> dict:
+    """A stamp as the plain mapping bag writers take: ``{'sec': ..., 'nanosec': ...}``."""
+    return stamp_dict_ns(int(round(t_s * 1e9)))
+
+
+def stamp_dict_ns(t_ns: int) -> dict:
+    """The plain-mapping stamp of a time in integer nanoseconds."""
+    sec, nanosec = stamp_parts_ns(t_ns)
+    return {'sec': sec, 'nanosec': nanosec}
+
+
+def stamp_msg(t_s: float):
+    """A ``builtin_interfaces/msg/Time`` for a time in seconds."""
+    from builtin_interfaces.msg import Time
+    sec, nanosec = stamp_parts(t_s)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def stamp_seconds(stamp) -> float:
+    """Seconds of a stamp: a Time message (or anything with ``sec``/``nanosec``) or a plain mapping."""
+    if isinstance(stamp, dict):
+        return float(stamp['sec']) + float(stamp['nanosec']) * 1e-9
+    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+
+
+def stamp_ns(stamp) -> int:
+    """Integer nanoseconds of a stamp (exact; for comparing stamps with bag record times)."""
+    if isinstance(stamp, dict):
+        return int(stamp['sec']) * NS_PER_S + int(stamp['nanosec'])
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
 
 
 JOINT_COMMANDS = 'joint_commands'           # sensor_msgs/msg/JointState, in

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from .description import Robot
+from .description import JOINT_ROLES, LEGS, Robot
 
 
 class UnreachableTargetError(ValueError):
@@ -44,7 +44,7 @@ def leg_frames(robot: Robot, leg: int, theta) -> list[np.ndarray]:
     if theta.shape != (3,) or not np.all(np.isfinite(theta)):
         raise ValueError(f'leg {leg}: joint angles must be 3 finite numbers, got {theta!r}')
     frames = [mount_matrix(robot, leg)]
-    for role, th in zip(('coxa', 'femur', 'tibia'), theta):
+    for role, th in zip(JOINT_ROLES, theta):
         dh = robot.dh[role]
         frames.append(frames[-1] @ dh_matrix(dh.alpha_rad, dh.a_m, dh.d_m, th + dh.theta_off_rad))
     return frames
@@ -89,7 +89,7 @@ def inverse(robot: Robot, leg: int, foot_body_m, check_limits: bool = True) -> n
     theta = np.array([th1, psi2 - robot.dh['femur'].theta_off_rad, psi3 - robot.dh['tibia'].theta_off_rad])
     theta[0] = (theta[0] + math.pi) % (2 * math.pi) - math.pi
     if check_limits:
-        for role, th in zip(('coxa', 'femur', 'tibia'), theta):
+        for role, th in zip(JOINT_ROLES, theta):
             lo, hi = robot.joint_limits_rad[role]
             if not lo <= th <= hi:
                 raise UnreachableTargetError(
@@ -101,7 +101,7 @@ def inverse(robot: Robot, leg: int, foot_body_m, check_limits: bool = True) -> n
 def stance_feet(robot: Robot, theta=None) -> np.ndarray:
     """Foot-tips of all six legs (rows = legs 1..6) in the body frame for one joint configuration."""
     theta = robot.default_stance_rad if theta is None else theta
-    return np.array([forward(robot, leg, theta) for leg in range(1, 7)])
+    return np.array([forward(robot, leg, theta) for leg in LEGS])
 
 
 def planar_leg_angles(robot: Robot, theta) -> tuple[float, float]:

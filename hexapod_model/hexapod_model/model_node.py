@@ -14,7 +14,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from .contract import PREDICT_SWING_DOWN
-from .description import DescriptionError
+from .description import LEGS, DescriptionError
 from .node_params import NodeParams, report
 from .param_schema import ParameterError, RobotSource
 from .swing_model import LegModel, SwingDownError, predict_swing_down
@@ -24,7 +24,7 @@ class ModelNode(Node):
     def __init__(self, **node_kwargs):
         super().__init__('model_node', **node_kwargs)
         self.robot = NodeParams(self).declare(RobotSource).load()
-        self.models = {leg: LegModel(self.robot, leg) for leg in range(1, 7)}
+        self.models = {leg: LegModel(self.robot, leg) for leg in LEGS}
         from hexapod_msgs.srv import PredictSwingDown
         self.srv = self.create_service(PredictSwingDown, PREDICT_SWING_DOWN, self.on_request)
         self.get_logger().info(f'serving {self.resolve_service_name(PREDICT_SWING_DOWN)} for robot {self.robot.name!r}')

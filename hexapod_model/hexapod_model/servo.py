@@ -48,6 +48,12 @@ def servo_theta(tick: float, servo: ServoParams, bus: BusJoint) -> float:
     return bus.direction * (tick - servo.center_tick - bus.offset_ticks) * servo.rad_per_tick
 
 
+def joint_tick_of_servo_tick(tick, servo: ServoParams, bus: BusJoint):
+    """A raw servo tick on the joint's tick axis (:func:`theta_to_tick`'s): the mounting direction
+    and offset undone, exactly (an integer raw tick stays an integer; vectorised)."""
+    return servo.center_tick + bus.direction * (np.asarray(tick, dtype=float) - servo.center_tick - bus.offset_ticks)
+
+
 def winding_current_a(torque_nm, speed_rad_s, servo: ServoParams):
     """Motor current for a joint torque and speed (torque constant, gear ratio; motor side)."""
     del speed_rad_s  # the current follows the torque; speed enters the voltage (back-EMF)
@@ -74,3 +80,29 @@ def winding_loss_w(torque_nm, servo: ServoParams):
 
 def degrees_per_tick(servo: ServoParams) -> float:
     return math.degrees(servo.rad_per_tick)
+
+
+# Status-packet error bits of the AX-12A (Protocol 1.0), the one definition: the driver's protocol,
+# the bus emulator and the sim import them; hexapod_msgs/msg/ServoStatus ERR_* carry the same
+# values (a test compares them).
+ERR_INPUT_VOLTAGE = 0x01
+ERR_ANGLE_LIMIT = 0x02
+ERR_OVERHEATING = 0x04
+ERR_RANGE = 0x08
+ERR_CHECKSUM = 0x10
+ERR_OVERLOAD = 0x20
+ERR_INSTRUCTION = 0x40
+ERROR_BIT_NAMES = (
+    (ERR_INPUT_VOLTAGE, 'input voltage out of range'),
+    (ERR_ANGLE_LIMIT, 'goal outside the angle limits'),
+    (ERR_OVERHEATING, 'overheating'),
+    (ERR_RANGE, 'value out of range'),
+    (ERR_CHECKSUM, 'instruction checksum error'),
+    (ERR_OVERLOAD, 'overload'),
+    (ERR_INSTRUCTION, 'instruction error'),
+)
+
+
+def describe_error(bits: int) -> str:
+    """Human-readable list of the error bits set in a status-packet error byte ('' if none)."""
+    return ', '.join(name for bit, name in ERROR_BIT_NAMES if bits & bit)

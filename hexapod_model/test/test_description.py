@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hexapod_model.description import (ALL_JOINTS, DescriptionError, Effect, effects_to_overlay,
+from hexapod_model.description import (ALL_JOINTS, LEGS, DescriptionError, Effect, effects_to_overlay,
                                        load_robot, parse_joint_name, default_description_path,
                                        robot_from_dict)
 
@@ -19,7 +19,7 @@ def test_paper_tables(robot):
     assert robot.dh['coxa'].a_m == 0.052 and robot.dh['femur'].a_m == 0.066 and robot.dh['tibia'].a_m == 0.138
     assert robot.dh['coxa'].alpha_rad == pytest.approx(math.pi / 2)
     assert robot.dh['femur'].theta_off_rad == -0.22 and robot.dh['tibia'].theta_off_rad == -0.81
-    betas = [robot.leg(i).beta_rad for i in range(1, 7)]
+    betas = [robot.leg(i).beta_rad for i in LEGS]
     assert betas == pytest.approx([math.pi / 4, 7 * math.pi / 4, 3 * math.pi / 4, 5 * math.pi / 4,
                                    math.pi / 2, 3 * math.pi / 2])
     assert robot.leg(5).py_m == 0.1005 and robot.leg(6).py_m == -0.1005   # the paper's typo fixed

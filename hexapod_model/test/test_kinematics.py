@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from hexapod_model.description import load_robot
+from hexapod_model.description import LEGS, load_robot
 from hexapod_model.kinematics import UnreachableTargetError, forward, inverse, stance_feet
 
 
@@ -34,7 +34,7 @@ def test_femur_lifts_with_positive_angle(robot):
     assert forward(robot, 1, [0, 0, 0.3])[2] > forward(robot, 1, [0, 0, 0])[2]
 
 
-@pytest.mark.parametrize('leg', range(1, 7))
+@pytest.mark.parametrize('leg', LEGS)
 def test_fk_of_ik_is_identity_over_grid(robot, leg):
     base = stance_feet(robot)[leg - 1]
     m = robot.leg(leg)
@@ -68,7 +68,7 @@ def test_nan_target_and_joint_limits(robot):
         inverse(robot, 1, p)
 
 
-@pytest.mark.parametrize('leg', range(1, 7))
+@pytest.mark.parametrize('leg', LEGS)
 def test_ik_of_fk_recovers_joint_grid(robot, leg):
     m = robot.leg(leg)
     n = 0

@@ -44,7 +44,7 @@ def write_joint_state_bag(path: Path, n: int, period_ns: int = 1_000_000) -> Non
         for i in it:
             t = t0 + i * period_ns
             w.write(contract.JOINT_STATES, contract.MSG_TYPES[contract.JOINT_STATES],
-                    {'header': {'stamp': {'sec': t // 10**9, 'nanosec': t % 10**9}},
+                    {'header': {'stamp': contract.stamp_dict_ns(t)},
                      'name': joints, 'position': [0.001 * i + k for k in range(len(joints))]}, t)
 
 

@@ -3,8 +3,12 @@
     ./hexapod sim --render out.png [--terrain blocks] [--start-x 0.8]   PNG after settling
     ./hexapod sim --video out.gif --duration 4 [--terrain mockup]       GIF of a scripted tripod gait
     ./hexapod sim --urdf hexapod.urdf [--overlay X.yaml]                write the robot's URDF
+    ./hexapod sim --mjcf out.xml [--terrain mockup]                    the generated MuJoCo model as one MJCF file
     ./hexapod sim [--terrain mockup] [--rtf 1] [--record auto]          run sim_node (ROS) instead
     ./hexapod sim --foxglove [PORT]                                     ... with a Foxglove live view
+
+The MJCF file holds the whole scene (robot, terrain, lights, keyframe ``home``) and opens in
+MuJoCo's viewer: ``python -m mujoco.viewer --mjcf out.xml``.
 
 Rendering is offscreen on the CPU (``MUJOCO_GL=osmesa``, Debian package ``libosmesa6``).
 """
@@ -25,6 +29,7 @@ from hexapod_model.cli_common import (add_overlay_option, finite_float, make_par
 from hexapod_model.description import DescriptionError, load_robot  # noqa: E402
 
 from .live import DEFAULT_PORT as DEFAULT_LIVE_PORT  # noqa: E402
+from .mjcf import write_mjcf  # noqa: E402
 from .terrain import TERRAINS  # noqa: E402
 
 
@@ -39,6 +44,8 @@ def build_parser():
                     help='write a clip of the robot doing a scripted tripod gait')
     ap.add_argument('--urdf', metavar='URDF', type=output_file(('.urdf',)),
                     help="write the robot's URDF (from the description and --overlay files) and exit")
+    ap.add_argument('--mjcf', metavar='XML', type=output_file(('.xml',)),
+                    help='write the generated MuJoCo model (scene and terrain included) as one MJCF file')
     ap.add_argument('--duration', type=positive_float, default=4.0, help='clip length in simulated seconds')
     ap.add_argument('--settle', type=nonnegative_float, default=1.0,
                     help='simulated seconds to stand before the picture is taken')
@@ -50,7 +57,7 @@ def build_parser():
     ap.add_argument('--azimuth', type=finite_float, default=140.0, help='camera azimuth [deg]')
     ap.add_argument('--elevation', type=finite_float, default=-25.0, help='camera elevation [deg]')
     ap.add_argument('--distance', type=positive_float, default=0.9, help='camera distance from the trunk [m]')
-    node = ap.add_argument_group('sim node (when none of --render, --video, --urdf is given)')
+    node = ap.add_argument_group('sim node (when none of --render, --video, --urdf, --mjcf is given)')
     node.add_argument('--rtf', type=nonnegative_float, default=1.0, help='real-time factor, 0 = as fast as possible')
     node.add_argument('--lockstep', action='store_true', help='one read cycle per /joint_commands message')
     node.add_argument('--record', default='', help="bag: 'auto', a name under bags/, or a path (default: no bag)")
@@ -66,7 +73,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.urdf is not None:
         return _write_urdf(ap, args)
-    if args.render is None and args.video is None:
+    if args.render is None and args.video is None and args.mjcf is None:
         from . import sim_node
         ros = ['sim', '--ros-args', '-p', f'terrain:={args.terrain}', '-p', f'seed:={args.seed}',
                '-p', f'real_time_factor:={float(args.rtf)}', '-p', f'lockstep:={str(args.lockstep).lower()}',
@@ -86,6 +93,11 @@ def main(argv=None) -> int:
     from .plant import HexapodSim, SimError
     try:
         robot = load_robot(overlays=args.overlay)
+        if args.mjcf:
+            out = write_mjcf(robot, args.mjcf, terrain=args.terrain, seed=args.seed,
+                             start_xy_m=(args.start_x, args.start_y), overlays=args.overlay)
+            print(f'wrote {out} (terrain {args.terrain}, seed {args.seed}); view it with '
+                  f'python -m mujoco.viewer --mjcf {out}')
         camera = dict(distance=args.distance, azimuth=args.azimuth, elevation=args.elevation)
         if args.render:
             sim = HexapodSim(robot, terrain=args.terrain, seed=args.seed, start_xy_m=(args.start_x, args.start_y))
@@ -99,7 +111,7 @@ def main(argv=None) -> int:
             pos, _ = sim.body_pose()
             print(f'wrote {out} ({args.duration:g} s of a scripted tripod gait on {args.terrain}; '
                   f'trunk moved to x={pos[0]:.3f} m)')
-    except (RenderError, SimError, DescriptionError, ValueError) as exc:
+    except (RenderError, SimError, DescriptionError, ValueError, OSError) as exc:
         print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 2
     return 0

@@ -33,6 +33,7 @@ values [N].
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +43,7 @@ from hexapod_model.kinematics import forward
 from hexapod_model.shapes import (FOOT_RADIUS_M, FOOT_RGBA, LINK_RADIUS_M, LINK_RGBA, ROBOT_RGBA,  # noqa: F401
                                   SERVO_HALF_SIZE_M, link_inertial, link_principal_inertia, trunk_geometry,
                                   trunk_inertia)
+from hexapod_model.servo import tick_to_theta
 
 from .terrain import Terrain, make_terrain, _mat_to_quat
 
@@ -93,7 +95,7 @@ def _rx(a: float) -> np.ndarray:
 def servo_range_rad(robot: Robot) -> tuple[float, float]:
     """Physical travel of an AX-12A in joint angle: ticks 0..max_tick around the centre tick."""
     s = robot.servo
-    return (-s.center_tick * s.rad_per_tick, (s.max_tick - s.center_tick) * s.rad_per_tick)
+    return (float(tick_to_theta(0, s)), float(tick_to_theta(s.max_tick, s)))
 
 
 def home_foot_height_m(robot: Robot) -> float:
@@ -303,3 +305,33 @@ def scene(robot: Robot, terrain: str | Terrain = 'flat', seed: int = 0, fixed_ba
 '''
     return Scene(xml=xml, terrain=ter, fixed_base=fixed_base, spawn_height_m=base_h,
                  backlash_joints=tuple(n for n in order if n in backlash), timestep_s=timestep_s)
+
+
+def mjcf_file_text(robot: Robot, terrain: str = 'flat', seed: int = 0,
+                   start_xy_m: tuple[float, float] = (0.0, 0.0), overlays=()) -> str:
+    """The scene of :func:`scene` as the text of one stand-alone MJCF file, with a header that says
+    where it came from (the text is the same string the simulator compiles, so nothing can differ)."""
+    sc = scene(robot, terrain, seed=seed, start_xy_m=start_xy_m)
+    how = f'--terrain {terrain} --seed {seed}'
+    if tuple(start_xy_m) != (0.0, 0.0):
+        how += f' --start-x {start_xy_m[0]:g} --start-y {start_xy_m[1]:g}'
+    for o in overlays or ():
+        how += f' --overlay {o}'
+    header = (f'<!-- Generated from the robot description ({robot.name}) by hexapod_sim.mjcf; do not edit.\n'
+              f'     Regenerate: ./hexapod sim --mjcf OUT.xml {how}\n'
+              f'     View: python -m mujoco.viewer --mjcf OUT.xml -->\n')
+    return header + sc.xml
+
+
+def write_mjcf(robot: Robot, path, **kwargs) -> str:
+    """Write :func:`mjcf_file_text` to ``path`` (replaced atomically); returns the path written."""
+    text = mjcf_file_text(robot, **kwargs)
+    tmp = f'{path}.tmp{os.getpid()}'
+    try:
+        with open(tmp, 'w', encoding='utf-8') as f:
+            f.write(text)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return str(path)

@@ -44,15 +44,12 @@ import mujoco
 import numpy as np
 
 from hexapod_model.description import ALL_JOINTS, LEGS, Robot, load_robot
-from hexapod_model.servo import electrical_power_w, firmware_torque_nm, quantize_tick, winding_loss_w
+from hexapod_model.servo import (ERR_ANGLE_LIMIT, ERR_OVERHEATING, electrical_power_w, firmware_torque_nm,
+                                  quantize_tick, winding_loss_w)
 
 from . import firmware
 from .mjcf import TIMESTEP_S, Scene, scene as build_scene
 from .terrain import Terrain
-
-# Protocol 1.0 status error bits (same values as hexapod_msgs/msg/ServoStatus; a node test checks it)
-ERR_ANGLE_LIMIT = 2
-ERR_OVERHEATING = 4
 
 POWER_WINDOW = 50             # firmware ticks per battery/thermal evaluation block (50 ms)
 V_STICK_RAD_S = 1e-3          # static friction: a joint slower than this counts as at rest

@@ -17,7 +17,7 @@ from typing import Callable, Mapping
 import mujoco
 import numpy as np
 
-from hexapod_model.description import LEGS, Robot, joint_name
+from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import forward, inverse
 
 from .plant import HexapodSim, run_trajectory
@@ -130,7 +130,7 @@ def scripted_tripod(robot: Robot, stride_m: float = 0.04, lift_m: float = 0.035,
             for leg in legs:
                 target = home[leg] + ramp * (foot(leg, phase) - home[leg])
                 th = inverse(robot, leg, target)
-                for role, v in zip(('coxa', 'femur', 'tibia'), th):
+                for role, v in zip(JOINT_ROLES, th):
                     out[joint_name(leg, role)] = float(v)
         return out
 

@@ -192,7 +192,7 @@ class BagPlayer(Node):
 
     def _publish_clock(self, bag_ns: int, stats: ReplayStats) -> None:
         msg = self._clock_cls()
-        msg.clock.sec, msg.clock.nanosec = divmod(int(bag_ns), 1_000_000_000)
+        msg.clock.sec, msg.clock.nanosec = contract.stamp_parts_ns(bag_ns)
         self._clock_pub.publish(msg)
         stats.clock_published += 1
 

@@ -31,7 +31,6 @@ import sys
 import threading
 
 import rclpy
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from rclpy._rclpy_pybind11 import RCLError
@@ -48,6 +47,7 @@ from hexapod_model.description import ALL_JOINTS, DescriptionError
 from hexapod_model.node_params import NodeParams, report
 from hexapod_model.param_schema import ParameterError, RobotSource
 from hexapod_model.urdf import urdf_xml
+from hexapod_model.contract import stamp_msg
 from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus,
                               SwingDownStart)
 from hexapod_msgs.srv import SetReadSchedule
@@ -64,11 +64,6 @@ TIMER_PERIOD_S = 0.002        # wall period of the stepping timer
 MAX_READS_PER_TICK = 200      # bound one callback so subscriptions/services stay responsive
 MAX_LAG_S = 0.5               # behind the real-time target by more than this: re-anchor, warn
 QOS_DEPTH = 1000              # one message per read: deep queues so a loaded subscriber loses nothing
-
-
-def stamp(t_s: float) -> Time:
-    ns = int(round(t_s * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
 class SimNode(Node):
@@ -132,7 +127,8 @@ class SimNode(Node):
             self.create_subscription(Twist, contract.CMD_VEL,
                                      lambda m: self._record(contract.CMD_VEL, m, self.sim.now()), 10)
         self.create_service(Trigger, contract.EMERGENCY_STOP, self._on_estop)
-        self._timer = self.create_timer(TIMER_PERIOD_S, self._on_timer)
+        # lock-step advances in _on_command only: a timer would just wake the executor 500 times a second
+        self._timer = None if self.lockstep else self.create_timer(TIMER_PERIOD_S, self._on_timer)
         self.get_logger().info(
             f'sim ready: terrain={p.terrain} seed={p.seed} t_com={self.sim.t_com_s * 1e3:g} ms '
             f'{"lockstep" if self.lockstep else f"real_time_factor={self.pacer.rtf:g}"} '
@@ -195,7 +191,7 @@ class SimNode(Node):
             response.message = 'the read schedule belongs to the controller running in this process'
             return response
         msg = ReadSchedule(joint_names=list(request.joint_names))
-        msg.header.stamp = stamp(self.sim.now())
+        msg.header.stamp = stamp_msg(self.sim.now())
         response.success, response.message = self._apply_schedule(msg, contract.SET_READ_SCHEDULE)
         return response
 
@@ -220,8 +216,6 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ stepping
     def _on_timer(self) -> None:
-        if self.lockstep:
-            return                      # the simulation advances in _on_command only
         with self._lock:
             target = self.pacer.target()
             if target is not None and target - self.sim.now() > MAX_LAG_S:
@@ -243,25 +237,25 @@ class SimNode(Node):
     def _publish(self, ev) -> None:
         if isinstance(ev, JointSample):
             m = JointState()
-            m.header.stamp = stamp(ev.t_s)
+            m.header.stamp = stamp_msg(ev.t_s)
             m.name = [ev.joint]
             m.position = [ev.theta_rad]
             self._send(contract.JOINT_STATES, m, ev.t_s + self.sim.t_com_s)
         elif isinstance(ev, CommandSample):
             m = JointState()
-            m.header.stamp = stamp(ev.t_s)
+            m.header.stamp = stamp_msg(ev.t_s)
             m.name = list(ev.goals_rad)
             m.position = [float(v) for v in ev.goals_rad.values()]
             self._send(contract.JOINT_COMMANDS, m, ev.t_s)
         elif isinstance(ev, ScheduleSample):
             m = ReadSchedule(joint_names=list(ev.joint_names))
-            m.header.stamp = stamp(ev.t_s)
+            m.header.stamp = stamp_msg(ev.t_s)
             self._record(contract.READ_SCHEDULE, m, ev.t_s)
         elif isinstance(ev, ClockTick):
-            self._send(contract.CLOCK, Clock(clock=stamp(ev.t_s)), ev.t_s)
+            self._send(contract.CLOCK, Clock(clock=stamp_msg(ev.t_s)), ev.t_s)
         elif isinstance(ev, ImuSample):
             m = Imu()
-            m.header.stamp = stamp(ev.t_s)
+            m.header.stamp = stamp_msg(ev.t_s)
             m.header.frame_id = 'trunk'
             w, x, y, z = (float(v) for v in ev.quat_wxyz)
             m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z = w, x, y, z
@@ -271,7 +265,7 @@ class SimNode(Node):
             self._send(contract.IMU, m, ev.t_s)
         elif isinstance(ev, PowerSample):
             m = BatteryState()
-            m.header.stamp = stamp(ev.t_s)
+            m.header.stamp = stamp_msg(ev.t_s)
             m.voltage = float(ev.voltage_v)
             m.current = -float(ev.current_a)          # sensor_msgs convention: negative when discharging
             nan = float('nan')
@@ -281,7 +275,7 @@ class SimNode(Node):
             self._send(contract.POWER, m, ev.t_s)
         elif isinstance(ev, ServoTelemetry):
             m = ServoDiagnostics()
-            m.header.stamp = stamp(ev.t_s)
+            m.header.stamp = stamp_msg(ev.t_s)
             ids = self.sim.servo_ids
             for i, name in enumerate(ALL_JOINTS):
                 s = ServoStatus()
@@ -303,7 +297,7 @@ class SimNode(Node):
                 torque_limit=None) for i, name in enumerate(ALL_JOINTS)], ev.t_s)
         elif isinstance(ev, BusTimingSample):
             m = BusTiming()
-            m.header.stamp = stamp(ev.t_s)
+            m.header.stamp = stamp_msg(ev.t_s)
             m.reads = ev.reads
             m.failed_reads = 0
             m.t_com_mean_s = m.t_com_p99_s = m.t_com_max_s = float(ev.t_com_s)
@@ -321,7 +315,7 @@ class SimNode(Node):
             m.data = truth_vector(ev.contacts)
             self._send(contract.SIM_TRUTH_CONTACTS, m, ev.t_s)
             p = PoseStamped()
-            p.header.stamp = stamp(ev.t_s)
+            p.header.stamp = stamp_msg(ev.t_s)
             p.header.frame_id = 'world'
             p.pose.position.x, p.pose.position.y, p.pose.position.z = (float(v) for v in ev.position_m)
             w, x, y, z = (float(v) for v in ev.quat_wxyz)

@@ -31,8 +31,7 @@ REPO = Path(__file__).resolve().parents[2]
 NODE_READER = REPO / 'tools' / 'mcap-node' / 'read.mjs'
 
 
-def stamp(t_ns):
-    return {'sec': t_ns // 10**9, 'nanosec': t_ns % 10**9}
+stamp = contract.stamp_dict_ns
 
 
 def joint_state(t_ns, names, pos):

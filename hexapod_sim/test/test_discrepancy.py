@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hexapod_sim.calibration import calibration_plan
-from hexapod_model.description import Effect, load_robot
+from hexapod_model.description import JOINT_ROLES, Effect, load_robot
 from hexapod_sim.discrepancy import analyse
 from hexapod_sim.discrepancy.effects import CANDIDATES
 from hexapod_sim.discrepancy.locate import Mismatch
@@ -100,7 +100,7 @@ def test_plot_marks_values_beyond_the_axis():
 
 def test_two_effects_at_once_are_both_found(robot):
     legs = (1, 3)
-    every = tuple(f'leg{leg}_{r}' for leg in legs for r in ('coxa', 'femur', 'tibia'))
+    every = tuple(f'leg{leg}_{r}' for leg in legs for r in JOINT_ROLES)
     truth = [Effect('backlash', ('leg3_tibia',), {'width_rad': math.radians(1.2)}),
              Effect('readout_delay', every, {'delay_s': 0.004})]
     rec = model_recording(robot.with_effects(truth), calibration_plan(robot, legs=legs, phases=('tibia', 'coxa')))

@@ -8,7 +8,7 @@ import pytest
 
 from hexapod_sim.bagio import BagWriter
 from hexapod_sim.calibration import calibration_plan
-from hexapod_model.description import Effect, load_robot
+from hexapod_model.description import JOINT_ROLES, Effect, load_robot
 from hexapod_sim.discrepancy.cli import main
 from hexapod_sim.discrepancy.recording import Recording, RecordingError, load_recording
 from hexapod_sim.discrepancy.segments import looks_like_walk, parse_windows, swing_segments
@@ -107,7 +107,7 @@ def _walk_like(robot, stance_offset_ticks):
     for k, tt in enumerate(t):
         phase = tt % 3.0                    # 0-0.5 hold, 0.5-1 lift, 1-1.5 hold up, 1.5-2 lower, 2-3 stance
         femur = 0.0 + 0.3 * np.clip((phase - 0.5) / 0.5, 0, 1) - 0.3 * np.clip((phase - 1.5) / 0.5, 0, 1)
-        goals = {f'leg{leg}_{r}': (femur if r == 'femur' else 0.0) for leg in (1, 2) for r in ('coxa', 'femur', 'tibia')}
+        goals = {f'leg{leg}_{r}': (femur if r == 'femur' else 0.0) for leg in (1, 2) for r in JOINT_ROLES}
         cmds.append((tt, goals))
         stance = phase < 0.5 or phase > 2.05
         for leg in (1, 2):

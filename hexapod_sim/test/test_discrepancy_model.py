@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hexapod_sim.calibration import PHASES, CalibrationError, calibration_plan, run_calibration
-from hexapod_model.description import Effect, load_robot
+from hexapod_model.description import JOINT_ROLES, LEGS, Effect, load_robot
 from hexapod_model.servo import theta_to_tick
 from hexapod_model.swing_model import CoxaModel, LegModel, coxa_axis_inertia_kgm2
 
@@ -92,7 +92,7 @@ def test_calibration_plan_covers_the_conditions(robot):
     assert 40.0 < plan.duration_s < 70.0
     assert [p.name for p in plan.phases] == list(PHASES)
     assert all(a.t_end_s == pytest.approx(b.t_start_s) for a, b in zip(plan.phases, plan.phases[1:]))
-    for i, role in enumerate(('coxa', 'femur', 'tibia')):
+    for i, role in enumerate(JOINT_ROLES):
         lo, hi = robot.joint_limits_rad[role]
         assert lo <= plan.goals_rad[:, i].min() and plan.goals_rad[:, i].max() <= hi
     model = LegModel(robot, 1)
@@ -104,7 +104,7 @@ def test_calibration_plan_covers_the_conditions(robot):
     assert gravity_signs('tibia', 1) >= {-1.0, 1.0}                 # tibia load reverses (backlash shows)
     assert gravity_signs('femur_reversal', 0) >= {-1.0, 1.0}        # femur load reverses
     coxa = next(p for p in plan.phases if p.name == 'coxa')
-    assert plan.read_joints(coxa.t_start_s + 1.0) == [f'leg{leg}_coxa' for leg in range(1, 7)]
+    assert plan.read_joints(coxa.t_start_s + 1.0) == [f'leg{leg}_coxa' for leg in LEGS]
     with pytest.raises(CalibrationError, match='unknown phase'):
         calibration_plan(robot, phases=('coxa', 'dance'))
     with pytest.raises(CalibrationError, match='legs'):

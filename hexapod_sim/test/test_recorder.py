@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from hexapod_sim.bagio import BagReader
+from hexapod_model.contract import stamp_dict
 from hexapod_sim import recorder
 from hexapod_sim.recorder import Recorder, resolve_bag_dir, ros_to_plain
 
@@ -37,7 +38,7 @@ def test_a_crash_loses_at_most_the_last_second(tmp_path):
     try:
         for k in range(3001):                       # 3 s of simulated time at 1 kHz
             t = k * 0.001
-            clock = {'clock': {'sec': int(t), 'nanosec': int(round(t % 1 * 1e9))}}
+            clock = {'clock': stamp_dict(t)}
             rec.write('/clock', 'rosgraph_msgs/msg/Clock', clock, t)
         crashed = tmp_path / 'crashed'
         shutil.copytree(bag, crashed)               # the files as a crash would leave them

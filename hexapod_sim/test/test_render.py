@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from hexapod_model.description import ALL_JOINTS, load_robot
+from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, load_robot
 from hexapod_sim import cli
 from hexapod_sim.render import RenderError, record_video, render_png, scripted_tripod
 from hexapod_sim.plant import HexapodSim
@@ -56,8 +56,8 @@ def test_scripted_tripod_lifts_one_tripod_at_a_time(robot):
     for t in np.linspace(1.3, 2.3, 9):                    # after the first (ramp) cycle
         goals = g(t)
         assert set(goals) == set(ALL_JOINTS)
-        z = {leg: forward(robot, leg, [goals[f'leg{leg}_{r}'] for r in ('coxa', 'femur', 'tibia')])[2]
-             for leg in range(1, 7)}
+        z = {leg: forward(robot, leg, [goals[f'leg{leg}_{r}'] for r in JOINT_ROLES])[2]
+             for leg in LEGS}
         lifted = [max(z[leg] for leg in tri) - min(z.values()) > 1e-3 for tri in TRIPODS]
         assert sum(lifted) <= 1                           # never both tripods in the air
 

@@ -38,7 +38,7 @@ def make_bag(path, n=90, seed_gap_ms=(4, 9, 15, 23)):
         t = T0
         for i in range(n):
             t += seed_gap_ms[i % len(seed_gap_ms)] * 1_000_000
-            stamp = {'sec': t // 10**9, 'nanosec': t % 10**9}
+            stamp = contract.stamp_dict_ns(t)
             if i % 3 == 0:
                 w.write(contract.JOINT_STATES, JS, {'header': {'stamp': stamp}, 'name': ['leg1_femur'],
                                                     'position': [0.01 * i]}, t)
@@ -95,23 +95,26 @@ class Receiver:
         self.node.destroy_node()
 
 
-def play(reader, **kw):
+def play(reader, rx, **kw):
     player = BagPlayer(reader, **kw)
     try:
         assert player.wait_for_subscribers(15.0), 'receiver not discovered'
-        time.sleep(0.2)
+        # both ends matched (not only the player's view of the receiver): no first message is lost
+        deadline = time.monotonic() + 15.0
+        while not all(rx.node.count_publishers(t) > 0 for t in player.playable_topics):
+            assert time.monotonic() < deadline, 'player not discovered by the receiver'
+            time.sleep(0.01)
         return player.play()
     finally:
         player.destroy_node()
 
 
-@pytest.mark.parametrize('rate', [1.0, 2.0])
-def test_replay_reproduces_messages_and_timing(ros, tmp_path, rate):
+def test_replay_reproduces_messages_in_order(ros, tmp_path):
     reader = BagReader(make_bag(tmp_path / 'bag'))
     recorded = list(reader.messages(raw=True))
     rx = Receiver(reader.topics())
     try:
-        stats = play(reader, rate=rate)
+        stats = play(reader, rx, rate=4.0)
         rx.wait_for(len(recorded))
     finally:
         rx.close()
@@ -123,6 +126,21 @@ def test_replay_reproduces_messages_and_timing(ros, tmp_path, rate):
         assert [d for t, d, _ in rx.got if t == topic] == [m.msg for m in recorded if m.topic == topic]
     decoded = {m.topic: deserialize_message(m.msg, CLASSES[m.topic]) for m in recorded}
     assert decoded[contract.bag_topic(contract.READ_SCHEDULE)].joint_names[0].startswith('leg')
+
+
+@pytest.mark.realtime
+@pytest.mark.parametrize('rate', [1.0, 2.0])
+def test_replay_reproduces_messages_and_timing(ros, tmp_path, rate):
+    """Wall-clock playback is what replay is for: receive times against the recorded schedule."""
+    reader = BagReader(make_bag(tmp_path / 'bag'))
+    recorded = list(reader.messages(raw=True))
+    rx = Receiver(reader.topics())
+    try:
+        stats = play(reader, rx, rate=rate)
+        rx.wait_for(len(recorded))
+    finally:
+        rx.close()
+    assert stats.total == len(recorded) and len(rx.got) == len(recorded)
     # timing: receive time vs the recorded schedule scaled by 1/rate (constant latency removed)
     t_of = {(m.topic, m.msg): m.t_ns for m in recorded}
     pairs = sorted(((t_of[(t, d)] - recorded[0].t_ns) * 1e-9 / rate, r) for t, d, r in rx.got)
@@ -143,15 +161,17 @@ def test_window_and_clock(ros, tmp_path):
     want = [m for m in reader.messages(raw=True) if begin <= m.t_ns < end]
     rx = Receiver(reader.topics(), clock=True)
     try:
-        stats = play(reader, rate=2.0, start_s=0.3, duration_s=0.4, clock_hz=50.0)
+        stats = play(reader, rx, rate=2.0, start_s=0.3, duration_s=0.4, clock_hz=50.0)
         rx.wait_for(len(want))
-        time.sleep(0.1)
+        deadline = time.monotonic() + 10.0           # failure bound: every /clock published arrives
+        while len(rx.clock) < stats.clock_published and time.monotonic() < deadline:
+            time.sleep(0.01)
     finally:
         rx.close()
     assert sorted((t, d) for t, d, _ in rx.got) == sorted((m.topic, m.msg) for m in want)
     for topic in reader.topics():
         assert [d for t, d, _ in rx.got if t == topic] == [m.msg for m in want if m.topic == topic]
-    clocks = [c.clock.sec * 10**9 + c.clock.nanosec for c in rx.clock]
+    clocks = [contract.stamp_ns(c.clock) for c in rx.clock]
     assert stats.clock_published >= 5 and len(clocks) >= 5          # 0.2 s wall at 50 Hz
     assert clocks == sorted(clocks) and begin <= clocks[0] and clocks[-1] <= end
     with pytest.raises(ValueError, match='past the end of the bag'):
@@ -224,8 +244,7 @@ def test_cli_ctrl_c_stops_cleanly(tmp_path):
     try:
         line = proc.stdout.readline()          # "replay: playing ..." once it is publishing
         assert 'playing' in line, line + proc.stderr.read()
-        time.sleep(0.5)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signal.SIGINT)             # --loop: it is always in the middle of playing
         out, err = proc.communicate(timeout=15)
     finally:
         if proc.poll() is None:

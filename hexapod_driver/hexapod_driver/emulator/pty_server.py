@@ -39,6 +39,7 @@ class LogEntry:
     replied: bool
     error: int
     wall_reply: float = float('nan')   # time.time() when the status packet was written
+    t_reply: float = float('nan')      # emulator time when the status packet was written (clock of ``t``)
     reply_params: bytes = b''          # parameters of the status packet (the data of a READ)
     reply_delay_s: float = 0.0         # the servo's return delay time applied before replying
     rx: bytes = b''                    # the instruction packet exactly as received
@@ -273,10 +274,11 @@ class BusEmulator:
                         self.log[-1].reply_delay_s = self._reply_delay
                         replies.append((reply, self._reply_delay, len(pkt.params) + 6, self.log[-1]))
             for reply, delay, n_in, entry in replies:
-                self._send(reply, t_arrival, delay, n_in)
-                entry.wall_reply = time.time()
+                self._send(reply, t_arrival, delay, n_in, entry)
 
-    def _send(self, reply: bytes, t_arrival: float, delay: float, n_instruction_bytes: int) -> None:
+    def _send(self, reply: bytes, t_arrival: float, delay: float, n_instruction_bytes: int, entry: 'LogEntry') -> None:
+        # stamped before the write: a master that reads the log on receipt finds them set
+        entry.t_reply, entry.wall_reply = self.now(), time.time()
         if self.wire_time:
             delay += (n_instruction_bytes + len(reply)) * p.BITS_PER_BYTE / self.baud_rate
         latency = self.faults.reply_latency_s

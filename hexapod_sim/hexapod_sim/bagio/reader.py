@@ -455,11 +455,6 @@ def recover_bag(src: str | os.PathLike, dst: str | os.PathLike, **writer_kw) -> 
     return n
 
 
-def _stamp_s(msg: Any) -> float:
-    st = msg.header.stamp
-    return float(st.sec) + 1e-9 * float(st.nanosec)
-
-
 def joint_series(reader: BagReader) -> dict[str, dict[str, np.ndarray]]:
     """Per-joint position series of ``/joint_commands`` and ``/joint_states``.
 
@@ -481,7 +476,7 @@ def joint_series(reader: BagReader) -> dict[str, dict[str, np.ndarray]]:
         if len(pos) < len(names):
             raise BagError(f'{topic} message at t={t_ns} ns names {len(names)} joint(s) but has '
                            f'{len(pos)} position(s)')
-        stamp = _stamp_s(msg)
+        stamp = contract.stamp_seconds(msg.header.stamp)
         series = acc[topic]
         for n, p in zip(names, pos):
             series.setdefault(n, []).append((stamp, p))

@@ -29,6 +29,8 @@ import numpy as np
 from hexapod_model.description import Robot, joint_name, parse_joint_name
 from hexapod_model.swing_model import LegModel
 from .simulate import Replay
+from hexapod_model.description import JOINT_ROLES
+from hexapod_model.servo import theta_to_tick, tick_to_theta
 
 CONDITIONS = ('load_reversal', 'direction_reversal', 'start_from_rest', 'large_error', 'high_speed',
               'steady_hold', 'gravity_load_high', 'gravity_load_low', 'moving')
@@ -107,8 +109,8 @@ def period_conditions(replay: Replay, robot: Robot, joint: str, pred_traj: np.nd
             starts.append(k)
         prev = k
     start = _near_events(np.array(starts, dtype=np.int64), n, 0, int(REVERSAL_WINDOW_S / dt))
-    q = np.where(np.isfinite(pred_traj), pred_traj, (g - s.center_tick) * s.rad_per_tick)
-    pred_tick = q / s.rad_per_tick + s.center_tick
+    q = np.where(np.isfinite(pred_traj), pred_traj, tick_to_theta(g, s))
+    pred_tick = theta_to_tick(q, s)
     large = np.abs(g - pred_tick) > LARGE_ERROR_TICKS
     speed = np.abs(np.gradient(q, dt))
     fast = speed > HIGH_SPEED_RAD_S
@@ -120,7 +122,7 @@ def period_conditions(replay: Replay, robot: Robot, joint: str, pred_traj: np.nd
     if role in ('femur', 'tibia'):
         model = LegModel(robot, leg)
         other = joint_name(leg, 'tibia' if role == 'femur' else 'femur')
-        q_other = (replay.goals[other] - s.center_tick) * s.rad_per_tick
+        q_other = tick_to_theta(replay.goals[other], s)
         qq = np.stack([q, q_other] if role == 'femur' else [q_other, q], axis=1)
         col = 0 if role == 'femur' else 1
         grav = np.array([model.gravity_torque_nm(x)[col] for x in qq[::5]])
@@ -145,11 +147,10 @@ def period_conditions(replay: Replay, robot: Robot, joint: str, pred_traj: np.nd
 def read_conditions(replay: Replay, robot: Robot, trajectories) -> dict[str, np.ndarray]:
     """Condition matrix (read, condition) of every analysed read; ``trajectories``: leg -> (t, theta (n, 3))."""
     out = {}
-    roles = {'coxa': 0, 'femur': 1, 'tibia': 2}
     for j in replay.joints:
         leg, role = parse_joint_name(j)
         _, th = trajectories[leg]
-        cond = period_conditions(replay, robot, j, th[:, roles[role]])
+        cond = period_conditions(replay, robot, j, th[:, JOINT_ROLES.index(role)])
         k = np.clip(np.floor(replay.reads[j].t_s / replay.dt + 1e-9).astype(np.int64), 0, len(cond) - 1)
         out[j] = cond[k]
     return out

@@ -20,6 +20,7 @@ import numpy as np
 
 from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, bag_topic
 from hexapod_model.description import ALL_JOINTS, DescriptionError, parse_joint_name
+from hexapod_model.contract import stamp_parts_ns
 
 
 class RecordingError(ValueError):
@@ -93,8 +94,8 @@ class Recording:
         try:
             for t, _, topic, names, values in events:
                 t_ns = self.t0_ns + int(round(t * 1e9))
-                msg = {'header': {'stamp': {'sec': t_ns // 1_000_000_000, 'nanosec': t_ns % 1_000_000_000},
-                                  'frame_id': ''},
+                sec, nanosec = stamp_parts_ns(t_ns)
+                msg = {'header': {'stamp': {'sec': sec, 'nanosec': nanosec}, 'frame_id': ''},
                        'name': names, 'position': values, 'velocity': [], 'effort': []}
                 writer.write(topic, MSG_TYPES[topic], msg, t_ns)
         finally:

@@ -23,6 +23,7 @@ from hexapod_model.description import JOINT_ROLES, Robot, joint_name, parse_join
 from hexapod_model.servo import quantize_tick, servo_tick, theta_to_tick
 from hexapod_model.swing_model import CoxaModel, LegModel
 from .recording import Recording, RecordingError
+from hexapod_model.servo import joint_tick_of_servo_tick, tick_to_theta
 
 
 def goal_joint_ticks(theta_rad, robot: Robot, joint: str) -> np.ndarray:
@@ -34,7 +35,7 @@ def goal_joint_ticks(theta_rad, robot: Robot, joint: str) -> np.ndarray:
     s = robot.servo
     bj = robot.bus.by_joint(joint)
     raw = quantize_tick(np.array([servo_tick(float(v), s, bj) for v in np.atleast_1d(theta_rad)]), s)
-    return s.center_tick + bj.direction * (raw.astype(float) - s.center_tick - bj.offset_ticks)
+    return joint_tick_of_servo_tick(raw, s, bj)
 
 
 @dataclass(frozen=True)
@@ -118,9 +119,8 @@ class Replay:
                 moving = np.zeros(kb - ka, dtype=bool)
                 moving[1:] = np.diff(gc[ka:kb]) != 0
                 sel = moving if np.count_nonzero(moving) >= 5 else np.ones(kb - ka, dtype=bool)
-                rpt, c = robot.servo.rad_per_tick, robot.servo.center_tick
-                self.coxa_pose[(leg, i)] = (float(np.median(gf[ka:kb][sel]) - c) * rpt,
-                                            float(np.median(gt[ka:kb][sel]) - c) * rpt)
+                self.coxa_pose[(leg, i)] = (float(tick_to_theta(np.median(gf[ka:kb][sel]), robot.servo)),
+                                            float(tick_to_theta(np.median(gt[ka:kb][sel]), robot.servo)))
 
     # ------------------------------------------------------------------ set-up helpers
     def _goals_per_period(self, j: str, k: np.ndarray) -> np.ndarray:
@@ -147,7 +147,7 @@ class Replay:
         s = self.rec.states.get(j)
         if s is None or len(s) == 0:
             k = min(max(int(round(t / self.dt)), 0), self.n_periods - 1)
-            return float((self.goals[j][k] - self.robot.servo.center_tick) * self.robot.servo.rad_per_tick)
+            return float(tick_to_theta(self.goals[j][k], self.robot.servo))
         i = int(np.searchsorted(s.t_s, t, side='right')) - 1
         return float(s.theta_rad[max(i, 0)])
 

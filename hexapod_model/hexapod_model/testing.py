@@ -1,0 +1,68 @@
+"""Helpers shared by the packages' tests that start ROS nodes (one home instead of a copy per file).
+
+Here rather than in a root ``conftest.py``: the test folders are ament_python ``test/`` folders
+without ``__init__.py`` that ``colcon test`` runs per package, where a conftest at the workspace
+root is not seen; an installed module is importable from every package's tests either way.
+rclpy and ament_index are imported inside the functions, so importing this module costs nothing.
+
+Every helper keeps DDS on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and on the
+domain the calling test file chose for itself.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+from typing import Callable, Iterator
+
+
+def node_env(domain_id: int, **extra: str) -> dict:
+    """Environment for a node process of a test: its own domain, loopback only, unbuffered output."""
+    return dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                PYTHONUNBUFFERED='1', **extra)
+
+
+def installed_executable(pkg: str, name: str) -> str:
+    """Path of an installed console script, as ``ros2 run PKG NAME`` finds it."""
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix(pkg), 'lib', pkg, name)
+
+
+@contextlib.contextmanager
+def ros_probe(name: str, domain_id: int) -> Iterator[tuple]:
+    """A probe node in a private context on ``domain_id`` with its own single-threaded executor:
+    yields ``(node, executor)``; everything is shut down on exit. Use it in a module fixture::
+
+        @pytest.fixture(scope='module')
+        def ros():
+            with ros_probe('my_test', DOMAIN_ID) as probe:
+                yield probe
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    node = rclpy.create_node(name, context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    try:
+        yield node, ex
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def spin_until(ex, cond: Callable[[], bool], timeout_s: float, what: str = 'a condition',
+               alive: Callable[[], None] | None = None) -> None:
+    """Spin ``ex`` until ``cond()`` holds. ``timeout_s`` is a failure bound only (a loaded machine
+    may be slow; the test asserts on what arrived, never on how long it took). ``alive()`` is
+    called between spins and may raise (e.g. when a node process under test has died)."""
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        if alive is not None:
+            alive()
+        if time.monotonic() > deadline:
+            raise AssertionError(f'timed out after {timeout_s:g} s waiting for {what}')
+        ex.spin_once(timeout_sec=0.05)
