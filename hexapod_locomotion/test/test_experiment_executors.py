@@ -33,6 +33,16 @@ def test_ray_tasks_give_the_process_pool_results(monkeypatch):
     assert pool[0]['phases'] > 0 and pool[1]['config']['gait'] == 'tetrapod'
 
 
+def test_an_unreachable_ray_cluster_is_one_line(capsys):
+    pytest.importorskip('ray')
+    from hexapod_model.executor import ExecutorError
+    from hexapod_model.cli_common import positive_int
+    with pytest.raises(ExecutorError, match='no Ray cluster answers at 127.0.0.1:1'):
+        map_jobs(positive_int, ['1'], ray_address='127.0.0.1:1', progress=False)
+    with pytest.raises(ExecutorError, match='HOST:PORT'):
+        map_jobs(positive_int, ['1'], ray_address='nonsense', progress=False)
+
+
 def test_sequential_and_pool_keep_the_order():
     args = ['3', '1', '2', '5']
     from hexapod_model.cli_common import positive_int

@@ -73,6 +73,8 @@ def _map_ray(fn, items: list, jobs: int, address: str, bar: dict) -> list:
         # inherits this process's; on a cluster every node runs `./hexapod shell ray start ...` from
         # a checkout of the same commit (docs/performance.md).
         kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level='ERROR')
+        if address not in (LOCAL_RAY, 'auto') and not address.startswith('ray://'):
+            _check_reachable(address)
         try:
             if address == LOCAL_RAY:
                 ray.init(num_cpus=jobs, **kwargs)
@@ -101,3 +103,16 @@ def _map_ray(fn, items: list, jobs: int, address: str, bar: dict) -> list:
     finally:
         if started:
             ray.shutdown()
+
+
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Refuse an address whose GCS port does not answer (Ray itself would retry for minutes)."""
+    import socket
+    host, sep, port = address.rpartition(':')
+    if not sep or not port.isdigit() or not host:
+        raise ExecutorError(f'Ray address must be HOST:PORT (e.g. 10.0.0.5:6379), auto, or nothing; got {address!r}')
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ExecutorError(f'no Ray cluster answers at {address} ({exc.strerror or exc}); start one with '
+                            f'`ray start --head` there, or drop the address for a local instance') from None
