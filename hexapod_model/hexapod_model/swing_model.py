@@ -660,15 +660,23 @@ def _swing_down_kernel(params, init_t, fin_t, q0, qd0, gap0, n_interp, t_con, t_
         k_prev = -1
         g2 = 0.0
         g3 = 0.0
+        k = 0
+        count = 0
         for j in range(n_periods):
-            # the step whose goal is in effect: floor(j dt / t_con) (as goals_per_period), capped
-            k = j // per_step if per_step > 0 else int(math.floor(j * dt / t_con + 1e-9))
-            if k > n_steps - 1:
-                k = n_steps - 1
-            if k != k_prev:
-                g2 = _eq15_goal(init_t[l, 0], fin_t[l, 0], k, n_interp)
-                g3 = _eq15_goal(init_t[l, 1], fin_t[l, 1], k, n_interp)
-                k_prev = k
+            # the step whose goal is in effect: floor(j dt / t_con) (as goals_per_period), capped;
+            # counted up when t_con is a whole number of periods (no division per period)
+            if per_step > 0:
+                if count == per_step:
+                    count = 0
+                    k += 1
+                count += 1
+            else:
+                k = int(math.floor(j * dt / t_con + 1e-9))
+            kk = min(k, n_steps - 1)
+            if kk != k_prev:
+                g2 = _eq15_goal(init_t[l, 0], fin_t[l, 0], kk, n_interp)
+                g3 = _eq15_goal(init_t[l, 1], fin_t[l, 1], kk, n_interp)
+                k_prev = kk
             goal_buf[l, j, 0] = g2
             goal_buf[l, j, 1] = g3
     _rollout_legs(params, q0, qd0, goal_buf, out_q, out_qd, out_tau, gap0, out_gap, idx)
