@@ -193,7 +193,8 @@ def run_case(job: tuple) -> dict:
 def run(cases, legs, keep: Path | None, progress: bool = True, jobs: int = 1, ray_address: str | None = None) -> list[dict]:
     """Every case (:func:`run_case`) in this process, a process pool (``jobs``) or as Ray tasks;
     results in the order of ``cases``. The timing fields (``sim_s``, ``tool_s``, ``s_per_min``)
-    are wall clock and differ between runs; the rest depends on the cases only."""
+    are wall clock and the bag size (``bag_mb``) varies by a few bytes between runs; the scores
+    depend on the cases only."""
     from ..executor import map_jobs
     return map_jobs(run_case, [(c, tuple(legs), str(keep) if keep else None) for c in cases], jobs=jobs,
                     ray_address=ray_address, desc='benchmark cases', unit='case', progress=progress)
