@@ -45,6 +45,7 @@ PYTHON_KEYS = {
     'rosbags': ('python3-rosbags-pip', 'rosbags'),
     'dynamixel_sdk': ('python3-dynamixel-sdk-pip', 'dynamixel-sdk'),
     'foxglove': ('python3-foxglove-sdk-pip', 'foxglove-sdk'),
+    'ray': ('python3-ray-pip', 'ray'),
     'pinocchio': ('pinocchio', 'pin'),          # a rosdep key of its own (ros-jazzy-pinocchio); here the PyPI wheel
 }
 

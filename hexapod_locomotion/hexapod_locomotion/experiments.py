@@ -8,20 +8,24 @@ Sub-commands (each deterministic for its seeds, lock-stepped, trials in parallel
 * ``fig12``   servo temperature over a long tripod walk, fixed vs adaptive;
 * ``quality`` ground-detection quality: free swing on a stand at t_des {0.5, 1, 2} s (premature
   stops) and, on the mockup, delay from true contact, torque at detection, premature/missed stops;
-* ``all``     everything above into one JSON and the PNGs.
+* ``all``     everything above into one JSON and the PNGs;
+* ``sweep``   one trial parameter over a list of values (``./hexapod experiment sweep --help``,
+  :mod:`hexapod_locomotion.sweep`).
+
+Trials run in local processes (``--jobs``) or as Ray tasks (``--ray [ADDRESS]``,
+:mod:`hexapod_model.executor`); the results are the same.
 """
 from __future__ import annotations
 
 import json
 import math
-import os
 import sys
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
 
 from hexapod_model.cli_common import add_no_progress_option, make_parser, positive_float, positive_int
+from hexapod_model.executor import ExecutorError, add_executor_options, map_jobs
 
 from .trial_runner import TrialConfig, run_trial
 
@@ -45,19 +49,14 @@ def _trial_job(cfg: TrialConfig) -> dict:
 PROGRESS = {'disable': False}          # --no-progress; bars go to stderr
 
 
+EXECUTOR = {'ray': None}              # --ray [ADDRESS]: run trials as Ray tasks (None = local processes)
+
+
 def run_many(configs: list[TrialConfig], jobs: int, desc: str) -> list[dict]:
-    """Run trials in parallel processes with a progress bar; results in the order of ``configs``."""
-    from tqdm import tqdm
-    out: list[dict | None] = [None] * len(configs)
-    if jobs <= 1:
-        for i, c in enumerate(tqdm(configs, desc=desc, unit='trial', file=sys.stderr, **PROGRESS)):
-            out[i] = _trial_job(c)
-        return out  # type: ignore[return-value]
-    with ProcessPoolExecutor(max_workers=jobs) as ex:
-        futs = {ex.submit(_trial_job, c): i for i, c in enumerate(configs)}
-        for f in tqdm(as_completed(futs), total=len(futs), desc=desc, unit='trial', file=sys.stderr, **PROGRESS):
-            out[futs[f]] = f.result()
-    return out  # type: ignore[return-value]
+    """Run trials in parallel (processes, or Ray tasks with ``--ray``) with a progress bar; results in
+    the order of ``configs``, the same for the same configs on every executor."""
+    return map_jobs(_trial_job, configs, jobs=jobs, ray_address=EXECUTOR['ray'], desc=desc, unit='trial',
+                    progress=not PROGRESS['disable'])
 
 
 # ----------------------------------------------------------------------------- Table 4
@@ -251,20 +250,35 @@ def format_quality(results: list[dict]) -> str:
 # ----------------------------------------------------------------------------- CLI
 def main(argv=None) -> int:
     from hexapod_sim.terrain import TERRAINS
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ['sweep']:
+        from .sweep import main as sweep_main
+        return sweep_main(argv[1:])
     ap = make_parser('experiment', __doc__)
-    ap.add_argument('which', choices=['table4', 'fig11', 'fig12', 'quality', 'all'], help='what to run (see above)')
+    ap.add_argument('which', choices=['table4', 'fig11', 'fig12', 'quality', 'all', 'sweep'], help='what to run (see above)')
     ap.add_argument('--trials', type=positive_int, default=3, help='trials per cell (seeds 0..N-1)')
     ap.add_argument('--duration', type=positive_float, default=60.0, help='simulated walking time per trial [s]')
     ap.add_argument('--fig12-duration', type=positive_float, default=600.0, help='simulated time of the Fig. 12 walk [s]')
     ap.add_argument('--terrain', default='mockup', choices=list(TERRAINS), help='terrain of the mockup trials')
     ap.add_argument('--fixed-threshold', type=positive_float, default=21.0,
                     help="threshold of the fixed detector [ticks] (paper: 21, found for the authors' robot)")
-    ap.add_argument('--jobs', type=positive_int, default=max(1, os.cpu_count() or 1), help='parallel processes')
     ap.add_argument('--out', default='out/experiments', help='folder for PNGs and the JSON (created)')
     ap.add_argument('--json', metavar='FILE', help='JSON results (default: OUT/<which>.json)')
+    add_executor_options(ap)
     add_no_progress_option(ap)
     args = ap.parse_args(argv)
     PROGRESS['disable'] = not args.progress
+    EXECUTOR['ray'] = args.ray
+    try:
+        return _run(args, ap)
+    except ExecutorError as exc:
+        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
+        return 1
+
+
+def _run(args, ap) -> int:
+    if args.which == 'sweep':
+        ap.error('sweep takes its own arguments first: ./hexapod experiment sweep PARAM VALUE... [options]')
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         ap.error(f'--out {out} exists and is not a directory')

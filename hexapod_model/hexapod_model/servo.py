@@ -38,6 +38,23 @@ def firmware_torque_nm(goal_tick, present_tick, gain_nm_per_tick: float, torque_
     return np.clip(gain_nm_per_tick * eff, -torque_max_nm, torque_max_nm)
 
 
+def firmware_torque_scalar(err_tick: float, gain_nm_per_tick: float, torque_max_nm: float,
+                           margin_ticks: float) -> float:
+    """:func:`firmware_torque_nm` for one integer error ``goal - present``, in plain float arithmetic.
+
+    The scalar twin for compiled kernels (the swing-down model wraps it with numba): the same
+    operations in the same order, so it returns the same float for every error (a test checks it
+    over the whole tick range).
+    """
+    mag = abs(err_tick) - margin_ticks
+    if mag <= 0.0:
+        return 0.0
+    tau = gain_nm_per_tick * mag
+    if tau > torque_max_nm:
+        tau = torque_max_nm
+    return tau if err_tick > 0.0 else -tau
+
+
 def servo_tick(theta_rad: float, servo: ServoParams, bus: BusJoint) -> float:
     """Raw servo tick on the bus for a joint angle, with the joint's mounting direction/offset."""
     return servo.center_tick + bus.direction * theta_rad / servo.rad_per_tick + bus.offset_ticks

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .description import Robot, joint_name
-from .servo import theta_to_tick
+from .servo import firmware_torque_scalar, theta_to_tick
 
 try:  # numba makes one 2 s prediction take well under a millisecond; the pure-Python path is exact too
     from numba import njit
@@ -55,6 +55,9 @@ except ImportError:  # pragma: no cover - numba is a pinned dependency
 (P_M1, P_LC1, P_I1, P_M2, P_LC2, P_I2, P_A2, P_G, P_OFF2, P_OFF3, P_J2, P_J3, P_B2, P_B3,
  P_FC2, P_FC3, P_FS2, P_FS3, P_KP, P_TMAX2, P_TMAX3, P_MARG2, P_MARG3, P_RPT, P_CENTER, P_MAXTICK,
  P_CONTROL, P_SUBSTEPS, P_DT, P_BL2, P_BL3, N_PARAMS) = range(32)
+
+# The servo law of the kernels is hexapod_model.servo's own scalar twin of firmware_torque_nm, compiled.
+_firmware_torque = njit(cache=True, inline='always')(firmware_torque_scalar)
 
 V_STICK = 1e-7  # rad/s: below this a joint counts as at rest (break-away friction applies)
 _NO_GAP = np.zeros(2)
@@ -206,18 +209,132 @@ def _backlash_substep(p, h, tau2, tau3, q2, q3, v2, v3, m2s, m3s, w2m, w3m):
     return q2, q3, nv2, nv3, m2s, m3s, nm2, nm3
 
 
-@njit(cache=True, fastmath=True, nogil=True)
-def _rollout_kernel(p, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap):
-    """Simulate ``len(goals)`` control periods; ``out_q[k]`` is the state at the start of period k.
+@njit(cache=True, fastmath=True, nogil=True, inline='always')
+def _rotate(c, s, d):
+    """(cos, sin) of an angle advanced by ``d`` from its (cos, sin): a rotation, with the Taylor
+    series of cos/sin of ``d`` (exact to round-off for |d| < 0.01 rad; math.cos/sin beyond)."""
+    if abs(d) < 0.01:
+        d2 = d * d
+        cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 * (1.0 / 720.0)))
+        sd = d * (1.0 - d2 * (1.0 / 6.0 - d2 * (1.0 / 120.0 - d2 * (1.0 / 5040.0))))
+    else:
+        cd = math.cos(d)
+        sd = math.sin(d)
+    return c * cd - s * sd, s * cd + c * sd
 
-    ``gap0``/``out_gap``: backlash gap ``q_motor - q_link`` per joint (zero without backlash).
-    """
+
+@njit(cache=True, fastmath=True, nogil=True, inline='always')
+def _servo_torques(p, goal2, goal3, q2, q3):
+    """Both servos' firmware torques for the link angles: the present tick as the servo reports it
+    (nearest integer, clipped) and the law of :func:`hexapod_model.servo.firmware_torque_scalar`."""
+    if p[P_CONTROL] <= 0.5:
+        return 0.0, 0.0
+    pt2 = min(max(np.rint(p[P_CENTER] + q2 / p[P_RPT]), 0.0), p[P_MAXTICK])
+    pt3 = min(max(np.rint(p[P_CENTER] + q3 / p[P_RPT]), 0.0), p[P_MAXTICK])
+    return (_firmware_torque(goal2 - pt2, p[P_KP], p[P_TMAX2], p[P_MARG2]),
+            _firmware_torque(goal3 - pt3, p[P_KP], p[P_TMAX3], p[P_MARG3]))
+
+
+@njit(cache=True, fastmath=True, nogil=True, inline='always')
+def _rigid_constants(p):
+    """Per-leg constants of :func:`_rigid_substep` (mass matrix, gravity, damping, friction, step)."""
     m1, lc1, i1 = p[P_M1], p[P_LC1], p[P_I1]
     m2, lc2, i2, a2, g = p[P_M2], p[P_LC2], p[P_I2], p[P_A2], p[P_G]
-    off2, off3 = p[P_OFF2], p[P_OFF3]
+    h = p[P_DT] / int(p[P_SUBSTEPS])
+    k22 = m2 * lc2 * lc2 + i2 + p[P_J3]
+    return (m1 * lc1 * lc1 + i1 + m2 * (a2 * a2 + lc2 * lc2) + i2 + p[P_J2],   # D11 without the cos term
+            m2 * lc2 * lc2 + i2, k22, m2 * a2 * lc2, g * (m1 * lc1 + m2 * a2), g * m2 * lc2,
+            k22 + h * p[P_B3], 1.0 / (h * (k22 + h * p[P_B3])), h, p[P_B2], p[P_FC2], p[P_FC3], p[P_FS2], p[P_FS3])
+
+
+@njit(cache=True, fastmath=True, nogil=True, inline='always')
+def _rigid_substep(c, tau2, tau3, q2, q3, v2, v3, c2, s2, c3, s3):
+    """One semi-implicit Euler substep of a leg without backlash (Eq. 14, damping implicit, Coulomb
+    / break-away friction as velocity-level impulses by Gauss-Seidel). ``c``: :func:`_rigid_constants`;
+    ``c2, s2, c3, s3``: cos/sin of the link angles psi, carried along by :func:`_rotate` (no trig
+    call per substep). Returns the new ``(q2, q3, v2, v3, c2, s2, c3, s3)``."""
+    k11c, k12c, k22, kc, gm1, gm2, a22, inv_ha22, h, b2, fc2, fc3, fs2, fs3 = c
+    d11 = k11c + 2.0 * kc * c3
+    d12 = k12c + kc * c3
+    hh = -kc * s3
+    cor1 = hh * (2.0 * v2 * v3 + v3 * v3)
+    cor2 = -hh * v2 * v2
+    g2 = gm2 * (c2 * c3 - s2 * s3)           # cos(psi2 + psi3)
+    g1 = gm1 * c2 + g2
+    a11 = d11 + h * b2
+    det = a11 * a22 - d12 * d12
+    inv_det = 1.0 / det
+    inv11 = a22 * inv_det
+    inv22 = a11 * inv_det
+    inv12 = -d12 * inv_det
+    r1 = d11 * v2 + d12 * v3 + h * (tau2 - cor1 - g1)
+    r2 = d12 * v2 + k22 * v3 + h * (tau3 - cor2 - g2)
+    w2 = inv11 * r1 + inv12 * r2
+    w3 = inv12 * r1 + inv22 * r2
+    lim2 = fs2 if abs(v2) < V_STICK else fc2
+    lim3 = fs3 if abs(v3) < V_STICK else fc3
+    k2 = det * inv_ha22              # 1 / (h inv11), with a22 constant
+    k3 = 1.0 / (h * inv22)
+    f2 = 0.0
+    f3 = 0.0
+    for _it in range(3):  # Gauss-Seidel on the two friction impulses
+        u2 = w2 + h * (inv11 * f2 + inv12 * f3)
+        f2 = min(max(f2 - u2 * k2, -lim2), lim2)
+        u3 = w3 + h * (inv12 * f2 + inv22 * f3)
+        f3 = min(max(f3 - u3 * k3, -lim3), lim3)
+    v2 = w2 + h * (inv11 * f2 + inv12 * f3)
+    v3 = w3 + h * (inv12 * f2 + inv22 * f3)
+    if abs(v2) < V_STICK:
+        v2 = 0.0
+    if abs(v3) < V_STICK:
+        v3 = 0.0
+    c2, s2 = _rotate(c2, s2, h * v2)
+    c3, s3 = _rotate(c3, s3, h * v3)
+    return q2 + h * v2, q3 + h * v3, v2, v3, c2, s2, c3, s3
+
+
+@njit(cache=True, fastmath=True, nogil=True)
+def _rollout_rigid3(pa, pb, pc, q0a, q0b, q0c, v0a, v0b, v0c, ga, gb, gc, qa, qb, qc, va, vb, vc, ta, tb, tc):
+    """Three legs without backlash stepped side by side (see :func:`_rollout_legs`).
+
+    A leg's substep is one serial chain (tick -> torque -> velocity -> friction -> position), so one
+    leg alone leaves the CPU waiting on latencies; three independent chains in one loop body
+    overlap. Fewer than three legs: pass one leg twice (it writes the same values twice).
+    ``q0*``/``v0*`` (2,) initial state; ``g*`` (n, 2) goals; ``q*``/``v*`` (n + 1, 2); ``t*`` (n, 2).
+    """
+    ca, cb, cc = _rigid_constants(pa), _rigid_constants(pb), _rigid_constants(pc)
+    n_sub = int(pa[P_SUBSTEPS])
+    qa2, qa3, va2, va3 = q0a[0], q0a[1], v0a[0], v0a[1]
+    qb2, qb3, vb2, vb3 = q0b[0], q0b[1], v0b[0], v0b[1]
+    qc2, qc3, vc2, vc3 = q0c[0], q0c[1], v0c[0], v0c[1]
+    ac2, as2, ac3, as3 = (math.cos(qa2 + pa[P_OFF2]), math.sin(qa2 + pa[P_OFF2]),
+                          math.cos(qa3 + pa[P_OFF3]), math.sin(qa3 + pa[P_OFF3]))
+    bc2, bs2, bc3, bs3 = (math.cos(qb2 + pb[P_OFF2]), math.sin(qb2 + pb[P_OFF2]),
+                          math.cos(qb3 + pb[P_OFF3]), math.sin(qb3 + pb[P_OFF3]))
+    cc2, cs2, cc3, cs3 = (math.cos(qc2 + pc[P_OFF2]), math.sin(qc2 + pc[P_OFF2]),
+                          math.cos(qc3 + pc[P_OFF3]), math.sin(qc3 + pc[P_OFF3]))
+    qa[0, 0], qa[0, 1], va[0, 0], va[0, 1] = qa2, qa3, va2, va3
+    qb[0, 0], qb[0, 1], vb[0, 0], vb[0, 1] = qb2, qb3, vb2, vb3
+    qc[0, 0], qc[0, 1], vc[0, 0], vc[0, 1] = qc2, qc3, vc2, vc3
+    for k in range(ga.shape[0]):
+        ta2, ta3 = _servo_torques(pa, ga[k, 0], ga[k, 1], qa2, qa3)
+        tb2, tb3 = _servo_torques(pb, gb[k, 0], gb[k, 1], qb2, qb3)
+        tc2, tc3 = _servo_torques(pc, gc[k, 0], gc[k, 1], qc2, qc3)
+        for _ in range(n_sub):
+            qa2, qa3, va2, va3, ac2, as2, ac3, as3 = _rigid_substep(ca, ta2, ta3, qa2, qa3, va2, va3, ac2, as2, ac3, as3)
+            qb2, qb3, vb2, vb3, bc2, bs2, bc3, bs3 = _rigid_substep(cb, tb2, tb3, qb2, qb3, vb2, vb3, bc2, bs2, bc3, bs3)
+            qc2, qc3, vc2, vc3, cc2, cs2, cc3, cs3 = _rigid_substep(cc, tc2, tc3, qc2, qc3, vc2, vc3, cc2, cs2, cc3, cs3)
+        ta[k, 0], ta[k, 1], tb[k, 0], tb[k, 1], tc[k, 0], tc[k, 1] = ta2, ta3, tb2, tb3, tc2, tc3
+        qa[k + 1, 0], qa[k + 1, 1], va[k + 1, 0], va[k + 1, 1] = qa2, qa3, va2, va3
+        qb[k + 1, 0], qb[k + 1, 1], vb[k + 1, 0], vb[k + 1, 1] = qb2, qb3, vb2, vb3
+        qc[k + 1, 0], qc[k + 1, 1], vc[k + 1, 0], vc[k + 1, 1] = qc2, qc3, vc2, vc3
+
+
+@njit(cache=True, fastmath=True, nogil=True)
+def _rollout_backlash(p, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap):
+    """One leg with gear backlash on one or both joints: :func:`_backlash_substep` per substep."""
     n_sub = int(p[P_SUBSTEPS])
     h = p[P_DT] / n_sub
-    backlash = p[P_BL2] > 0.0 or p[P_BL3] > 0.0
     q2, q3 = q0[0], q0[1]
     v2, v3 = qd0[0], qd0[1]
     qm2 = q2 + (gap0[0] if p[P_BL2] > 0.0 else 0.0)
@@ -229,76 +346,55 @@ def _rollout_kernel(p, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap):
     out_qd[0, 1] = v3
     out_gap[0, 0] = qm2 - q2
     out_gap[0, 1] = qm3 - q3
-    k11c = m1 * lc1 * lc1 + i1 + m2 * (a2 * a2 + lc2 * lc2) + i2 + p[P_J2]
-    k12c = m2 * lc2 * lc2 + i2
-    k22 = m2 * lc2 * lc2 + i2 + p[P_J3]
-    kc = m2 * a2 * lc2
-    gm1 = g * (m1 * lc1 + m2 * a2)
-    gm2 = g * m2 * lc2
     for k in range(goals.shape[0]):
-        tau2 = 0.0
-        tau3 = 0.0
-        if p[P_CONTROL] > 0.5:
-            pt2 = min(max(np.rint(p[P_CENTER] + q2 / p[P_RPT]), 0.0), p[P_MAXTICK])
-            pt3 = min(max(np.rint(p[P_CENTER] + q3 / p[P_RPT]), 0.0), p[P_MAXTICK])
-            e2 = goals[k, 0] - pt2
-            e3 = goals[k, 1] - pt3
-            e2 = np.sign(e2) * max(abs(e2) - p[P_MARG2], 0.0)
-            e3 = np.sign(e3) * max(abs(e3) - p[P_MARG3], 0.0)
-            tau2 = min(max(p[P_KP] * e2, -p[P_TMAX2]), p[P_TMAX2])
-            tau3 = min(max(p[P_KP] * e3, -p[P_TMAX3]), p[P_TMAX3])
+        tau2, tau3 = _servo_torques(p, goals[k, 0], goals[k, 1], q2, q3)
         out_tau[k, 0] = tau2
         out_tau[k, 1] = tau3
         for _ in range(n_sub):
-            if backlash:
-                q2, q3, v2, v3, qm2, qm3, vm2, vm3 = _backlash_substep(
-                    p, h, tau2, tau3, q2, q3, v2, v3, qm2, qm3, vm2, vm3)
-                continue
-            psi2 = q2 + off2
-            psi3 = q3 + off3
-            c3 = math.cos(psi3)
-            s3 = math.sin(psi3)
-            d11 = k11c + 2.0 * kc * c3
-            d12 = k12c + kc * c3
-            hh = -kc * s3
-            cor1 = hh * (2.0 * v2 * v3 + v3 * v3)
-            cor2 = -hh * v2 * v2
-            g2 = gm2 * math.cos(psi2 + psi3)
-            g1 = gm1 * math.cos(psi2) + g2
-            a11 = d11 + h * p[P_B2]
-            a22 = k22 + h * p[P_B3]
-            det = a11 * a22 - d12 * d12
-            inv11 = a22 / det
-            inv22 = a11 / det
-            inv12 = -d12 / det
-            r1 = d11 * v2 + d12 * v3 + h * (tau2 - cor1 - g1)
-            r2 = d12 * v2 + k22 * v3 + h * (tau3 - cor2 - g2)
-            w2 = inv11 * r1 + inv12 * r2
-            w3 = inv12 * r1 + inv22 * r2
-            lim2 = p[P_FS2] if abs(v2) < V_STICK else p[P_FC2]
-            lim3 = p[P_FS3] if abs(v3) < V_STICK else p[P_FC3]
-            f2 = 0.0
-            f3 = 0.0
-            for _it in range(3):  # Gauss-Seidel on the two friction impulses
-                u2 = w2 + h * (inv11 * f2 + inv12 * f3)
-                f2 = min(max(f2 - u2 / (h * inv11), -lim2), lim2)
-                u3 = w3 + h * (inv12 * f2 + inv22 * f3)
-                f3 = min(max(f3 - u3 / (h * inv22), -lim3), lim3)
-            v2 = w2 + h * (inv11 * f2 + inv12 * f3)
-            v3 = w3 + h * (inv12 * f2 + inv22 * f3)
-            if abs(v2) < V_STICK:
-                v2 = 0.0
-            if abs(v3) < V_STICK:
-                v3 = 0.0
-            q2 += h * v2
-            q3 += h * v3
-            qm2, qm3 = q2, q3
+            q2, q3, v2, v3, qm2, qm3, vm2, vm3 = _backlash_substep(
+                p, h, tau2, tau3, q2, q3, v2, v3, qm2, qm3, vm2, vm3)
         out_q[k + 1, 0] = q2
         out_q[k + 1, 1] = q3
         out_qd[k + 1, 0] = v2
         out_qd[k + 1, 1] = v3
         out_gap[k + 1, 0] = qm2 - q2
         out_gap[k + 1, 1] = qm3 - q3
+
+
+@njit(cache=True, nogil=True)
+def _rollout_legs(params, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap, idx):
+    """Simulate ``L`` legs over ``goals.shape[1]`` control periods; allocates nothing.
+
+    ``params`` (L, N_PARAMS); ``q0``, ``qd0``, ``gap0`` (L, 2); ``goals`` (L, n, 2) integer goal ticks
+    per period; ``out_q[l, k]``/``out_qd[l, k]`` the state at the start of period k (L, n + 1, 2),
+    ``out_tau`` (L, n, 2) the firmware torque held over period k, ``out_gap`` the backlash gap
+    ``q_motor - q_link`` (zero without backlash); ``idx`` (L,) int64 scratch. Legs with backlash
+    run one by one (:func:`_rollout_backlash`), the others in groups of three sharing a substep
+    count (:func:`_rollout_rigid3`).
+    """
+    n_rigid = 0
+    for l in range(params.shape[0]):
+        p = params[l]
+        if p[P_BL2] > 0.0 or p[P_BL3] > 0.0:
+            _rollout_backlash(p, q0[l], qd0[l], goals[l], out_q[l], out_qd[l], out_tau[l], gap0[l], out_gap[l])
+        else:
+            out_gap[l, :, :] = 0.0
+            idx[n_rigid] = l
+            n_rigid += 1
+    start = 0
+    while start < n_rigid:
+        a = idx[start]
+        b = a
+        c = a
+        if start + 1 < n_rigid and params[idx[start + 1], P_SUBSTEPS] == params[a, P_SUBSTEPS]:
+            b = idx[start + 1]
+            c = b
+            if start + 2 < n_rigid and params[idx[start + 2], P_SUBSTEPS] == params[a, P_SUBSTEPS]:
+                c = idx[start + 2]
+        start += 1 + (b != a) + (c != b)
+        _rollout_rigid3(params[a], params[b], params[c], q0[a], q0[b], q0[c], qd0[a], qd0[b], qd0[c],
+                        goals[a], goals[b], goals[c], out_q[a], out_q[b], out_q[c],
+                        out_qd[a], out_qd[b], out_qd[c], out_tau[a], out_tau[b], out_tau[c])
 
 
 @dataclass(frozen=True)
@@ -386,12 +482,12 @@ class LegModel:
         else:
             gap0 = _NO_GAP
         n = len(goals)
-        q = np.empty((n + 1, 2))
-        qd = np.empty((n + 1, 2))
-        tau = np.empty((n, 2))
-        gap = np.empty((n + 1, 2))
-        _rollout_kernel(p, q0, qd0, goals, q, qd, tau, gap0, gap)
-        return Rollout(self.dt_s, q, qd, tau, gap)
+        q = np.empty((1, n + 1, 2))
+        qd = np.empty((1, n + 1, 2))
+        tau = np.empty((1, n, 2))
+        gap = np.empty((1, n + 1, 2))
+        _rollout_legs(p[None], q0[None], qd0[None], goals[None], q, qd, tau, gap0[None], gap, np.empty(1, np.int64))
+        return Rollout(self.dt_s, q[0], qd[0], tau[0], gap[0])
 
     # -- analysis helpers used by tests and tools
     def mass_matrix(self, q_rad) -> np.ndarray:
@@ -532,6 +628,89 @@ def goals_per_period(goal_steps: np.ndarray, t_con_s: float, dt_s: float, n_peri
     return goal_steps[np.clip(k, 0, len(goal_steps) - 1)]
 
 
+@njit(cache=True, nogil=True)
+def _eq15_goal(init_tick, fin_tick, k, n_interp):
+    """Integer goal of Algorithm 1's step ``k``: ``rint(theta_init + min((k+1)/n_interp, 1) (theta_fin -
+    theta_init))``, Eq. 15 in the operations of :func:`interpolated_goals` (strict float math, so the
+    model's goals are the ones the controller writes)."""
+    frac = min((k + 1.0) / n_interp, 1.0)
+    return np.rint(init_tick + frac * (fin_tick - init_tick))
+
+
+@njit(cache=True, nogil=True)
+def _swing_down_kernel(params, init_t, fin_t, q0, qd0, gap0, n_interp, t_con, t_com, read_delay, center,
+                       rad_per_tick, direction, epsilon, goal_buf, idx, out_t_read, out_des, out_est, out_err,
+                       out_thr, out_q, out_qd, out_tau, out_gap):
+    """CalcModel for all swinging legs in one call, allocating nothing (every array is the caller's).
+
+    Per leg slot ``l``: the goal in effect at each servo period (Eq. 15 step ``k = floor(t / t_con)``,
+    capped at the last step) into ``goal_buf`` (L, n, 2); the legs simulated together by
+    :func:`_rollout_legs` (``idx`` its (L,) scratch); then per step ``k`` the read instant
+    ``k t_con + l t_com``, the goal, the predicted tick at the (delayed) sample instant (linear
+    interpolation between servo periods, as ``np.interp``), the lag in the direction of motion and
+    the Eq. 17 threshold.
+    """
+    n_legs = params.shape[0]
+    n_steps = out_des.shape[0]
+    n_periods = goal_buf.shape[1]
+    dt = params[0, P_DT]
+    ratio = t_con / dt
+    per_step = int(round(ratio)) if abs(ratio - round(ratio)) < 1e-9 else 0   # t_con in whole periods
+    for l in range(n_legs):
+        k_prev = -1
+        g2 = 0.0
+        g3 = 0.0
+        k = 0
+        count = 0
+        for j in range(n_periods):
+            # the step whose goal is in effect: floor(j dt / t_con) (as goals_per_period), capped;
+            # counted up when t_con is a whole number of periods (no division per period)
+            if per_step > 0:
+                if count == per_step:
+                    count = 0
+                    k += 1
+                count += 1
+            else:
+                k = int(math.floor(j * dt / t_con + 1e-9))
+            kk = min(k, n_steps - 1)
+            if kk != k_prev:
+                g2 = _eq15_goal(init_t[l, 0], fin_t[l, 0], kk, n_interp)
+                g3 = _eq15_goal(init_t[l, 1], fin_t[l, 1], kk, n_interp)
+                k_prev = kk
+            goal_buf[l, j, 0] = g2
+            goal_buf[l, j, 1] = g3
+    _rollout_legs(params, q0, qd0, goal_buf, out_q, out_qd, out_tau, gap0, out_gap, idx)
+    last = n_periods            # out_q has n_periods + 1 rows on the grid j dt
+    x_last = last * dt
+    for l in range(n_legs):
+        q = out_q[l]
+        for k in range(n_steps):
+            t = k * t_con + l * t_com
+            out_t_read[k, l] = t
+            x = t - read_delay[l]
+            if x < 0.0:
+                x = 0.0
+            if x >= x_last:
+                th = q[last, 0]
+            else:
+                j = int(x / dt)
+                while j > 0 and j * dt > x:
+                    j -= 1
+                while j + 1 < last and (j + 1) * dt <= x:
+                    j += 1
+                xj = j * dt
+                if x == xj:
+                    th = q[j, 0]
+                else:
+                    th = (q[j + 1, 0] - q[j, 0]) / ((j + 1) * dt - xj) * (x - xj) + q[j, 0]
+            des = _eq15_goal(init_t[l, 0], fin_t[l, 0], k, n_interp)
+            est = center + th / rad_per_tick
+            out_des[k, l] = des
+            out_est[k, l] = est
+            out_err[k, l] = direction[l] * (des - est)
+            out_thr[k, l] = out_err[k, l] + epsilon
+
+
 def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_s: float, t_com_s: float,
                        epsilon_tick: float = 3.0, n_steps: int | None = None, qd0_rad_s=None,
                        models: dict | None = None, read_delay_s=None) -> SwingDownPrediction:
@@ -541,6 +720,9 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
     control steps to predict (default: until theta_fin plus 20 % settling). ``models`` may carry
     cached :class:`LegModel` per leg. ``read_delay_s`` (L,) shifts each leg's reported sample
     earlier (a readout delay effect).
+
+    One compiled call (:func:`_swing_down_kernel`) expands the Eq. 15 goals, simulates every leg and
+    samples the reads; Python only validates the input and allocates the result (one block).
     """
     legs = tuple(int(x) for x in legs)
     L = len(legs)
@@ -549,9 +731,9 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
     init = np.asarray(theta_init_rad, dtype=float).reshape(L, 2)
     fin = np.asarray(theta_fin_rad, dtype=float).reshape(L, 2)
     for name, v in (('t_des_s', t_des_s), ('t_com_s', t_com_s), ('epsilon_tick', epsilon_tick)):
-        if not np.isfinite(v) or (name != 'epsilon_tick' and v <= 0):
+        if not math.isfinite(v) or (name != 'epsilon_tick' and v <= 0):
             raise SwingDownError(f'{name} must be a finite positive number, got {v!r}')
-    if not (np.all(np.isfinite(init)) and np.all(np.isfinite(fin))):
+    if not (np.isfinite(init).all() and np.isfinite(fin).all()):
         raise SwingDownError('initial or final joint angles contain NaN or infinity')
     servo = robot.servo
     t_con = L * t_com_s                                         # Algorithm 1, line 1
@@ -560,29 +742,34 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
         n_steps = int(math.ceil(n_interp * 1.2)) + 1
     init_t = theta_to_tick(init, servo)
     fin_t = theta_to_tick(fin, servo)
-    goal_steps = np.rint(interpolated_goals(init_t, fin_t, t_des_s, t_con, n_steps))   # (K, L, 2) integer ticks
-    k_idx = np.arange(n_steps)
-    t_read = k_idx[:, None] * t_con + np.arange(L)[None, :] * t_com_s                  # lines 8-15
-    if read_delay_s is not None:
-        t_read_sample = np.maximum(t_read - np.asarray(read_delay_s, dtype=float)[None, :], 0.0)
-    else:
-        t_read_sample = t_read
-    dt = servo.control_period_s
-    n_periods = int(math.ceil(t_read.max() / dt)) + 2
-    goals = np.ascontiguousarray(goals_per_period(goal_steps, t_con, dt, n_periods).transpose(1, 0, 2))  # (L, n, 2)
     qd0 = np.zeros((L, 2)) if qd0_rad_s is None else np.asarray(qd0_rad_s, dtype=float).reshape(L, 2)
-    rollouts = []
-    theta_est = np.empty((n_steps, L))
+    delay = np.zeros(L) if read_delay_s is None else np.asarray(read_delay_s, dtype=float).reshape(L)
+    dt = servo.control_period_s
+    t_read_max = (n_steps - 1) * t_con + (L - 1) * t_com_s   # lines 8-15: the last read
+    n_periods = int(math.ceil(t_read_max / dt)) + 2
+    params = np.empty((L, N_PARAMS))
+    gap0 = np.zeros((L, 2))
     for slot, leg in enumerate(legs):
         model = (models or {}).get(leg) or LegModel(robot, leg)
-        ro = model.rollout(init[slot], qd0[slot], goals[slot])
-        rollouts.append(ro)
-        grid = np.arange(len(ro.q_rad)) * dt
-        theta_est[:, slot] = theta_to_tick(np.interp(t_read_sample[:, slot], grid, ro.q_rad[:, 0]), servo)
+        params[slot] = model.params
+        if model.params[P_BL2] > 0.0 or model.params[P_BL3] > 0.0:
+            gap0[slot] = model.default_gap_rad(init[slot])
     direction = np.where(fin_t[:, 0] >= init_t[:, 0], 1.0, -1.0)
-    des = goal_steps[:, :, 0]
-    err_est = direction[None, :] * (des - theta_est)
+    # the result in one allocation: 5 (K, L) tables, per leg q/qd/gap (n+1, 2) and tau (n, 2); the
+    # kernel's scratch (goals per period) at its end
+    kl = 5 * n_steps * L
+    rows = L * (n_periods + 1) * 2
+    block = np.empty(kl + 3 * rows + 2 * L * n_periods * 2)
+    tables = block[:kl].reshape(5, n_steps, L)
+    q, qd, gap = (block[kl + i * rows:kl + (i + 1) * rows].reshape(L, n_periods + 1, 2) for i in range(3))
+    o = kl + 3 * rows
+    tau = block[o:o + L * n_periods * 2].reshape(L, n_periods, 2)
+    goal_buf = block[o + L * n_periods * 2:].reshape(L, n_periods, 2)
+    _swing_down_kernel(params, init_t, fin_t, init, qd0, gap0, float(t_des_s / t_con), t_con, float(t_com_s), delay,
+                       float(servo.center_tick), float(servo.rad_per_tick), direction, float(epsilon_tick), goal_buf,
+                       np.empty(L, np.int64), tables[0], tables[1], tables[2], tables[3], tables[4], q, qd, tau, gap)
+    rollouts = tuple(Rollout(dt, q[slot], qd[slot], tau[slot], gap[slot]) for slot in range(L))
     return SwingDownPrediction(
         legs=legs, t_con_s=t_con, t_com_s=t_com_s, epsilon_tick=float(epsilon_tick), direction=direction,
-        t_read_s=t_read, theta_des_tick=des, theta_est_tick=theta_est, err_est_tick=err_est,
-        threshold_tick=err_est + epsilon_tick, reached_fin=(k_idx + 1) >= n_interp, rollouts=tuple(rollouts))
+        t_read_s=tables[0], theta_des_tick=tables[1], theta_est_tick=tables[2], err_est_tick=tables[3],
+        threshold_tick=tables[4], reached_fin=(np.arange(n_steps) + 1) >= n_interp, rollouts=rollouts)

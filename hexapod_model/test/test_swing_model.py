@@ -6,7 +6,8 @@ import pytest
 
 from hexapod_model.description import Effect, load_robot
 from hexapod_model.servo import theta_to_tick
-from hexapod_model.swing_model import LegModel, SwingDownError, interpolated_goals, predict_swing_down
+from hexapod_model.swing_model import (LegModel, SwingDownError, goals_per_period, interpolated_goals,
+                                      predict_swing_down)
 
 RAISED = [0.45, 0.1]     # femur, tibia at the end of swing-forward [rad]
 BELOW = [-0.15, -0.05]   # theta_fin: below the expected ground
@@ -120,3 +121,44 @@ def test_bad_inputs_are_named(robot):
         predict_swing_down(robot, [1], [[np.nan, 0]], [BELOW], 1.0, 0.001)
     with pytest.raises(SwingDownError, match='no legs'):
         predict_swing_down(robot, [], [], [], 1.0, 0.001)
+
+
+def test_kernel_servo_law_is_firmware_torque_nm_over_the_tick_range(robot):
+    # The compiled kernel's law (servo.firmware_torque_scalar, wrapped by numba) returns the same
+    # float as firmware_torque_nm for every error the firmware can see, with and without dead-band
+    # and a reduced torque limit.
+    from hexapod_model.servo import firmware_torque_nm
+    from hexapod_model.swing_model import _firmware_torque
+    s = robot.servo
+    err = np.arange(-s.max_tick, s.max_tick + 1, dtype=float)
+    for tmax, margin in ((s.stall_torque_nm, 0.0), (s.stall_torque_nm, 2.0), (0.4, 1.0), (0.0, 0.0)):
+        ref = firmware_torque_nm(err, 0.0, s.gain_nm_per_tick, tmax, margin)
+        got = np.array([_firmware_torque(e, s.gain_nm_per_tick, tmax, margin) for e in err])
+        assert np.array_equal(got, ref), (tmax, margin)
+
+
+@pytest.mark.parametrize('legs', [[1], [2, 5], [1, 6, 3], [1, 2, 3, 4, 5]])
+def test_fused_kernel_equals_one_rollout_per_leg(robot, legs):
+    # predict_swing_down simulates every leg in one compiled call with the Eq. 15 goals expanded
+    # inside; it must give what LegModel.rollout gives per leg on the goals of interpolated_goals.
+    L = len(legs)
+    rng = np.random.default_rng(L)
+    init = np.column_stack([rng.uniform(0.2, 0.6, L), rng.uniform(-0.2, 0.4, L)])
+    fin = np.column_stack([rng.uniform(-0.3, 0.0, L), rng.uniform(-0.3, 0.2, L)])
+    qd0 = rng.normal(0.0, 0.2, (L, 2))
+    sticky = robot.with_effects([Effect('static_friction', (f'leg{legs[0]}_femur',), {'tau_s_nm': 0.2})])
+    p = predict_swing_down(sticky, legs, init, fin, 0.5, 0.001, qd0_rad_s=qd0)
+    t_con = L * 0.001
+    n_steps = p.theta_des_tick.shape[0]
+    steps = np.rint(interpolated_goals(theta_to_tick(init, robot.servo), theta_to_tick(fin, robot.servo), 0.5,
+                                       t_con, n_steps))
+    for slot, leg in enumerate(legs):
+        n = len(p.rollouts[slot].tau_nm)
+        ro = LegModel(sticky, leg).rollout(init[slot], qd0[slot], goals_per_period(steps[:, slot], t_con, 0.001, n))
+        assert np.array_equal(p.rollouts[slot].tau_nm, ro.tau_nm)
+        assert np.max(np.abs(p.rollouts[slot].q_rad - ro.q_rad)) < 1e-12
+        grid = np.arange(n + 1) * 0.001
+        est = theta_to_tick(np.interp(p.t_read_s[:, slot], grid, ro.q_rad[:, 0]), robot.servo)
+        assert np.max(np.abs(p.theta_est_tick[:, slot] - est)) < 1e-9
+        assert np.array_equal(p.theta_des_tick[:, slot], steps[:, slot, 0])
+    assert np.allclose(p.t_read_s, np.arange(n_steps)[:, None] * t_con + np.arange(L)[None, :] * 0.001, atol=0, rtol=0)

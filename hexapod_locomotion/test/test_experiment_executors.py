@@ -1,0 +1,84 @@
+"""Experiments on every executor (issue 18): Ray tasks give the process pool's results, and a sweep.
+
+Short walks (2 s of simulated time) on the mockup: the point is the executor and the sweep plumbing,
+not the walking, which the locomotion tests cover. Ray runs a local instance with 2 CPUs and no
+dashboard (this machine has 2 cores shared with other work).
+"""
+import json
+
+import pytest
+
+from hexapod_locomotion import sweep
+from hexapod_locomotion.experiments import run_many
+from hexapod_locomotion.sim_run import TrialConfig
+from hexapod_model.executor import map_jobs
+
+SHORT = dict(duration_s=2.0, course_end_m=2.6)
+
+
+def _strip(results):
+    return [{k: v for k, v in r.items() if k != 'events'} for r in results]
+
+
+def test_ray_tasks_give_the_process_pool_results(monkeypatch):
+    pytest.importorskip('ray')
+    cfgs = [TrialConfig(gait='tripod', detector='adaptive', seed=0, **SHORT),
+            TrialConfig(gait='tetrapod', detector='fixed', seed=1, **SHORT)]
+    pool = run_many(cfgs, jobs=2, desc='pool')
+    from hexapod_locomotion import experiments
+    monkeypatch.setitem(experiments.EXECUTOR, 'ray', 'local')
+    on_ray = run_many(cfgs, jobs=2, desc='ray')
+    assert [r['config'] for r in on_ray] == [r['config'] for r in pool]      # the order of the configs
+    assert json.dumps(_strip(on_ray), sort_keys=True) == json.dumps(_strip(pool), sort_keys=True)
+    assert pool[0]['phases'] > 0 and pool[1]['config']['gait'] == 'tetrapod'
+
+
+def test_an_unreachable_ray_cluster_is_one_line(capsys):
+    pytest.importorskip('ray')
+    from hexapod_model.executor import ExecutorError
+    from hexapod_model.cli_common import positive_int
+    with pytest.raises(ExecutorError, match='no Ray cluster answers at 127.0.0.1:1'):
+        map_jobs(positive_int, ['1'], ray_address='127.0.0.1:1', progress=False)
+    with pytest.raises(ExecutorError, match='HOST:PORT'):
+        map_jobs(positive_int, ['1'], ray_address='nonsense', progress=False)
+
+
+def test_sequential_and_pool_keep_the_order():
+    args = ['3', '1', '2', '5']
+    from hexapod_model.cli_common import positive_int
+    assert map_jobs(positive_int, args, jobs=1, progress=False) == [3, 1, 2, 5]
+    assert map_jobs(positive_int, args, jobs=2, progress=False) == [3, 1, 2, 5]
+
+
+def test_two_value_sweep_writes_one_json_and_one_plot(tmp_path, capsys):
+    rc = sweep.main(['epsilon_tick', '3', '6', '--duration', '2', '--jobs', '1', '--out', str(tmp_path),
+                     '--no-progress'])
+    assert rc == 0
+    report = json.loads((tmp_path / 'sweep_epsilon_tick.json').read_text())
+    assert report['param'] == 'epsilon_tick' and report['values'] == [3.0, 6.0]
+    assert [r['config']['epsilon_tick'] for r in report['trials_results']] == [3.0, 6.0]
+    assert all(r['config']['gait'] == 'tripod' and r['config']['duration_s'] == 2.0 for r in report['trials_results'])
+    assert [s['value'] for s in report['summary']] == [3.0, 6.0]
+    assert all(s['trials'] == 1 for s in report['summary'])
+    # a larger margin cannot detect ground earlier on the same walk (seed 0, same terrain)
+    d3, d6 = (s['delay_ms'] for s in report['summary'])
+    assert d3 is not None and d6 is not None and d6 >= d3
+    assert (tmp_path / 'sweep_epsilon_tick.png').stat().st_size > 10_000
+    out = capsys.readouterr().out
+    assert 'sweep of epsilon_tick' in out and 'sweep_epsilon_tick.json' in out
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['epsilonn', '3', '4'], "unknown parameter 'epsilonn'"),
+    (['t_des_s', '1', 'fast'], "t_des_s: expected a number, got 'fast'"),
+    (['gait', 'tripod', 'hexa'], "unknown gait 'hexa'"),
+    (['overlays', 'missing.yaml'], "no such overlay file 'missing.yaml'"),
+    (['epsilon_tick', '3', '3'], 'a value is given twice'),
+])
+def test_bad_sweep_arguments_are_one_line(argv, message, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        sweep.main(argv + ['--out', str(tmp_path / 'o')])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and 'Traceback' not in err[0]
+    assert not (tmp_path / 'o').exists()                     # nothing left behind
