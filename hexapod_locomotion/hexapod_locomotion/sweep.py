@@ -1,6 +1,6 @@
 """./hexapod experiment sweep - one trial parameter over a list of values, one JSON and one plot.
 
-Any field of :class:`hexapod_locomotion.sim_run.TrialConfig` that describes the walk can be swept:
+Any field of :class:`hexapod_locomotion.trial_runner.TrialConfig` that describes the walk can be swept:
 ``epsilon_tick``, ``t_des_s``, ``gait``, ``detector``, ``terrain``, ``vx_mps``, ``fixed_threshold_tick``,
 ``t_com_s``, ``overlays`` (each value a robot-description overlay YAML, several joined by commas,
 ``none`` for the plain description), ... The other fields keep the values of the base walk given by
@@ -24,7 +24,7 @@ from hexapod_model.cli_common import add_no_progress_option, make_parser, positi
 from hexapod_model.executor import ExecutorError, add_executor_options, map_jobs
 
 from .experiments import DETECTORS, GAITS, _trial_job
-from .sim_run import TrialConfig
+from .trial_runner import TrialConfig
 
 NOT_SWEPT = ('seed', 'record', 'video', 'video_fps')    # seeds are --trials; the rest are outputs
 METRICS = (  # (key in a value's summary, axis label)

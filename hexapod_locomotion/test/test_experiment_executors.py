@@ -10,7 +10,7 @@ import pytest
 
 from hexapod_locomotion import sweep
 from hexapod_locomotion.experiments import run_many
-from hexapod_locomotion.sim_run import TrialConfig
+from hexapod_locomotion.trial_runner import TrialConfig
 from hexapod_model.executor import map_jobs
 
 SHORT = dict(duration_s=2.0, course_end_m=2.6)
