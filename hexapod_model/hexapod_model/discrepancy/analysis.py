@@ -56,6 +56,7 @@ class Analysis:
     notes: list[str] = field(default_factory=list)
     runtime_s: float = 0.0
     log: list = field(default_factory=list)
+    glitches: tuple = ()             # samples left out as physically impossible (recording.glitches)
 
     @property
     def found(self) -> tuple[Effect, ...]:
@@ -165,7 +166,8 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         return Analysis(source=rec.source, mode=mode_used, robot=robot, replay=replay, split=split,
                         duration_s=rec.duration_s, residual_before=res0, residual_after=res1, conditions=cond,
                         mismatches=mism, effects=found, joints=jfit, notes=notes,
-                        runtime_s=time.perf_counter() - t_start, log=list(settings.log))
+                        runtime_s=time.perf_counter() - t_start, log=list(settings.log),
+                        glitches=tuple(rec.glitches))
     finally:
         if bar is not None:
             bar.close()

@@ -8,6 +8,7 @@ import yaml
 from ..description import effects_to_overlay
 from .analysis import Analysis
 from .effects import BY_NAME
+from .glitches import summary_line
 from .locate import CONDITION_WORDS
 
 
@@ -31,6 +32,8 @@ def to_json(a: Analysis, bag: str | None = None) -> dict:
                      'params': {k: float(v) for k, v in f.effect.params.items()},
                      'heldout_rmse_ticks_before': _f(f.heldout_rmse_ticks_before),
                      'heldout_rmse_ticks_after': _f(f.heldout_rmse_ticks_after)} for f in a.effects],
+        'glitches': [{'topic': g.topic, 'joint': g.joint, 't': _f(g.t_s), 'kind': g.kind, 'detail': g.detail}
+                     for g in a.glitches],
     }
 
 
@@ -41,6 +44,12 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
              f'  {a.duration_s:.1f} s recording, {len(a.replay.joints)} joints, {n_reads} reads; '
              f'analysis took {a.runtime_s:.1f} s']
     lines += [f'  note: {n}' for n in a.notes]
+    if a.glitches:
+        lines.append(f'  note: {summary_line(a.glitches)}:')
+        for g in a.glitches[:max_windows]:
+            lines.append(f'    {g.topic} {g.joint} at {g.t_s:.3f} s: {g.detail}')
+        if len(a.glitches) > max_windows:
+            lines.append(f'    ... and {len(a.glitches) - max_windows} more (all in --json)')
     lines.append('')
     judged = {j: v for j, v in a.joints.items() if v.n_heldout > 0}
     if not a.effects and judged:
