@@ -56,6 +56,7 @@ class Mismatch:
     t_end: float
     condition: str
     rmse_ticks: float
+    phase: str = ''          # walks: the gait phase holding most of the window's reads (segments.PHASES)
 
 
 def _forward_fill_nonzero(d: np.ndarray) -> np.ndarray:

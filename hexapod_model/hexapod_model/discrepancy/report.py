@@ -9,6 +9,7 @@ from ..description import effects_to_overlay
 from .analysis import Analysis
 from .effects import BY_NAME
 from .glitches import summary_line
+from .segments import PHASES
 from .locate import CONDITION_WORDS
 
 
@@ -27,7 +28,11 @@ def to_json(a: Analysis, bag: str | None = None) -> dict:
                        'heldout_rmse_ticks_after': _f(v.heldout_rmse_ticks_after)}
                    for j, v in a.joints.items() if v.n_heldout > 0},
         'mismatches': [{'joint': m.joint, 't_start': _f(m.t_start), 't_end': _f(m.t_end), 'condition': m.condition,
-                        'rmse_ticks': _f(m.rmse_ticks)} for m in a.mismatches],
+                        'rmse_ticks': _f(m.rmse_ticks), **({'phase': m.phase} if m.phase else {})}
+                       for m in a.mismatches],
+        'phases': {j: {ph: {'reads': v.n_reads, 'rmse_ticks_before': _f(v.rmse_ticks_before),
+                            'rmse_ticks_after': _f(v.rmse_ticks_after)} for ph, v in row.items()}
+                   for j, row in a.phase_fit.items()},
         'effects': [{'effect': f.effect.effect, 'joints': list(f.effect.joints),
                      'params': {k: float(v) for k, v in f.effect.params.items()},
                      'heldout_rmse_ticks_before': _f(f.heldout_rmse_ticks_before),
@@ -83,13 +88,23 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
     unjudged = [j for j, v in a.joints.items() if v.n_heldout == 0]
     if unjudged:
         lines.append(f'  (no held-out reads, not judged: {", ".join(unjudged)})')
+    if a.phase_fit:
+        lines.append('')
+        lines.append('walk: RMS error per joint and gait phase [ticks], nominal -> with the effects (analysed reads; '
+                     'stance and leveling are not analysed: the leg carries the body there):')
+        used = [ph for ph in PHASES if any(ph in row for row in a.phase_fit.values())]
+        lines.append('  ' + f'{"":11s}' + ''.join(f'{ph.replace("_", "-"):>16s}' for ph in used))
+        for j, row in a.phase_fit.items():
+            cells = [(f'{row[ph].rmse_ticks_before:.2f}->{row[ph].rmse_ticks_after:.2f}' if ph in row else '-')
+                     for ph in used]
+            lines.append('  ' + f'{j:11s}' + ''.join(f'{c:>16s}' for c in cells))
     if a.mismatches:
         lines.append('')
         lines.append(f'{len(a.mismatches)} mismatch window(s) beyond tick rounding in the nominal replay; '
                      f'largest {min(max_windows, len(a.mismatches))}:')
         for m in sorted(a.mismatches, key=lambda m: -m.rmse_ticks * math.sqrt(m.t_end - m.t_start + 1e-3))[:max_windows]:
             lines.append(f'  {m.joint:11s} {m.t_start:7.2f}-{m.t_end:7.2f} s  {m.rmse_ticks:5.2f} ticks RMS  '
-                         f'{m.condition}')
+                         f'{m.condition}' + (f' ({m.phase.replace("_", "-")})' if m.phase else ''))
     else:
         lines.append('')
         lines.append('No time window departs from the nominal replay beyond tick rounding.')
