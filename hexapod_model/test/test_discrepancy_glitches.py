@@ -78,12 +78,17 @@ def test_screen_finds_each_kind_and_nothing_in_clean_motion(robot):
     a[260, 1] = 3.0                                       # outside the servo's 300 degrees
     kept, found = screen({JOINT: a}, 'read', servo)
     kinds = sorted(k for _, _, k, _ in found)
-    assert kinds == ['out_of_range', 'speed', 'stamp_jump', 'stamp_jump']
+    assert kinds == ['out_of_order', 'out_of_range', 'speed', 'stamp_jump']
     assert len(kept[JOINT]) == len(t) - 4
     # without record times the stamp glitches show as position jumps of the moving joint
     b = a[:, :2].copy()
     kept, found = screen({JOINT: b}, 'read', servo, GlitchSettings())
     assert len(found) == 4 and len(kept[JOINT]) == len(t) - 4
+    # delivery latency (record time after the stamp, up to max_latency_s) is no glitch: a stall
+    # delivers 40 reads late, all at once with the next one
+    c = np.column_stack([t, theta, log])
+    c[100:140, 2] = c[140, 2]
+    assert screen({JOINT: c}, 'read', servo)[1] == []
 
 
 def test_glitched_reads_are_reported_and_do_not_change_the_effect(robot, clean, tmp_path, capsys):
@@ -102,7 +107,7 @@ def test_glitched_reads_are_reported_and_do_not_change_the_effect(robot, clean, 
     assert docs['clean']['glitches'] == []
     g = docs['glitched']['glitches']
     assert len(g) == 4 and {x['joint'] for x in g} == {JOINT} and {x['topic'] for x in g} == {'read'}
-    assert sorted(x['kind'] for x in g) == ['speed', 'speed', 'stamp_jump', 'stamp_jump']
+    assert sorted(x['kind'] for x in g) == ['out_of_order', 'speed', 'speed', 'stamp_jump']
     (a,), (b,) = docs['clean']['effects'], docs['glitched']['effects']
     assert a['effect'] == b['effect'] == 'backlash' and a['joints'] == b['joints'] == [JOINT]
     assert b['params']['width_rad'] == pytest.approx(a['params']['width_rad'], rel=0.05)

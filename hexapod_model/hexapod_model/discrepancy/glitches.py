@@ -8,9 +8,11 @@ and left out of the analysis, so they never decide it.
 
 Checks, per joint and topic:
 
-* ``stamp_jump``: the header stamp departs from the bag's record (log) time by more than
-  ``stamp_tol_s`` beyond the recording's usual offset (the running median of stamp - record
-  time). Needs the record time; bags written with record time = stamp pass trivially.
+* ``stamp_jump``: the header stamp lies more than ``stamp_tol_s`` *after* its bag record (log)
+  time beyond the recording's usual offset (the running median of stamp - record time): no message
+  is recorded before it was stamped. A stamp *before* its record time is delivery latency (DDS
+  queues messages under load) unless it exceeds ``max_latency_s``. Needs the record time; bags
+  written with record time = stamp pass trivially.
 * ``out_of_order``: in recording order, the stamp runs back by more than ``stamp_tol_s`` behind
   the previous message's stamp of the same joint and topic.
 * ``out_of_range`` (reads): the position is outside the servo's tick range.
@@ -45,6 +47,7 @@ class Glitch:
 @dataclass(frozen=True)
 class GlitchSettings:
     stamp_tol_s: float = 0.1
+    max_latency_s: float = 2.0
     offset_window: int = 25          # messages on each side for the running median offset
     speed_factor: float = 2.0
     tol_ticks: float = 3.0
@@ -77,7 +80,7 @@ def stamp_glitches(stamp: np.ndarray, log: np.ndarray, s: GlitchSettings) -> tup
     st, lg = stamp[order], log[order]
     off = st - lg
     dev = off - _running_median(off, s.offset_window)
-    jump = np.abs(dev) > s.stamp_tol_s
+    jump = (dev > s.stamp_tol_s) | (dev < -s.max_latency_s)
     # out of order: the stamp runs back behind the latest good stamp before it
     prev_max = np.maximum.accumulate(np.where(jump, -np.inf, st))
     back = np.zeros(n, dtype=bool)
