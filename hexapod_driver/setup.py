@@ -24,6 +24,8 @@ setup(
             'bus_emulator = hexapod_driver.emulator:main',
             'bench_driver = hexapod_driver.bench_driver:main',
             'servo_tool = hexapod_driver.servo_tool:main',
+            'stand_calibration = hexapod_driver.stand_calibration:main',
+            'record_contract = hexapod_driver.record_contract:main',
         ],
     },
 )
