@@ -15,7 +15,7 @@ import numpy as np
 from ..description import Effect, Robot, load_robot, parse_joint_name
 from .effects import scope_name
 from .fit import FitSettings, Hypothesis, Namer, make_split
-from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
+from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions, unobservable
 from .recording import Recording, RecordingError
 from .segments import PHASES, gait_phases, looks_like_walk, obstructed_swings, swing_segments
 from .simulate import Replay
@@ -70,6 +70,8 @@ class Analysis:
     glitches: tuple = ()             # samples left out as physically impossible (recording.glitches)
     # walks: per joint and gait phase (segments.PHASES) -> PhaseFit over the analysed reads
     phase_fit: dict = field(default_factory=dict)
+    # candidate effect -> analysed joints on which the recording cannot show it (locate.unobservable)
+    blind: dict = field(default_factory=dict)
 
     @property
     def found(self) -> tuple[Effect, ...]:
@@ -183,6 +185,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                              f'swing-down stops, each started from the recorded position and speed)')
                 skip_start_s = WALK_SETTLE_S
                 mode_used = 'walk'
+                settings = replace(settings, min_drop_ticks=max(settings.min_drop_ticks, settings.walk_min_drop_ticks))
             else:
                 mode_used = 'stand'
                 notes.append('stand recording: every leg treated as hanging free for the whole recording')
@@ -191,6 +194,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         traj = {leg: replay.trajectory(robot, leg) for leg in replay.legs}
         cond = read_conditions(replay, robot, traj)
         mism = mismatch_windows(replay, res0, cond)
+        blind = unobservable(replay, cond, split, settings.candidates)
         step('naming and fitting effects')
         namer = Namer(replay, robot, split, settings, progress=step, workers=workers)
         try:
@@ -226,7 +230,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                         duration_s=rec.duration_s, residual_before=res0, residual_after=res1, conditions=cond,
                         mismatches=mism, effects=found, joints=jfit, notes=notes,
                         runtime_s=time.perf_counter() - t_start, log=list(settings.log),
-                        glitches=tuple(rec.glitches), phase_fit=phase_fit)
+                        glitches=tuple(rec.glitches), phase_fit=phase_fit, blind=blind)
     finally:
         if bar is not None:
             bar.close()

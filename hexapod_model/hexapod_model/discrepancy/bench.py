@@ -58,6 +58,13 @@ class Case:
     name: str
     effects: tuple[Effect, ...]
     speed_scale: float = 1.0
+    walk: tuple[str, str] | None = None     # (gait, terrain): a walk instead of the stand routine
+
+
+GAITS = ('tripod', 'tetrapod', 'pentapod')
+TERRAINS = ('flat', 'blocks')
+WALK_S = 20.0                 # simulated walking time of a walk case
+WALK_START_X = {'flat': 0.0, 'blocks': 0.45}   # on the blocks from the first step
 
 
 def _value(rng, effect: str) -> float:
@@ -104,6 +111,43 @@ def make_cases(seed: int, legs=LEGS) -> list[Case]:
     cases.append(Case('clean', ()))
     cases.append(Case('clean@0.8x', (), speed_scale=0.8))
     return cases
+
+
+def make_walk_cases(seed: int) -> list[Case]:
+    """Walk cases: the stand cases' effects and scopes, gaits and terrains in turn, and a clean walk
+    of every gait on flat ground and on the blocks."""
+    cases = []
+    for i, c in enumerate(make_cases(seed + 1000)):
+        if not c.effects:
+            continue
+        gait, terrain = GAITS[i % 3], TERRAINS[(i // 3) % 2]
+        cases.append(Case(f'{gait}/{terrain}:{c.name}', c.effects, walk=(gait, terrain)))
+    for terrain in TERRAINS:
+        for gait in GAITS:
+            cases.append(Case(f'{gait}/{terrain}:clean', (), walk=(gait, terrain)))
+    return cases
+
+
+def record_walk(case: Case, out_dir: Path, robot=None) -> tuple[Path, float]:
+    """Walk the MuJoCo hexapod with the case's effects (the gait controller, as ``./hexapod demo``); -> (bag, duration)."""
+    from hexapod_locomotion.sim_run import TrialConfig, run_trial
+    gait, terrain = case.walk
+    bag = out_dir / ('walk_' + case.name.replace('@', '_at_').replace('+', '_and_').replace('/', '_').replace(':', '_'))
+    if bag.exists():
+        shutil.rmtree(bag)
+    overlays = ()
+    if case.effects:
+        ov = out_dir / (bag.name + '.truth.yaml')
+        ov.write_text(yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
+        overlays = (str(ov),)
+    cfg = TrialConfig(gait=gait, terrain=terrain, duration_s=WALK_S, course_end_m=3.0, record=str(bag),
+                      start_x_m=WALK_START_X[terrain], overlays=overlays)
+    with contextlib.redirect_stdout(io.StringIO()):
+        run_trial(cfg)
+    for ov in overlays:           # the tool only ever sees the bag
+        Path(ov).unlink()
+    from .recording import load_recording
+    return bag, load_recording(bag, robot or load_robot()).duration_s
 
 
 def record_case(case: Case, out_dir: Path, legs=LEGS, robot=None, progress: bool = False) -> tuple[Path, float]:
@@ -164,7 +208,7 @@ def run(cases, legs, keep: Path | None, progress: bool = True) -> list[dict]:
     try:
         for case in tqdm(cases, desc='benchmark cases', unit='case', disable=not progress):
             t0 = time.perf_counter()
-            bag, duration = record_case(case, work, legs=legs)
+            bag, duration = record_walk(case, work) if case.walk else record_case(case, work, legs=legs)
             t_sim = time.perf_counter() - t0
             js = work / (bag.name + '.json')
             t0 = time.perf_counter()
@@ -251,21 +295,57 @@ def make_demo(out_dir: Path, seed: int) -> None:
     print(f'demo bag {bag} ({duration:.1f} s, {size:.2f} MB); truth in {truth}')
 
 
+def make_walk_demo(out_dir: Path, seed: int) -> None:
+    """One concealed-effect walk bag (tripod over the blocks) and its truth in a separate file."""
+    rng = np.random.default_rng(seed)
+    leg = int(rng.choice(LEGS))
+    name = str(rng.choice(['mass_error', 'viscous_damping', 'coulomb_friction', 'readout_delay']))
+    joints = (tuple(joint_name(leg, r) for r in JOINT_ROLES) if name == 'mass_error'
+              else (joint_name(leg, str(rng.choice(('femur', 'tibia')))),))
+    case = Case('walk_demo', (_effect(rng, name, joints),), walk=('tripod', 'blocks'))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bag, duration = record_walk(case, out_dir)
+    final = out_dir / 'discrepancy_walk_demo'
+    if final.exists():
+        shutil.rmtree(final)
+    bag.rename(final)
+    for f in final.iterdir():                 # rosbag2 names its files after the directory
+        if f.name.startswith(bag.name):
+            f.rename(final / f.name.replace(bag.name, final.name, 1))
+    meta = final / 'metadata.yaml'
+    meta.write_text(meta.read_text().replace(bag.name, final.name))
+    truth = out_dir / 'discrepancy_walk_demo.truth.yaml'
+    truth.write_text('# Hidden truth of bags/discrepancy_walk_demo (the discrepancy tool never reads this file).\n'
+                     f'# Made by: discrepancy_bench --make-walk-demo {out_dir} --seed {seed}\n'
+                     + yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
+    size = sum(f.stat().st_size for f in final.iterdir()) / 1e6
+    print(f'walk demo bag {final} ({duration:.1f} s, {size:.2f} MB); truth in {truth}')
+
+
 def main(argv=None) -> int:
     from ..cli_common import make_parser
     ap = make_parser('discrepancy_bench', __doc__.splitlines()[0])
     ap.add_argument('--seed', type=int, default=0, help='draws the magnitudes and joints of the cases')
     ap.add_argument('--cases', nargs='+', metavar='NAME', help='run only these cases (names as in the table)')
     ap.add_argument('--legs', nargs='+', type=int, default=list(LEGS), help='legs the routine moves (default all)')
+    ap.add_argument('--set', choices=('stand', 'walk', 'all'), default='stand',
+                    help='stand: the calibration routine on a stand (default); walk: %d s walks of the three gaits '
+                         'on flat ground and the blocks; all: both' % WALK_S)
     ap.add_argument('--keep', metavar='DIR', help='keep the bags and JSON results here')
     ap.add_argument('--json', metavar='OUT.json', help='write the scored results here')
     ap.add_argument('--list', action='store_true', help='list the cases (names only, not the truth) and exit')
     ap.add_argument('--make-demo', metavar='DIR', help='write the demo bag and its truth file into DIR and exit')
+    ap.add_argument('--make-walk-demo', metavar='DIR',
+                    help='write the walk demo bag (tripod over the blocks, one hidden effect) and its truth into DIR')
     args = ap.parse_args(argv)
     if args.make_demo:
         make_demo(Path(args.make_demo), args.seed)
         return 0
-    cases = make_cases(args.seed, args.legs)
+    if args.make_walk_demo:
+        make_walk_demo(Path(args.make_walk_demo), args.seed)
+        return 0
+    cases = ((make_cases(args.seed, args.legs) if args.set in ('stand', 'all') else [])
+             + (make_walk_cases(args.seed) if args.set in ('walk', 'all') else []))
     if args.list:
         print('\n'.join(c.name for c in cases))
         return 0
@@ -275,9 +355,14 @@ def main(argv=None) -> int:
             ap.error(f'unknown case(s) {unknown}; see --list')
         cases = [c for c in cases if c.name in args.cases]
     results = run(cases, args.legs, Path(args.keep) if args.keep else None)
-    print(table(results))
-    print()
-    print(summary(results))
+    for label, part in (('stand calibration routine', [r for r, c in zip(results, cases) if not c.walk]),
+                        (f'walks ({WALK_S:g} s; gait/terrain:effect)', [r for r, c in zip(results, cases) if c.walk])):
+        if part:
+            print(f'{label}:')
+            print(table(part))
+            print()
+            print(summary(part))
+            print()
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2, default=float) + '\n')
     return 0

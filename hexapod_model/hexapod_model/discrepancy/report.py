@@ -10,7 +10,7 @@ from .analysis import Analysis
 from .effects import BY_NAME
 from .glitches import summary_line
 from .segments import PHASES
-from .locate import CONDITION_WORDS
+from .locate import CONDITION_WORDS, REVEALED_BY
 
 
 CLOSE_FIT_TICKS = 0.6   # held-out RMS below this: only rounding and integration noise left
@@ -37,6 +37,7 @@ def to_json(a: Analysis, bag: str | None = None) -> dict:
                      'params': {k: float(v) for k, v in f.effect.params.items()},
                      'heldout_rmse_ticks_before': _f(f.heldout_rmse_ticks_before),
                      'heldout_rmse_ticks_after': _f(f.heldout_rmse_ticks_after)} for f in a.effects],
+        'cannot_show': {name: list(js) for name, js in a.blind.items()},
         'glitches': [{'topic': g.topic, 'joint': g.joint, 't': _f(g.t_s), 'kind': g.kind, 'detail': g.detail}
                      for g in a.glitches],
     }
@@ -75,6 +76,16 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
         lines.append(f'{subject}: the simulation left out {c.describe(value)}; it shows '
                      f'{CONDITION_WORDS.get(f.condition, f.condition)}; held-out RMS error '
                      f'{f.heldout_rmse_ticks_before:.2f} -> {f.heldout_rmse_ticks_after:.2f} ticks.')
+    if a.blind:
+        n_j = len(a.replay.joints)
+        lines.append('')
+        lines.append('what this recording cannot show (too few fitting or held-out reads in the motion that reveals it):')
+        for name, js in a.blind.items():
+            c = BY_NAME[name]
+            n_all = n_j - (sum(1 for j in a.replay.joints if j.endswith('_coxa')) if name == 'mass_error' else 0)
+            where = 'on any analysed joint' if len(js) == n_all else f'on {", ".join(js)}'
+            lines.append(f'  {c.phrase}: {REVEALED_BY[name][1]} among both fitting and held-out reads {where} '
+                         '(not found there means not shown, not absent)')
     lines.append('')
     lines.append('held-out RMS error per joint [ticks], nominal model -> with the effects:')
     row = []

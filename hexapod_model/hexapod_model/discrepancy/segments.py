@@ -179,8 +179,10 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
     swing spans of :func:`swing_segments`. On a stand a femur fits the free-leg model as well
     outside its swings as inside (effects such as friction or play spread both ways); in a walk
     the body's weight pushes every stance femur above the prediction (median over the reads outside
-    the swings at least ``load_ticks`` above the median inside). A walk needs this on two femurs
-    (one if only one is read).
+    the swings at least ``load_ticks`` above the median inside). A walk needs this on two femurs:
+    a recording of one leg is never taken for a walk (a femur that cannot hold its goal, e.g. a
+    torque limit on a stand, also sits off the prediction between its motions; ``--mode walk``
+    forces the choice).
     """
     femurs = [j for j in replay.joints if j.endswith('_femur')]
     hits = 0
@@ -198,7 +200,7 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
         r = residual[j]
         if np.median(r[~inside]) - np.median(r[inside]) > load_ticks:
             hits += 1
-    return hits >= min(2, len(femurs)) and hits > 0
+    return hits >= 2
 
 
 def obstructed_swings(replay, residual: dict, settle_s: float = 0.1, factor: float = 3.0,
