@@ -17,6 +17,11 @@ sees the truth or the sim's model. The result is scored against the hidden truth
 Cases (magnitudes and joints drawn from ``--seed``): each effect alone on one joint (a payload on
 one leg), three effects on a whole leg, three robot-wide, two pairs at once, two clean runs.
 ``--make-demo DIR`` writes one concealed-effect bag (one leg, < 2 MB) and its truth next to it.
+
+``--set walk`` runs the same kinds of effects (drawn from ``--seed`` + 1000) on 20 s walks of the gait
+controller over the MuJoCo terrain instead (:func:`hexapod_locomotion.sim_run.run_trial`, as
+``./hexapod demo``), the three gaits on flat ground and on the blocks in turn, plus a clean walk of
+every gait on both; ``--set all`` runs both sets. ``--make-walk-demo DIR`` writes the walk demo bag.
 """
 from __future__ import annotations
 
