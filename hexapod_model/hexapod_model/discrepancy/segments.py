@@ -87,7 +87,7 @@ def _goal_grid(rec: Recording, leg: int, t: np.ndarray) -> np.ndarray | None:
 
 
 def gait_phases(rec: Recording, legs, min_lift_rad: float = 0.08, gap_s: float = 0.025,
-                grid_s: float = 0.001) -> dict[int, LegPhases]:
+                min_down_s: float = 0.03, grid_s: float = 0.001) -> dict[int, LegPhases]:
     """Gait phases of every leg of a walk (the cycle of Fig. 4), from its commands alone.
 
     The goals of a leg move in *runs* (a change at least every ``gap_s``) separated by holds. A run
@@ -95,7 +95,8 @@ def gait_phases(rec: Recording, legs, min_lift_rad: float = 0.08, gap_s: float =
     followed by swing-forward: both are linear joint-space ramps, so swing-forward starts where the
     per-write goal increment changes. The next run starts with the swing-down (its first goal is the
     measured pose, so it may step either way): the femur goal falls with the coxa goal held, until
-    the detector stops the leg (``t_stop``: the last fall). What
+    the detector stops the leg (``t_stop``: the last fall; a fall shorter than ``min_down_s`` is no
+    swing-down, e.g. two leveling runs on uneven ground). What
     follows in that run, and every other run of the leg, is leveling; holds are stance.
     """
     out: dict[int, LegPhases] = {}
@@ -142,7 +143,7 @@ def gait_phases(rec: Recording, legs, min_lift_rad: float = 0.08, gap_s: float =
                 while k <= e and d[k, 1] <= 1e-9 and abs(d[k, 0]) <= 1e-6:
                     k += 1
                 falls = np.flatnonzero(d[c:k, 1] < -1e-6)
-                if len(falls):
+                if len(falls) and (falls[-1] + 1) * grid_s >= min_down_s:
                     k_stop = c + falls[-1] + 1
                     swings.append(Swing(float(t[a]), float(t[k_fwd]), float(t[c]), float(t[k_stop])))
                     if k <= e:
