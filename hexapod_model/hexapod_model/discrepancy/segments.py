@@ -205,14 +205,15 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
 
 
 def obstructed_swings(replay, residual: dict, settle_s: float = 0.1, factor: float = 3.0,
-                      margin_ticks: float = 1.0) -> dict[int, list[int]]:
+                      margin_ticks: float = 0.5) -> dict[int, list[int]]:
     """Swings in which something touched the leg: segment indices per leg to leave out.
 
     A foot that brushes a block edge during swing-forward departs from the free-leg model in that
     swing only, by several ticks, while a missing effect of the servo or the leg shows in every
     swing of the joint alike. A swing is obstructed when on any joint of its leg the RMS of
     ``residual`` (nominal model, reads at least ``settle_s`` after the segment start) exceeds
-    ``factor`` times the median over that joint's swings plus ``margin_ticks``.
+    ``factor`` times the median over that joint's other swings plus ``margin_ticks``; the swings of
+    other legs at the same time are left out with it (the body they hang from was jolted).
     """
     out: dict[int, list[int]] = {}
     for leg in replay.legs:
@@ -227,9 +228,17 @@ def obstructed_swings(replay, residual: dict, settle_s: float = 0.1, factor: flo
             for i in np.unique(r.segment[ok]):
                 m = ok & (r.segment == i)
                 rms[int(i)] = float(np.sqrt(np.mean(residual[j][m] ** 2)))
-            if len(rms) < 3:
+            if len(rms) < 2:
                 continue
-            med = float(np.median(list(rms.values())))
-            bad |= {i for i, v in rms.items() if v > factor * med + margin_ticks}
-        out[leg] = sorted(bad)
-    return out
+            for i, v in rms.items():      # against the median of the joint's other swings
+                med = float(np.median([w for k, w in rms.items() if k != i]))
+                if v > factor * med + margin_ticks:
+                    bad.add(i)
+        out[leg] = bad
+    # what hits one leg jolts the body all swinging legs hang from: their concurrent swings go too
+    hit = [replay.segments[leg][i] for leg, v in out.items() for i in v]
+    for leg in replay.legs:
+        for i, (ka, kb) in enumerate(replay.segments[leg]):
+            if any(ka < hb and ha < kb for ha, hb in hit):
+                out[leg].add(i)
+    return {leg: sorted(v) for leg, v in out.items()}
