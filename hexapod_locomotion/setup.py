@@ -22,6 +22,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
+            'discrepancy_bench = hexapod_locomotion.discrepancy_bench:main',
             'locomotion_node = hexapod_locomotion.locomotion_node:main',
             'robot = hexapod_locomotion.robot:main',
             'bench_graph = hexapod_locomotion.bench_graph:main',

@@ -27,7 +27,8 @@ setup(
             'sim_node = hexapod_sim.sim_node:main',
             'bench_sim = hexapod_sim.bench_sim:main',
             'discrepancy = hexapod_sim.discrepancy.cli:main',
-            'discrepancy_bench = hexapod_sim.discrepancy.bench:main',
+            'stand_calibration = hexapod_sim.stand_calibration:main',
+            'record_contract = hexapod_sim.record_contract:main',
             'tf_figure = hexapod_sim.tf_figure:main',
         ],
         # The MuJoCo hexapod as a backend of the driver's bus emulator (bus_emulator --backend sim).

@@ -36,7 +36,7 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_sim', 'discrepancy', ['nonexistent_bag']),
     ('hexapod_sim', 'discrepancy', ['BAG', '--overlay', 'OVERLAY']),
     ('hexapod_sim', 'discrepancy', ['BAG', '--min-ratio', '0.5']),
-    ('hexapod_sim', 'discrepancy_bench', ['--seed', 'x']),
+    ('hexapod_locomotion', 'discrepancy_bench', ['--seed', 'x']),
     ('hexapod_sim', 'replay', ['nonexistent_bag']),
     ('hexapod_driver', 'servo_tool', ['scan', '--device', '/dev/nonexistent_tty']),
     ('hexapod_driver', 'servo_tool', ['set-id', '--to', '-3']),

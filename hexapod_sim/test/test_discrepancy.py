@@ -65,7 +65,9 @@ def test_clean_recording_gives_no_effect(robot, tmp_path):
     assert a.effects == []
     assert 'No missing physics found' in text_report(a)
     doc = to_json(a, 'memory')
-    assert doc['effects'] == [] and set(doc) == {'bag', 'joints', 'mismatches', 'effects'}
+    assert doc['effects'] == [] and set(doc) == {'bag', 'joints', 'mismatches', 'effects', 'phases', 'cannot_show',
+                                                 'glitches'}
+    assert doc['phases'] == {} and doc['glitches'] == []          # a stand recording, no glitch
     assert {'leg1_coxa', 'leg1_tibia', 'leg4_coxa', 'leg4_tibia'} <= set(doc['joints'])
     for j, v in doc['joints'].items():
         assert v['heldout_rmse_ticks_before'] == pytest.approx(v['heldout_rmse_ticks_after'])

@@ -455,12 +455,14 @@ def recover_bag(src: str | os.PathLike, dst: str | os.PathLike, **writer_kw) -> 
     return n
 
 
-def joint_series(reader: BagReader) -> dict[str, dict[str, np.ndarray]]:
+def joint_series(reader: BagReader, log_time: bool = False) -> dict[str, dict[str, np.ndarray]]:
     """Per-joint position series of ``/joint_commands`` and ``/joint_states``.
 
     Returns ``{topic: {joint_name: array (N, 2)}}`` with columns (header.stamp [s], position
-    [rad]), sorted by stamp (stable). A topic absent from the bag maps to ``{}``. A message whose
-    ``position`` is shorter than its ``name`` list raises :class:`BagError` naming it.
+    [rad]), sorted by stamp (stable). ``log_time=True`` adds a third column, the bag's log
+    (record) time [s], so a stamp that disagrees with when the message was recorded can be found.
+    A topic absent from the bag maps to ``{}``. A message whose ``position`` is shorter than its
+    ``name`` list raises :class:`BagError` naming it.
     """
     topics = (contract.JOINT_COMMANDS, contract.JOINT_STATES)
     in_bag = {t: reader.resolve(t) for t in topics}
@@ -479,11 +481,11 @@ def joint_series(reader: BagReader) -> dict[str, dict[str, np.ndarray]]:
         stamp = contract.stamp_seconds(msg.header.stamp)
         series = acc[topic]
         for n, p in zip(names, pos):
-            series.setdefault(n, []).append((stamp, p))
+            series.setdefault(n, []).append((stamp, p, t_ns * 1e-9) if log_time else (stamp, p))
     out: dict[str, dict[str, np.ndarray]] = {}
     for topic, series in acc.items():
         out[topic] = {}
         for n, rows in series.items():
-            a = np.asarray(rows, dtype=float).reshape(-1, 2)
+            a = np.asarray(rows, dtype=float).reshape(-1, 3 if log_time else 2)
             out[topic][n] = a[np.argsort(a[:, 0], kind='stable')]
     return out

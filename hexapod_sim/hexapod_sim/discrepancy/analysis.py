@@ -8,19 +8,23 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from hexapod_model.description import Effect, Robot, load_robot, parse_joint_name
 from .effects import scope_name
 from .fit import FitSettings, Hypothesis, Namer, make_split
-from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
+from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions, unobservable
 from .recording import Recording, RecordingError
-from .segments import looks_like_walk, swing_segments
+from .segments import PHASES, gait_phases, looks_like_walk, obstructed_swings, swing_segments
 from .simulate import Replay
 
 MODES = ('auto', 'stand', 'walk')
+# A walk's swing starts in motion from the reads around lift-off; reads in the first 0.1 s are left
+# out of fit and judgement (on clean sim walks the nominal replay is at the rounding floor from there,
+# docs/discrepancy.md).
+WALK_SETTLE_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -28,6 +32,13 @@ class JointFit:
     heldout_rmse_ticks_before: float
     heldout_rmse_ticks_after: float
     n_heldout: int
+
+
+@dataclass(frozen=True)
+class PhaseFit:
+    n_reads: int
+    rmse_ticks_before: float
+    rmse_ticks_after: float
 
 
 @dataclass(frozen=True)
@@ -56,6 +67,11 @@ class Analysis:
     notes: list[str] = field(default_factory=list)
     runtime_s: float = 0.0
     log: list = field(default_factory=list)
+    glitches: tuple = ()             # samples left out as physically impossible (recording.glitches)
+    # walks: per joint and gait phase (segments.PHASES) -> PhaseFit over the analysed reads
+    phase_fit: dict = field(default_factory=dict)
+    # candidate effect -> analysed joints on which the recording cannot show it (locate.unobservable)
+    blind: dict = field(default_factory=dict)
 
     @property
     def found(self) -> tuple[Effect, ...]:
@@ -70,6 +86,28 @@ def _rmse(res: dict, masks: dict, joints) -> tuple[float, int]:
             sse += float(r @ r)
             n += len(r)
     return (math.sqrt(sse / n) if n else math.nan), n
+
+
+def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: dict):
+    """Walks: the gait phase of every mismatch window, and the residual per joint and phase."""
+    labels = {j: phases[parse_joint_name(j)[0]].label(replay.reads[j].t_s) for j in replay.joints}
+    out = []
+    for m in mism:
+        t = replay.reads[m.joint].t_s
+        sel = labels[m.joint][(t >= m.t_start) & (t <= m.t_end)]
+        ph = PHASES[int(np.bincount(sel, minlength=len(PHASES)).argmax())] if len(sel) else ''
+        out.append(replace(m, phase=ph))
+    table = {}
+    for j in replay.joints:
+        row = {}
+        for k, name in enumerate(PHASES):
+            sel = labels[j] == k
+            n = int(np.count_nonzero(sel))
+            if n:
+                row[name] = PhaseFit(n, float(np.sqrt(np.mean(res0[j][sel] ** 2))),
+                                     float(np.sqrt(np.mean(res1[j][sel] ** 2))))
+        table[j] = row
+    return out, table
 
 
 def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=None, mode: str = 'auto',
@@ -109,8 +147,11 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         replay = Replay(robot, rec, joints=joints, segments=segments)
         pred0 = replay.predict(robot)
         res0 = {j: replay.reads[j].tick - pred0[j] for j in replay.joints}
+        phases = None
+        skip_start_s = 0.3
         if segments is None:
-            segs = swing_segments(rec, replay.legs)
+            phases = gait_phases(rec, replay.legs)
+            segs = swing_segments(rec, replay.legs, phases=phases)
             walk = mode == 'walk' or (mode == 'auto' and looks_like_walk(replay, res0, segs))
             if walk:
                 n_spans = sum(len(v) for v in segs.values())
@@ -118,22 +159,42 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                     raise RecordingError(f'{rec.source}: looks like a walk (legs carry load) but no swing phase '
                                          'was found in the femur commands; pass --time windows where the legs '
                                          'hang free')
-                total = sum(b - a for v in segs.values() for a, b in v)
-                notes.append(f'walk recording: stance legs carry the body, so only swing phases were analysed '
-                             f'({n_spans} spans, {total:.1f} s of leg time, from lift-off to just before the '
-                             f'swing-down stops)')
-                replay = Replay(robot, rec, joints=joints, segments=segs)
+                step('replaying the swings')
+                replay = Replay(robot, rec, joints=joints, segments=segs, moving_start=True)
                 pred0 = replay.predict(robot)
                 res0 = {j: replay.reads[j].tick - pred0[j] for j in replay.joints}
+                blocked = obstructed_swings(replay, res0, settle_s=WALK_SETTLE_S)
+                n_blocked = sum(len(v) for v in blocked.values())
+                if n_blocked:
+                    spans = {leg: [(replay.segments[leg][i][0] * replay.dt, replay.segments[leg][i][1] * replay.dt)
+                                   for i in range(len(replay.segments[leg])) if i not in blocked.get(leg, ())]
+                             for leg in replay.legs}
+                    where = '; '.join(f'leg {leg} at ' + ', '.join(f'{replay.segments[leg][i][0] * replay.dt:.1f} s'
+                                                                    for i in v)
+                                      for leg, v in blocked.items() if v)
+                    notes.append(f'{n_blocked} swing(s) left out as obstructed (the leg departs from the free-leg '
+                                 f'model in that swing only, e.g. a foot touching a block edge): {where}')
+                    segs = spans
+                    replay = Replay(robot, rec, joints=joints, segments=segs, moving_start=True)
+                    pred0 = replay.predict(robot)
+                    res0 = {j: replay.reads[j].tick - pred0[j] for j in replay.joints}
+                n_spans = sum(len(v) for v in replay.segments.values())
+                total = sum(b - a for v in replay.segments.values() for a, b in v) * replay.dt
+                notes.append(f'walk recording: stance legs carry the body, so only swing phases were analysed '
+                             f'({n_spans} swings, {total:.1f} s of leg time, from lift-off to just before the '
+                             f'swing-down stops, each started from the recorded position and speed)')
+                skip_start_s = WALK_SETTLE_S
                 mode_used = 'walk'
+                settings = replace(settings, min_drop_ticks=max(settings.min_drop_ticks, settings.walk_min_drop_ticks))
             else:
                 mode_used = 'stand'
                 notes.append('stand recording: every leg treated as hanging free for the whole recording')
-        split = make_split(replay, block_s=block_s)
+        split = make_split(replay, block_s=block_s, skip_start_s=skip_start_s)
         step('motion conditions')
         traj = {leg: replay.trajectory(robot, leg) for leg in replay.legs}
         cond = read_conditions(replay, robot, traj)
         mism = mismatch_windows(replay, res0, cond)
+        blind = unobservable(replay, cond, split, settings.candidates)
         step('naming and fitting effects')
         namer = Namer(replay, robot, split, settings, progress=step, workers=workers)
         try:
@@ -159,13 +220,17 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             b, n = _rmse(res0, split.hold, [j])
             a, _ = _rmse(res1, split.hold, [j])
             jfit[j] = JointFit(b, a, n)
+        phase_fit = {}
+        if mode_used == 'walk':
+            mism, phase_fit = _locate_phases(replay, phases, mism, res0, res1)
         n_hold = sum(int(np.count_nonzero(m)) for m in split.hold.values())
         n_fit = sum(int(np.count_nonzero(m)) for m in split.fit.values())
         notes.append(f'fitted on {n_fit} reads, judged on {n_hold} held-out reads (alternating {block_s:g} s blocks)')
         return Analysis(source=rec.source, mode=mode_used, robot=robot, replay=replay, split=split,
                         duration_s=rec.duration_s, residual_before=res0, residual_after=res1, conditions=cond,
                         mismatches=mism, effects=found, joints=jfit, notes=notes,
-                        runtime_s=time.perf_counter() - t_start, log=list(settings.log))
+                        runtime_s=time.perf_counter() - t_start, log=list(settings.log),
+                        glitches=tuple(rec.glitches), phase_fit=phase_fit, blind=blind)
     finally:
         if bar is not None:
             bar.close()

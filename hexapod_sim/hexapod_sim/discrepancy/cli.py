@@ -57,7 +57,7 @@ def main(argv=None) -> int:
                 raise RecordingError(f'--joints: unknown joint(s) {bad}; names are leg<1..6>_<coxa|femur|tibia>')
         windows = parse_windows(args.windows) if args.windows else None
         robot = load_robot(args.robot, overlays=args.overlay)
-        rec = load_recording(args.bag)
+        rec = load_recording(args.bag, robot)
         settings = FitSettings(min_ratio=args.min_ratio)
         if args.candidates:
             settings.candidates = tuple(args.candidates)

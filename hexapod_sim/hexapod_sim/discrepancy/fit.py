@@ -202,6 +202,7 @@ class Hypothesis:
 class FitSettings:
     min_ratio: float = 1.15          # held-out RMS before/after on the effect's joints
     min_drop_ticks: float = 0.03     # and at least this absolute drop
+    walk_min_drop_ticks: float = 0.15  # on a walk (fewer, shorter free spans: small dents are not effects)
     min_explained: float = 0.5       # and explain this share of the held-out variance above tick rounding
     parsimony: float = 0.95          # prefer a smaller scope reaching this share of the best gain
     max_effects: int = 4

@@ -62,6 +62,7 @@ class Mismatch:
     condition: str
     rmse_ticks: float               # over the whole (merged) window
     peak_rmse_ticks: float = float('nan')   # the largest sliding-window RMS in it: what flagged it
+    phase: str = ''          # walks: the gait phase holding most of the window's reads (segments.PHASES)
 
 
 def _forward_fill_nonzero(d: np.ndarray) -> np.ndarray:
@@ -239,3 +240,36 @@ def dominant_condition(joints, conditions, before, after) -> str:
     if not masks:
         return 'moving'
     return _most_telling(np.concatenate(masks), np.concatenate(gains))
+
+
+# The motion a candidate effect needs to show itself, and its words (see docs/discrepancy.md).
+REVEALED_BY = {
+    'coulomb_friction': (('moving', 'high_speed', 'large_error'), 'no motion'),
+    'static_friction': (('start_from_rest',), 'no start from rest'),
+    'viscous_damping': (('high_speed',), 'no fast motion'),
+    'backlash': (('load_reversal', 'direction_reversal'), 'no load or direction reversal'),
+    'torque_saturation': (('large_error',), 'no large position error'),
+    'compliance_deadband': (('steady_hold',), 'no steady hold'),
+    'readout_delay': (('high_speed',), 'no fast motion'),
+    'mass_error': (('gravity_load_high',), 'no femur or tibia under gravity load'),
+}
+
+
+def unobservable(replay: Replay, conditions: dict, split, candidates, min_reads: int = 10) -> dict[str, tuple]:
+    """Per candidate effect: the analysed joints on which the recording cannot show it, i.e. with
+    fewer than ``min_reads`` fitting or held-out reads in the conditions that reveal it."""
+    out = {}
+    for name in candidates:
+        conds, _ = REVEALED_BY[name]
+        cols = [CONDITIONS.index(c) for c in conds]
+        blind = []
+        for j in replay.joints:
+            if name == 'mass_error' and j.endswith('_coxa'):
+                continue
+            m = np.any(conditions[j][:, cols], axis=1)
+            if (np.count_nonzero(m & split.fit[j]) < min_reads
+                    or np.count_nonzero(m & split.hold[j]) < min_reads):
+                blind.append(j)
+        if blind:
+            out[name] = tuple(blind)
+    return out

@@ -50,6 +50,7 @@ class Recording:
     states: Mapping[str, Series]
     t0_ns: int = 0
     source: str = '<memory>'
+    glitches: tuple = ()     # samples left out as physically impossible (glitches.Glitch)
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -120,17 +121,35 @@ def _to_series(d: Mapping[str, list], what: str) -> dict[str, Series]:
 
 
 # ----------------------------------------------------------------------------- bag loading
-def load_recording(path: str | Path) -> Recording:
-    """Read ``/joint_commands`` and ``/joint_states`` from a rosbag2 directory or an ``.mcap`` file."""
+def load_recording(path: str | Path, robot=None) -> Recording:
+    """Read ``/joint_commands`` and ``/joint_states`` from a rosbag2 directory or an ``.mcap`` file.
+
+    Samples that cannot be physical (:mod:`.glitches`: stamps far from their record time or out of
+    order, positions out of range or beyond the servo's speed from their neighbours; the servo of
+    ``robot``, default the packaged description) are left out and listed in ``Recording.glitches``.
+    """
+    from .glitches import Glitch, screen
+    if robot is None:
+        from ..description import load_robot
+        robot = load_robot()
     p = Path(path)
     if not p.exists():
         raise RecordingError(f'{p}: no such bag (expected a rosbag2 directory or a .mcap file)')
     from ..bagio import BagError, BagReader, joint_series
     try:
-        series = joint_series(BagReader(str(p)))
+        series = joint_series(BagReader(str(p)), log_time=True)
     except BagError as exc:
         raise RecordingError(f'{p}: {exc}') from None
-    cmds, reads = series[JOINT_COMMANDS], series[JOINT_STATES]
+    for topic, d in series.items():
+        for j, a in d.items():
+            if not np.all(np.isfinite(a[:, :2])):
+                what = 'command' if topic == JOINT_COMMANDS else 'read'
+                bad = int(np.count_nonzero(~np.isfinite(a[:, :2]).all(axis=1)))
+                raise RecordingError(f'{p}: {what}s of {j}: {bad} sample(s) are NaN or infinite')
+    cmds, bad_c = screen(series[JOINT_COMMANDS], 'command', None)
+    reads, bad_r = screen(series[JOINT_STATES], 'read', robot.servo)
+    cmds = {j: a for j, a in cmds.items() if len(a)}
+    reads = {j: a for j, a in reads.items() if len(a)}
     if not cmds:
         raise RecordingError(f'{p}: no {bag_topic(JOINT_COMMANDS)} messages (the tool replays the recorded goals)')
     if not reads:
@@ -144,5 +163,8 @@ def load_recording(path: str | Path) -> Recording:
         for j, a in d.items():
             out[j] = [(float(t) - t0, float(v)) for t, v in a]
         return _to_series(out, what)
+    glitches = tuple(sorted((Glitch(topic, j, t - t0, kind, detail)
+                             for topic, found in (('command', bad_c), ('read', bad_r))
+                             for j, t, kind, detail in found), key=lambda g: (g.t_s, g.joint)))
     return Recording(commands=conv(cmds, 'command'), states=conv(reads, 'read'), t0_ns=t0_ms * 1_000_000,
-                     source=str(p))
+                     source=str(p), glitches=glitches)

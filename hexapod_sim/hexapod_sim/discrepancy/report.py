@@ -8,7 +8,9 @@ import yaml
 from hexapod_model.description import effects_to_overlay
 from .analysis import Analysis
 from .effects import BY_NAME
-from .locate import CONDITION_WORDS, WINDOW_S
+from .glitches import summary_line
+from .segments import PHASES
+from .locate import CONDITION_WORDS, REVEALED_BY, WINDOW_S
 
 
 CLOSE_FIT_TICKS = 0.6   # held-out RMS below this: only rounding and integration noise left
@@ -26,12 +28,19 @@ def to_json(a: Analysis, bag: str | None = None) -> dict:
                        'heldout_rmse_ticks_after': _f(v.heldout_rmse_ticks_after)}
                    for j, v in a.joints.items() if v.n_heldout > 0},
         'mismatches': [{'joint': m.joint, 't_start': _f(m.t_start), 't_end': _f(m.t_end), 'condition': m.condition,
-                        'rmse_ticks': _f(m.rmse_ticks), 'peak_rmse_ticks': _f(m.peak_rmse_ticks)}
+                        'rmse_ticks': _f(m.rmse_ticks), 'peak_rmse_ticks': _f(m.peak_rmse_ticks),
+                        **({'phase': m.phase} if m.phase else {})}
                        for m in a.mismatches],
+        'phases': {j: {ph: {'reads': v.n_reads, 'rmse_ticks_before': _f(v.rmse_ticks_before),
+                            'rmse_ticks_after': _f(v.rmse_ticks_after)} for ph, v in row.items()}
+                   for j, row in a.phase_fit.items()},
         'effects': [{'effect': f.effect.effect, 'joints': list(f.effect.joints),
                      'params': {k: float(v) for k, v in f.effect.params.items()},
                      'heldout_rmse_ticks_before': _f(f.heldout_rmse_ticks_before),
                      'heldout_rmse_ticks_after': _f(f.heldout_rmse_ticks_after)} for f in a.effects],
+        'cannot_show': {name: list(js) for name, js in a.blind.items()},
+        'glitches': [{'topic': g.topic, 'joint': g.joint, 't': _f(g.t_s), 'kind': g.kind, 'detail': g.detail}
+                     for g in a.glitches],
     }
 
 
@@ -42,6 +51,12 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
              f'  {a.duration_s:.1f} s recording, {len(a.replay.joints)} joints, {n_reads} reads; '
              f'analysis took {a.runtime_s:.1f} s']
     lines += [f'  note: {n}' for n in a.notes]
+    if a.glitches:
+        lines.append(f'  note: {summary_line(a.glitches)}:')
+        for g in a.glitches[:max_windows]:
+            lines.append(f'    {g.topic} {g.joint} at {g.t_s:.3f} s: {g.detail}')
+        if len(a.glitches) > max_windows:
+            lines.append(f'    ... and {len(a.glitches) - max_windows} more (all in --json)')
     lines.append('')
     judged = {j: v for j, v in a.joints.items() if v.n_heldout > 0}
     if not a.effects and judged:
@@ -62,6 +77,16 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
         lines.append(f'{subject}: the simulation left out {c.describe(value)}; it shows '
                      f'{CONDITION_WORDS.get(f.condition, f.condition)}; held-out RMS error '
                      f'{f.heldout_rmse_ticks_before:.2f} -> {f.heldout_rmse_ticks_after:.2f} ticks.')
+    if a.blind:
+        n_j = len(a.replay.joints)
+        lines.append('')
+        lines.append('what this recording cannot show (too few fitting or held-out reads in the motion that reveals it):')
+        for name, js in a.blind.items():
+            c = BY_NAME[name]
+            n_all = n_j - (sum(1 for j in a.replay.joints if j.endswith('_coxa')) if name == 'mass_error' else 0)
+            where = 'on any analysed joint' if len(js) == n_all else f'on {", ".join(js)}'
+            lines.append(f'  {c.phrase}: {REVEALED_BY[name][1]} among both fitting and held-out reads {where} '
+                         '(not found there means not shown, not absent)')
     lines.append('')
     lines.append('held-out RMS error per joint [ticks], nominal model -> with the effects:')
     row = []
@@ -75,6 +100,16 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
     unjudged = [j for j, v in a.joints.items() if v.n_heldout == 0]
     if unjudged:
         lines.append(f'  (no held-out reads, not judged: {", ".join(unjudged)})')
+    if a.phase_fit:
+        lines.append('')
+        lines.append('walk: RMS error per joint and gait phase [ticks], nominal -> with the effects (analysed reads; '
+                     'stance and leveling are not analysed: the leg carries the body there):')
+        used = [ph for ph in PHASES if any(ph in row for row in a.phase_fit.values())]
+        lines.append('  ' + f'{"":11s}' + ''.join(f'{ph.replace("_", "-"):>16s}' for ph in used))
+        for j, row in a.phase_fit.items():
+            cells = [(f'{row[ph].rmse_ticks_before:.2f}->{row[ph].rmse_ticks_after:.2f}' if ph in row else '-')
+                     for ph in used]
+            lines.append('  ' + f'{j:11s}' + ''.join(f'{c:>16s}' for c in cells))
     if a.mismatches:
         lines.append('')
         close = not a.effects and judged and max(v.heldout_rmse_ticks_before for v in judged.values()) <= CLOSE_FIT_TICKS
@@ -88,7 +123,7 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
         lines.append(f'  {"joint":11s} {"window [s]":>15s}  {"peak":>5s} / {"whole":>5s} ticks RMS  condition')
         for m in sorted(a.mismatches, key=lambda m: -m.rmse_ticks * math.sqrt(m.t_end - m.t_start + 1e-3))[:max_windows]:
             lines.append(f'  {m.joint:11s} {m.t_start:7.2f}-{m.t_end:7.2f}  {m.peak_rmse_ticks:5.2f} / {m.rmse_ticks:5.2f}'
-                         f'             {m.condition}')
+                         f'             {m.condition}' + (f' ({m.phase.replace("_", "-")})' if m.phase else ''))
     else:
         lines.append('')
         lines.append('No time window departs from the nominal replay beyond tick rounding.')

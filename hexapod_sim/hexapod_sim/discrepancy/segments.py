@@ -14,6 +14,8 @@ pushed *above* the free-leg prediction by the body's weight, which a hanging leg
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from hexapod_model.description import joint_name
@@ -34,57 +36,139 @@ def parse_windows(texts) -> list[tuple[float, float]]:
     return sorted(out)
 
 
-def swing_segments(rec: Recording, legs, min_lift_rad: float = 0.08, settle_s: float = 0.08,
-                   before_stop_s: float = 0.1, hold_s: float = 0.15,
-                   grid_s: float = 0.01) -> dict[int, list[tuple[float, float]]]:
-    """Free-leg spans of every leg in a walk, from its femur commands (see the module docstring).
+PHASES = ('swing_up', 'swing_forward', 'swing_down', 'stance', 'leveling')
 
-    A swing starts where the femur goal starts rising by at least ``min_lift_rad`` and ends at the
-    last change of the goal after it has come down again, before the goal holds still for
-    ``hold_s`` (the leg stands; the ground detector stopped it) or the next lift starts.
-    """
-    out: dict[int, list[tuple[float, float]]] = {}
-    t_end = rec.duration_s
-    t = np.arange(0.0, t_end + grid_s, grid_s)
-    n_hold = max(int(round(hold_s / grid_s)), 1)
-    for leg in legs:
-        cmd = rec.commands.get(joint_name(leg, 'femur'))
+
+@dataclass(frozen=True)
+class Swing:
+    """One swing of a leg, from its commands [s]: swing-up from ``t_up``, swing-forward from
+    ``t_forward`` (then the settle pause), swing-down from ``t_down`` to ``t_stop`` (the ground
+    detector stopped the leg, or theta_fin)."""
+
+    t_up: float
+    t_forward: float
+    t_down: float
+    t_stop: float
+
+
+@dataclass(frozen=True)
+class LegPhases:
+    """The gait phases of one leg: its swings and the spans in which its goals move outside them
+    (leveling: the body is moved and levelled on the stance legs); the rest is stance."""
+
+    swings: tuple
+    leveling: tuple
+
+    def label(self, t: np.ndarray) -> np.ndarray:
+        """Index into :data:`PHASES` for every time in ``t`` [s]."""
+        t = np.asarray(t, dtype=float)
+        out = np.full(t.shape, PHASES.index('stance'))
+        for a, b in self.leveling:
+            out[(t >= a) & (t < b)] = PHASES.index('leveling')
+        for sw in self.swings:
+            out[(t >= sw.t_up) & (t < sw.t_forward)] = PHASES.index('swing_up')
+            out[(t >= sw.t_forward) & (t < sw.t_down)] = PHASES.index('swing_forward')
+            out[(t >= sw.t_down) & (t < sw.t_stop)] = PHASES.index('swing_down')
+        return out
+
+
+def _goal_grid(rec: Recording, leg: int, t: np.ndarray) -> np.ndarray | None:
+    cols = []
+    for role in ('coxa', 'femur', 'tibia'):
+        cmd = rec.commands.get(joint_name(leg, role))
         if cmd is None or len(cmd) < 2:
-            out[leg] = []
+            if role == 'femur':
+                return None
+            cols.append(np.zeros(len(t)))
             continue
         i = np.clip(np.searchsorted(cmd.t_s, t, side='right') - 1, 0, None)
-        g = cmd.theta_rad[i]
-        d = np.sign(np.where(np.abs(np.diff(g)) > 1e-6, np.diff(g), 0.0))
-        n = len(d)
+        cols.append(cmd.theta_rad[i])
+    return np.column_stack(cols)
+
+
+def gait_phases(rec: Recording, legs, min_lift_rad: float = 0.08, gap_s: float = 0.025,
+                min_down_s: float = 0.03, grid_s: float = 0.001) -> dict[int, LegPhases]:
+    """Gait phases of every leg of a walk (the cycle of Fig. 4), from its commands alone.
+
+    The goals of a leg move in *runs* (a change at least every ``gap_s``) separated by holds. A run
+    in which the femur goal rises by at least ``min_lift_rad`` and ends raised is a swing-up
+    followed by swing-forward: both are linear joint-space ramps, so swing-forward starts where the
+    per-write goal increment changes. The next run starts with the swing-down (its first goal is the
+    measured pose, so it may step either way): the femur goal falls with the coxa goal held, until
+    the detector stops the leg (``t_stop``: the last fall; a fall shorter than ``min_down_s`` is no
+    swing-down, e.g. two leveling runs on uneven ground). What
+    follows in that run, and every other run of the leg, is leveling; holds are stance.
+    """
+    out: dict[int, LegPhases] = {}
+    t_end = rec.duration_s
+    t = np.arange(0.0, t_end + grid_s, grid_s)
+    gap = max(int(round(gap_s / grid_s)), 1)
+    for leg in legs:
+        g = _goal_grid(rec, leg, t)
+        if g is None:
+            out[leg] = LegPhases((), ())
+            continue
+        d = np.diff(g, axis=0)
+        change = np.flatnonzero(np.any(np.abs(d) > 1e-6, axis=1))
+        runs = []
+        if len(change):
+            cut = np.flatnonzero(np.diff(change) > gap)
+            starts = np.r_[change[0], change[cut + 1]]
+            ends = np.r_[change[cut], change[-1]]
+            runs = list(zip(starts, ends))        # first and last change index (change k: g[k] -> g[k+1])
+        swings, leveling = [], []
+        i = 0
+        while i < len(runs):
+            a, b = runs[i]
+            f = g[a:b + 2, 1]
+            if f[-1] - f[0] >= min_lift_rad and f.max() - f[0] >= min_lift_rad and i + 1 < len(runs):
+                ks = change[(change >= a) & (change <= b)]
+                inc = d[ks]
+                # linear ramps: a new one starts where the per-write increment changes
+                new_ramp = np.r_[True, np.linalg.norm(inc[1:] - inc[:-1], axis=1)
+                                 > 0.2 * np.maximum(np.linalg.norm(inc[:-1], axis=1), 1e-9)]
+                ramp_starts = ks[new_ramp]
+                rising = [r for r in ramp_starts if d[r, 1] > 1e-6]
+                # the last ramp is swing-forward, the rising one before it swing-up; earlier
+                # ramps of the run are the leveling that ran straight into the swing
+                if len(ramp_starts) >= 2 and ramp_starts[-2] in rising:
+                    k_up, k_fwd = ramp_starts[-2], ramp_starts[-1]
+                else:
+                    k_up, k_fwd = (rising[-1] if rising else a), b + 1
+                if k_up > a:
+                    leveling.append((float(t[a]), float(t[k_up])))
+                a = k_up
+                c, e = runs[i + 1]
+                k = c + 1          # the first swing-down goal comes from the measured state: any direction
+                while k <= e and d[k, 1] <= 1e-9 and abs(d[k, 0]) <= 1e-6:
+                    k += 1
+                falls = np.flatnonzero(d[c:k, 1] < -1e-6)
+                if len(falls) and (falls[-1] + 1) * grid_s >= min_down_s:
+                    k_stop = c + falls[-1] + 1
+                    swings.append(Swing(float(t[a]), float(t[k_fwd]), float(t[c]), float(t[k_stop])))
+                    if k <= e:
+                        leveling.append((float(t[k]), float(t[e + 1])))
+                    i += 2
+                    continue
+            leveling.append((float(t[a]), float(t[b + 1])))
+            i += 1
+        out[leg] = LegPhases(tuple(swings), tuple(leveling))
+    return out
+
+
+def swing_segments(rec: Recording, legs, lift_off_s: float = 0.08, before_stop_s: float = 0.1,
+                   phases: dict | None = None, **kw) -> dict[int, list[tuple[float, float]]]:
+    """Free-leg spans of every leg in a walk: from ``lift_off_s`` after the swing-up starts (the foot
+    has left the ground) to ``before_stop_s`` before the swing-down stops (the detector stops the
+    leg some tens of ms after touchdown). See docs/discrepancy.md for how both were measured."""
+    phases = phases if phases is not None else gait_phases(rec, legs, **kw)
+    out = {}
+    for leg in legs:
         spans = []
-        k = 0
-        while k < n:
-            if d[k] <= 0 or (k > 0 and d[k - 1] > 0):
-                k += 1
-                continue
-            a = k                                        # a rise starts
-            while k < n and d[k] >= 0 and not np.all(d[k:k + n_hold] == 0):
-                k += 1
-            lift = g[k] - g[a]
-            if lift < min_lift_rad:
-                continue
-            fell = False
-            last_change = k
-            while k < n:
-                if d[k] < 0:
-                    fell = True
-                if d[k] != 0:
-                    last_change = k
-                if fell and np.all(d[k:k + n_hold] == 0):
-                    break                                # the leg holds: it stands
-                if fell and d[k] > 0 and g[min(k + n_hold, n)] - g[k] >= min_lift_rad:
-                    break                                # the next lift starts
-                k += 1
-            if not fell:
-                continue
-            t_a, t_b = t[a] + settle_s, t[last_change + 1] - before_stop_s
-            if t_b - t_a > 0.05:
-                spans.append((float(t_a), float(t_b)))
+        for sw in phases[leg].swings:
+            a, b = sw.t_up + lift_off_s, sw.t_stop - before_stop_s
+            if b - a > 0.05:
+                spans.append((a, b))
         out[leg] = spans
     return out
 
@@ -96,8 +180,10 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
     swing spans of :func:`swing_segments`. On a stand a femur fits the free-leg model as well
     outside its swings as inside (effects such as friction or play spread both ways); in a walk
     the body's weight pushes every stance femur above the prediction (median over the reads outside
-    the swings at least ``load_ticks`` above the median inside). A walk needs this on two femurs
-    (one if only one is read).
+    the swings at least ``load_ticks`` above the median inside). A walk needs this on two femurs:
+    a recording of one leg is never taken for a walk (a femur that cannot hold its goal, e.g. a
+    torque limit on a stand, also sits off the prediction between its motions; ``--mode walk``
+    forces the choice).
     """
     femurs = [j for j in replay.joints if j.endswith('_femur')]
     hits = 0
@@ -115,4 +201,44 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
         r = residual[j]
         if np.median(r[~inside]) - np.median(r[inside]) > load_ticks:
             hits += 1
-    return hits >= min(2, len(femurs)) and hits > 0
+    return hits >= 2
+
+
+def obstructed_swings(replay, residual: dict, settle_s: float = 0.1, factor: float = 3.0,
+                      margin_ticks: float = 0.5) -> dict[int, list[int]]:
+    """Swings in which something touched the leg: segment indices per leg to leave out.
+
+    A foot that brushes a block edge during swing-forward departs from the free-leg model in that
+    swing only, by several ticks, while a missing effect of the servo or the leg shows in every
+    swing of the joint alike. A swing is obstructed when on any joint of its leg the RMS of
+    ``residual`` (nominal model, reads at least ``settle_s`` after the segment start) exceeds
+    ``factor`` times the median over that joint's other swings plus ``margin_ticks``; the swings of
+    other legs at the same time are left out with it (the body they hang from was jolted).
+    """
+    out: dict[int, list[int]] = {}
+    for leg in replay.legs:
+        bad = set()
+        for j in replay.joints:
+            if int(j[3]) != leg:
+                continue
+            r = replay.reads[j]
+            starts = np.array([replay.segments[leg][i][0] * replay.dt for i in r.segment])
+            ok = r.t_s >= starts + settle_s
+            rms = {}
+            for i in np.unique(r.segment[ok]):
+                m = ok & (r.segment == i)
+                rms[int(i)] = float(np.sqrt(np.mean(residual[j][m] ** 2)))
+            if len(rms) < 2:
+                continue
+            for i, v in rms.items():      # against the median of the joint's other swings
+                med = float(np.median([w for k, w in rms.items() if k != i]))
+                if v > factor * med + margin_ticks:
+                    bad.add(i)
+        out[leg] = bad
+    # what hits one leg jolts the body all swinging legs hang from: their concurrent swings go too
+    hit = [replay.segments[leg][i] for leg, v in out.items() for i in v]
+    for leg in replay.legs:
+        for i, (ka, kb) in enumerate(replay.segments[leg]):
+            if any(ka < hb and ha < kb for ha, hb in hit):
+                out[leg].add(i)
+    return {leg: sorted(v) for leg, v in out.items()}

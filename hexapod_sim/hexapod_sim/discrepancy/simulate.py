@@ -51,11 +51,16 @@ class Replay:
     """Replays a recording through the model of any robot (nominal or with effects).
 
     ``segments``: optional dict leg -> list of (t_start, t_end) free-leg spans [s]; default one
-    span over the whole recording for every leg.
+    span over the whole recording for every leg. ``moving_start``: segments start in motion (a
+    walk's swing, from lift-off): the initial state is a straight line through the reads within
+    ``state_window_s`` of the start (position and velocity) instead of the latest read at rest.
     """
 
-    def __init__(self, robot: Robot, rec: Recording, joints=None, segments=None):
+    def __init__(self, robot: Robot, rec: Recording, joints=None, segments=None, moving_start: bool = False,
+                 state_window_s: float = 0.03):
         self.robot = robot
+        self.moving_start = moving_start
+        self.state_window_s = state_window_s
         self.rec = rec
         self.dt = robot.servo.control_period_s
         avail = rec.joints
@@ -106,9 +111,13 @@ class Replay:
             raise RecordingError(f'{rec.source}: no read falls inside the analysed time spans')
         # initial state of every segment: the latest read at or before its start (else the first after)
         self.q0: dict[tuple[int, int], np.ndarray] = {}
+        self.dq0: dict[tuple[int, int], np.ndarray] = {}
         for leg in self.legs:
             for i, (ka, _) in enumerate(self.segments[leg]):
-                self.q0[(leg, i)] = np.array([self._state_at(joint_name(leg, r), ka * self.dt) for r in JOINT_ROLES])
+                st = [self._moving_state_at(joint_name(leg, r), ka * self.dt) if moving_start
+                      else (self._state_at(joint_name(leg, r), ka * self.dt), 0.0) for r in JOINT_ROLES]
+                self.q0[(leg, i)] = np.array([x for x, _ in st])
+                self.dq0[(leg, i)] = np.array([v for _, v in st])
         # coxa inertia pose per segment: median commanded femur/tibia while the coxa moves
         self.coxa_pose: dict[tuple[int, int], tuple[float, float]] = {}
         for leg in self.legs:
@@ -151,6 +160,18 @@ class Replay:
         i = int(np.searchsorted(s.t_s, t, side='right')) - 1
         return float(s.theta_rad[max(i, 0)])
 
+    def _moving_state_at(self, j: str, t: float) -> tuple[float, float]:
+        """(angle, velocity) at ``t``: least-squares line through the reads within the state window."""
+        s = self.rec.states.get(j)
+        if s is None or len(s) == 0:
+            return self._state_at(j, t), 0.0
+        lo, hi = np.searchsorted(s.t_s, [t - self.state_window_s, t + self.state_window_s])
+        tt, q = s.t_s[lo:hi], s.theta_rad[lo:hi]
+        if len(tt) < 2 or np.ptp(tt) < 1e-3:
+            return self._state_at(j, t), 0.0
+        slope, icpt = np.polyfit(tt - t, q, 1)
+        return float(icpt), float(slope)
+
     # ------------------------------------------------------------------ prediction
     def rollout_leg(self, robot: Robot, leg: int, seg: int, which: str):
         """Rollout of one segment: ``which`` = 'ft' (femur+tibia) or 'coxa'. Returns (k0, q grid (n+1, 2))."""
@@ -160,10 +181,10 @@ class Replay:
             g = np.empty((kb - ka, 2))
             g[:, 0] = self.goals[joint_name(leg, 'femur')][ka:kb]
             g[:, 1] = self.goals[joint_name(leg, 'tibia')][ka:kb]
-            ro = LegModel(robot, leg).rollout(q0[1:], [0.0, 0.0], g)
+            ro = LegModel(robot, leg).rollout(q0[1:], self.dq0[(leg, seg)][1:], g)
             return ka, ro.q_rad
         ro = CoxaModel(robot, leg, self.coxa_pose[(leg, seg)]).rollout_coxa(
-            q0[0], 0.0, self.goals[joint_name(leg, 'coxa')][ka:kb])
+            q0[0], float(self.dq0[(leg, seg)][0]), self.goals[joint_name(leg, 'coxa')][ka:kb])
         return ka, ro.q_rad
 
     def predict_joints(self, robot: Robot, joints) -> dict[str, np.ndarray]:

@@ -20,6 +20,11 @@ Cases run one after the other by default; ``--jobs N`` runs them in N processes 
 Cases (magnitudes and joints drawn from ``--seed``): each effect alone on one joint (a payload on
 one leg), three effects on a whole leg, three robot-wide, two pairs at once, two clean runs.
 ``--make-demo DIR`` writes one concealed-effect bag (one leg, < 2 MB) and its truth next to it.
+
+``--set walk`` runs the same kinds of effects (drawn from ``--seed`` + 1000) on 20 s walks of the gait
+controller over the MuJoCo terrain instead (:func:`hexapod_locomotion.trial_runner.run_trial`, as
+``./hexapod demo``), the three gaits on flat ground and on the blocks in turn, plus a clean walk of
+every gait on both; ``--set all`` runs both sets. ``--make-walk-demo DIR`` writes the walk demo bag.
 """
 from __future__ import annotations
 
@@ -39,8 +44,8 @@ import yaml
 
 from hexapod_model.description import Effect, JOINT_ROLES, LEGS, effects_to_overlay, joint_name, load_robot, parse_joint_name
 
-from ..calibration import calibration_plan, run_calibration
-from .effects import BY_NAME
+from hexapod_sim.calibration import calibration_plan, run_calibration
+from hexapod_sim.discrepancy.effects import BY_NAME
 
 # Realistic AX-12A magnitudes (joint side) for the injected effects.
 RANGES = {
@@ -63,6 +68,13 @@ class Case:
     name: str
     effects: tuple[Effect, ...]
     speed_scale: float = 1.0
+    walk: tuple[str, str] | None = None     # (gait, terrain): a walk instead of the stand routine
+
+
+GAITS = ('tripod', 'tetrapod', 'pentapod')
+TERRAINS = ('flat', 'blocks')
+WALK_S = 20.0                 # simulated walking time of a walk case
+WALK_START_X = {'flat': 0.0, 'blocks': 0.45}   # on the blocks from the first step
 
 
 def _value(rng, effect: str) -> float:
@@ -111,9 +123,46 @@ def make_cases(seed: int, legs=LEGS) -> list[Case]:
     return cases
 
 
+def make_walk_cases(seed: int) -> list[Case]:
+    """Walk cases: the stand cases' effects and scopes, gaits and terrains in turn, and a clean walk
+    of every gait on flat ground and on the blocks."""
+    cases = []
+    for i, c in enumerate(make_cases(seed + 1000)):
+        if not c.effects:
+            continue
+        gait, terrain = GAITS[i % 3], TERRAINS[(i // 3) % 2]
+        cases.append(Case(f'{gait}/{terrain}:{c.name}', c.effects, walk=(gait, terrain)))
+    for terrain in TERRAINS:
+        for gait in GAITS:
+            cases.append(Case(f'{gait}/{terrain}:clean', (), walk=(gait, terrain)))
+    return cases
+
+
+def record_walk(case: Case, out_dir: Path, robot=None) -> tuple[Path, float]:
+    """Walk the MuJoCo hexapod with the case's effects (the gait controller, as ``./hexapod demo``); -> (bag, duration)."""
+    from hexapod_locomotion.trial_runner import TrialConfig, run_trial
+    gait, terrain = case.walk
+    bag = out_dir / ('walk_' + case.name.replace('@', '_at_').replace('+', '_and_').replace('/', '_').replace(':', '_'))
+    if bag.exists():
+        shutil.rmtree(bag)
+    overlays = ()
+    if case.effects:
+        ov = out_dir / (bag.name + '.truth.yaml')
+        ov.write_text(yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
+        overlays = (str(ov),)
+    cfg = TrialConfig(gait=gait, terrain=terrain, duration_s=WALK_S, course_end_m=3.0, record=str(bag),
+                      start_x_m=WALK_START_X[terrain], overlays=overlays)
+    with contextlib.redirect_stdout(io.StringIO()):
+        run_trial(cfg)
+    for ov in overlays:           # the tool only ever sees the bag
+        Path(ov).unlink()
+    from hexapod_sim.discrepancy.recording import load_recording
+    return bag, load_recording(bag, robot or load_robot()).duration_s
+
+
 def record_case(case: Case, out_dir: Path, legs=LEGS, robot=None, progress: bool = False) -> tuple[Path, float]:
     """Run the calibration routine on the MuJoCo sim with the case's effects; write the bag. -> (bag, duration)."""
-    from ..plant import HexapodSim
+    from hexapod_sim.plant import HexapodSim
     base = robot or load_robot()
     truth = base.with_effects(case.effects)
     plan = calibration_plan(base, legs=legs, speed_scale=case.speed_scale)
@@ -166,13 +215,13 @@ def run_case(job: tuple) -> dict:
     ``job`` = (case, legs, keep dir or None). Without a keep dir the bag lives in a temporary folder
     of the machine that runs the job and is deleted.
     """
-    from .cli import main as tool
+    from hexapod_sim.discrepancy.cli import main as tool
     case, legs, keep = job
     work = Path(keep) if keep else Path(tempfile.mkdtemp(prefix='discrepancy_bench_'))
     work.mkdir(parents=True, exist_ok=True)
     try:
         t0 = time.perf_counter()
-        bag, duration = record_case(case, work, legs=legs)
+        bag, duration = record_walk(case, work) if case.walk else record_case(case, work, legs=legs)
         t_sim = time.perf_counter() - t0
         js = work / (bag.name + '.json')
         t0 = time.perf_counter()
@@ -267,6 +316,33 @@ def make_demo(out_dir: Path, seed: int) -> None:
     print(f'demo bag {bag} ({duration:.1f} s, {size:.2f} MB); truth in {truth}')
 
 
+def make_walk_demo(out_dir: Path, seed: int) -> None:
+    """One concealed-effect walk bag (tripod over the blocks) and its truth in a separate file."""
+    rng = np.random.default_rng(seed)
+    leg = int(rng.choice(LEGS))
+    name = str(rng.choice(['mass_error', 'viscous_damping', 'coulomb_friction', 'readout_delay']))
+    joints = (tuple(joint_name(leg, r) for r in JOINT_ROLES) if name == 'mass_error'
+              else (joint_name(leg, str(rng.choice(('femur', 'tibia')))),))
+    case = Case('walk_demo', (_effect(rng, name, joints),), walk=('tripod', 'blocks'))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bag, duration = record_walk(case, out_dir)
+    final = out_dir / 'discrepancy_walk_demo'
+    if final.exists():
+        shutil.rmtree(final)
+    bag.rename(final)
+    for f in final.iterdir():                 # rosbag2 names its files after the directory
+        if f.name.startswith(bag.name):
+            f.rename(final / f.name.replace(bag.name, final.name, 1))
+    meta = final / 'metadata.yaml'
+    meta.write_text(meta.read_text().replace(bag.name, final.name))
+    truth = out_dir / 'discrepancy_walk_demo.truth.yaml'
+    truth.write_text('# Hidden truth of bags/discrepancy_walk_demo (the discrepancy tool never reads this file).\n'
+                     f'# Made by: discrepancy_bench --make-walk-demo {out_dir} --seed {seed}\n'
+                     + yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
+    size = sum(f.stat().st_size for f in final.iterdir()) / 1e6
+    print(f'walk demo bag {final} ({duration:.1f} s, {size:.2f} MB); truth in {truth}')
+
+
 def main(argv=None) -> int:
     from hexapod_model.cli_common import make_parser
     from hexapod_model.executor import ExecutorError, add_executor_options
@@ -274,17 +350,26 @@ def main(argv=None) -> int:
     ap.add_argument('--seed', type=int, default=0, help='draws the magnitudes and joints of the cases')
     ap.add_argument('--cases', nargs='+', metavar='NAME', help='run only these cases (names as in the table)')
     ap.add_argument('--legs', nargs='+', type=int, default=list(LEGS), help='legs the routine moves (default all)')
+    ap.add_argument('--set', choices=('stand', 'walk', 'all'), default='stand',
+                    help='stand: the calibration routine on a stand (default); walk: %d s walks of the three gaits '
+                         'on flat ground and the blocks; all: both' % WALK_S)
     ap.add_argument('--keep', metavar='DIR', help='keep the bags and JSON results here')
     ap.add_argument('--json', metavar='OUT.json', help='write the scored results here')
     ap.add_argument('--list', action='store_true', help='list the cases (names only, not the truth) and exit')
     ap.add_argument('--make-demo', metavar='DIR', help='write the demo bag and its truth file into DIR and exit')
     add_executor_options(ap, 'cases')
     ap.set_defaults(jobs=1)      # one case at a time unless asked: the s/min figures are per core
+    ap.add_argument('--make-walk-demo', metavar='DIR',
+                    help='write the walk demo bag (tripod over the blocks, one hidden effect) and its truth into DIR')
     args = ap.parse_args(argv)
     if args.make_demo:
         make_demo(Path(args.make_demo), args.seed)
         return 0
-    cases = make_cases(args.seed, args.legs)
+    if args.make_walk_demo:
+        make_walk_demo(Path(args.make_walk_demo), args.seed)
+        return 0
+    cases = ((make_cases(args.seed, args.legs) if args.set in ('stand', 'all') else [])
+             + (make_walk_cases(args.seed) if args.set in ('walk', 'all') else []))
     if args.list:
         print('\n'.join(c.name for c in cases))
         return 0
@@ -298,9 +383,14 @@ def main(argv=None) -> int:
     except ExecutorError as exc:
         print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 1
-    print(table(results))
-    print()
-    print(summary(results))
+    for label, part in (('stand calibration routine', [r for r, c in zip(results, cases) if not c.walk]),
+                        (f'walks ({WALK_S:g} s; gait/terrain:effect)', [r for r, c in zip(results, cases) if c.walk])):
+        if part:
+            print(f'{label}:')
+            print(table(part))
+            print()
+            print(summary(part))
+            print()
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2, default=float) + '\n')
     return 0
