@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..description import ServoParams
-from ..servo import theta_to_tick
+from hexapod_model.description import ServoParams
+from hexapod_model.servo import theta_to_tick
 
 KINDS = ('stamp_jump', 'out_of_order', 'out_of_range', 'speed')
 

@@ -130,7 +130,7 @@ def load_recording(path: str | Path, robot=None) -> Recording:
     """
     from .glitches import Glitch, screen
     if robot is None:
-        from ..description import load_robot
+        from hexapod_model.description import load_robot
         robot = load_robot()
     p = Path(path)
     if not p.exists():
