@@ -113,13 +113,13 @@ class DriverNode(Node):
 
         def on_read(joint, theta, stamp):
             js = JointState()
-            js.header.stamp = _stamp(stamp)
+            js.header.stamp = contract.stamp_msg(stamp)
             js.name, js.position = [joint], [theta]
             self.pub_states.publish(js)
 
         def on_write(stamp, goals):
             js = JointState()
-            js.header.stamp = _stamp(stamp)
+            js.header.stamp = contract.stamp_msg(stamp)
             js.name, js.position = list(goals), [float(v) for v in goals.values()]
             pub_cmd.publish(js)
 

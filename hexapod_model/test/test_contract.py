@@ -14,7 +14,9 @@ def test_stamp_parts_carries_into_seconds():
 def test_topic_names_are_relative_so_the_stack_runs_under_a_namespace():
     names = [v for k, v in vars(contract).items() if k.isupper() and isinstance(v, str)]
     assert len(names) >= 16
-    assert [n for n in names if n.startswith('/')] == [contract.CLOCK]     # use_sim_time listens on /clock
+    # use_sim_time listens on /clock; tf and diagnostics keep the global names the ROS tools listen on
+    assert sorted(n for n in names if n.startswith('/')) == sorted(
+        [contract.CLOCK, contract.TF, contract.TF_STATIC, contract.DIAGNOSTICS])
     assert contract.topic_key('/joint_states') == contract.topic_key('joint_states') == contract.JOINT_STATES
     assert contract.bag_topic(contract.SIM_TRUTH_POSE) == '/sim/body_pose'
     assert contract.bag_topic(contract.CLOCK) == '/clock'

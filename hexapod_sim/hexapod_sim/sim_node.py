@@ -129,6 +129,7 @@ class SimNode(Node):
         self.create_service(Trigger, contract.EMERGENCY_STOP, self._on_estop)
         # lock-step advances in _on_command only: a timer would just wake the executor 500 times a second
         self._timer = None if self.lockstep else self.create_timer(TIMER_PERIOD_S, self._on_timer)
+        self._anchored = False         # simulated time starts with the first tick, not during set-up
         self.get_logger().info(
             f'sim ready: terrain={p.terrain} seed={p.seed} t_com={self.sim.t_com_s * 1e3:g} ms '
             f'{"lockstep" if self.lockstep else f"real_time_factor={self.pacer.rtf:g}"} '
@@ -217,6 +218,9 @@ class SimNode(Node):
     # ------------------------------------------------------------------ stepping
     def _on_timer(self) -> None:
         with self._lock:
+            if not self._anchored:
+                self._anchored = True
+                self.pacer.reanchor()
             target = self.pacer.target()
             if target is not None and target - self.sim.now() > MAX_LAG_S:
                 self._warn_lag(target - self.sim.now())
@@ -327,7 +331,7 @@ class SimNode(Node):
 
     def _diagnostics(self, statuses, t_s: float) -> None:
         """/diagnostics (simulated time stamps); recorded as plain data (the byte level field)."""
-        self.pub[contract.DIAGNOSTICS].publish(diagnostics.diagnostic_array(statuses, stamp(t_s)))
+        self.pub[contract.DIAGNOSTICS].publish(diagnostics.diagnostic_array(statuses, stamp_msg(t_s)))
         if self.recorder is not None:
             with self._lock:
                 self.recorder.write(contract.DIAGNOSTICS, contract.MSG_TYPES[contract.DIAGNOSTICS],
