@@ -359,6 +359,11 @@ def test_stale_command_stream_holds_position(robot, emu):
         t_cmd = clock()
         clock.advance(0.09)                                        # younger than the timeout: nothing
         assert not any('holding' in t for t in events([b.step() for _ in range(3)]))
+        # wait (on a condition) until the servo has left its start, so "held where it was" is testable
+        slot = emu.servo(1).slot
+        t_end = time.monotonic() + 10.0
+        while emu.backend.sample(emu.now(), slot)[0] < 516 and time.monotonic() < t_end:
+            time.sleep(0.005)
         emu.log.clear()
         clock.advance(0.06)
         seen = [b.step()]

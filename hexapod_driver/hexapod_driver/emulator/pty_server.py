@@ -277,8 +277,6 @@ class BusEmulator:
                 self._send(reply, t_arrival, delay, n_in, entry)
 
     def _send(self, reply: bytes, t_arrival: float, delay: float, n_instruction_bytes: int, entry: 'LogEntry') -> None:
-        # stamped before the write: a master that reads the log on receipt finds them set
-        entry.t_reply, entry.wall_reply = self.now(), time.time()
         if self.wire_time:
             delay += (n_instruction_bytes + len(reply)) * p.BITS_PER_BYTE / self.baud_rate
         latency = self.faults.reply_latency_s
@@ -292,6 +290,8 @@ class BusEmulator:
         fd = self._master
         if fd is None:
             return
+        # stamped before the write: a master that reads the log on receipt finds them set
+        entry.t_reply, entry.wall_reply = self.now(), time.time()
         try:
             os.write(fd, reply)
         except OSError:
