@@ -67,11 +67,12 @@ class RobotStateNode(Node):
             raise DescriptionError(f'parameter tf_rate_hz must be > 0, got {rate}')
         self.tree = TfTree(robot)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        if TFMessage is None:          # said before the description goes out: a listener that has it has this too
+            self.get_logger().warning('tf2_msgs is not installed (apt install ros-jazzy-tf2-msgs): serving '
+                                      f'{contract.ROBOT_DESCRIPTION} only, no /tf')
         self.create_publisher(String, contract.ROBOT_DESCRIPTION, latched).publish(String(data=urdf_xml(robot)))
         self.create_subscription(JointState, contract.JOINT_STATES, self.on_joint_states, 200)
         if TFMessage is None:
-            self.get_logger().warning('tf2_msgs is not installed (apt install ros-jazzy-tf2-msgs): serving '
-                                      f'{contract.ROBOT_DESCRIPTION} only, no /tf')
             return
         self.pub_tf = self.create_publisher(TFMessage, contract.TF, 100)
         static = self.create_publisher(TFMessage, contract.TF_STATIC, latched)
