@@ -177,7 +177,7 @@ def spin_while_walking(executor, node: LocomotionNode) -> None:
 
 def main(args=None):
     rclpy.init(args=args)
-    node = None
+    node = ex = None
     try:
         node = LocomotionNode()
         # One thread is enough: no callback of this node waits (the controller runs in its own
@@ -198,6 +198,8 @@ def main(args=None):
         print(f'locomotion_node: {exc}', file=sys.stderr)
         raise SystemExit(2)
     finally:
+        if ex is not None:        # its pending tasks end with it, before the context goes (no Task.__del__ noise)
+            ex.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
