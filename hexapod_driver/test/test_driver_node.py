@@ -38,15 +38,8 @@ def start_node(port, extra=()):
     return subprocess.Popen(args, env=node_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def stop_node(proc, timeout=10.0):
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return proc.returncode, out
+def stop_node(proc):
+    return testing.stop_process(proc, timeout_s=10.0)
 
 
 @pytest.fixture(scope='module')

@@ -153,6 +153,17 @@ def existing_path(text: str) -> str:
     return text
 
 
+def new_directory(text: str) -> str:
+    """argparse type: a directory to create (e.g. a bag to write): must not exist, its parent must."""
+    p = Path(text)
+    if p.exists():
+        raise argparse.ArgumentTypeError(f'{text}: already exists (choose a new bag directory)')
+    parent = p.parent if str(p.parent) else Path('.')
+    if not parent.is_dir():
+        raise argparse.ArgumentTypeError(f'{text}: directory {parent} does not exist')
+    return text
+
+
 def output_file(extensions: Iterable[str] | Callable[[], Iterable[str]] | None = None):
     """argparse type: a file to write, in an existing directory, with one of ``extensions``.
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
+import subprocess
 import time
 from typing import Callable, Iterator
 
@@ -20,6 +22,19 @@ def node_env(domain_id: int, **extra: str) -> dict:
     """Environment for a node process of a test: its own domain, loopback only, unbuffered output."""
     return dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                 PYTHONUNBUFFERED='1', **extra)
+
+
+def stop_process(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 20.0) -> tuple[int, str]:
+    """Send ``sig`` (Ctrl-C by default) unless the process has ended, wait up to ``timeout_s``, kill it
+    if it does not stop; returns (return code, its whole output)."""
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        out, _ = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    return proc.returncode, out
 
 
 def installed_executable(pkg: str, name: str) -> str:

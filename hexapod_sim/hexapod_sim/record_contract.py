@@ -14,12 +14,13 @@ import sys
 import threading
 from pathlib import Path
 
-from hexapod_model.cli_common import make_parser, nonnegative_float
+from hexapod_model.cli_common import make_parser, new_directory, nonnegative_float
 
 
 def build_parser():
     ap = make_parser('record_contract', __doc__)
-    ap.add_argument('--out', required=True, metavar='BAG', help='bag directory to write (must not exist yet)')
+    ap.add_argument('--out', required=True, metavar='BAG', type=new_directory,
+                    help='bag directory to write (must not exist yet)')
     ap.add_argument('--duration', type=nonnegative_float, default=0.0, metavar='S',
                     help='stop after this many seconds (0: until Ctrl-C or SIGTERM)')
     return ap
@@ -45,10 +46,6 @@ def main(argv=None) -> int:
         ap.error(f'bad --ros-args: {str(exc).splitlines()[0]}')
     args = ap.parse_args(user)
     out = Path(args.out)
-    if out.exists():
-        ap.error(f'--out {out}: already exists (choose a new bag directory)')
-    if not out.parent.is_dir():
-        ap.error(f'--out {out}: directory {out.parent} does not exist')
 
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, make_parser,
-                                      positive_float)
+                                      new_directory, positive_float)
 
 
 def build_parser():
@@ -21,7 +21,8 @@ def build_parser():
     from hexapod_model.description import LEGS
     ap = make_parser('stand_calibration', __doc__)
     ap.add_argument('--device', default='/dev/hexapod_dynamixel', help='serial device of the Dynamixel bus')
-    ap.add_argument('--out', required=True, metavar='BAG', help='bag directory to write (must not exist yet)')
+    ap.add_argument('--out', required=True, metavar='BAG', type=new_directory,
+                    help='bag directory to write (must not exist yet)')
     ap.add_argument('--speed-scale', type=positive_float, default=0.5,
                     help='speed of the routine relative to the benchmark routine (1 = about one minute)')
     ap.add_argument('--legs', nargs='+', type=int, choices=LEGS, default=list(LEGS), metavar='LEG',
@@ -45,10 +46,6 @@ def main(argv=None) -> int:
     from hexapod_driver.config import DriverConfig
     from hexapod_driver.dynamixel_bus import DynamixelBus
     out = Path(args.out)
-    if out.exists():
-        ap.error(f'--out {out}: already exists (choose a new bag directory)')
-    if not out.parent.is_dir():
-        ap.error(f'--out {out}: directory {out.parent} does not exist')
     try:
         robot = load_robot(args.robot, overlays=args.overlay)
         plan = calibration_plan(robot, legs=tuple(sorted(set(args.legs))), phases=tuple(args.phases),

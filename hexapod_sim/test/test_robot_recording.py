@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 
+from hexapod_model import testing
 from hexapod_model.description import ALL_JOINTS, load_robot
 from hexapod_sim.discrepancy.recording import load_recording
 from hexapod_driver.emulator import BusEmulator
@@ -59,19 +60,7 @@ def test_stand_calibration_names_bad_input_and_leaves_nothing(robot, tmp_path, c
 
 
 def _env():
-    return dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-                PYTHONUNBUFFERED='1')
-
-
-def _stop(proc, sig=signal.SIGINT, timeout=20.0):
-    if proc.poll() is None:
-        proc.send_signal(sig)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return proc.returncode, out
+    return testing.node_env(DOMAIN_ID)
 
 
 def test_record_contract_records_the_driver_topics_into_a_contract_bag(robot, tmp_path):
@@ -107,8 +96,8 @@ def test_record_contract_records_the_driver_topics_into_a_contract_bag(robot, tm
             node.destroy_node()
             rclpy.try_shutdown(context=ctx)
         finally:
-            rc, out = _stop(rec, signal.SIGTERM)
-            _stop(driver)
+            rc, out = testing.stop_process(rec, signal.SIGTERM)
+            testing.stop_process(driver)
     assert rc == 0, out
     assert 'wrote' in out
     r = load_recording(bag, robot)
