@@ -233,7 +233,7 @@ def run_case(job: tuple) -> dict:
             raise RuntimeError(f'the tool failed on case {case.name} (exit {rc})')
         s = score(case, json.loads(js.read_text()))
         s.update(case=case.name, duration_s=duration, sim_s=t_sim, tool_s=t_tool,
-                 s_per_min=t_tool / (duration / 60.0), bag_mb=sum(f.stat().st_size for f in bag.iterdir()) / 1e6)
+                 s_per_min=t_tool / (duration / 60.0), bag_mb=_bag_mb(bag))
         return s
     finally:
         if not keep:
@@ -308,12 +308,20 @@ def make_demo(out_dir: Path, seed: int) -> None:
     case = Case('discrepancy_demo', (_effect(rng, name, (joint,)),))
     out_dir.mkdir(parents=True, exist_ok=True)
     bag, duration = record_case(case, out_dir, legs=(leg,), progress=True)
-    truth = out_dir / 'discrepancy_demo.truth.yaml'
-    truth.write_text('# Hidden truth of bags/discrepancy_demo (the discrepancy tool never reads this file).\n'
-                     f'# Made by: discrepancy_bench --make-demo {out_dir} --seed {seed}\n'
+    _write_demo_truth(bag, case, f'--make-demo {out_dir} --seed {seed}', duration)
+
+
+def _bag_mb(bag: Path) -> float:
+    return sum(f.stat().st_size for f in bag.iterdir()) / 1e6
+
+
+def _write_demo_truth(bag: Path, case: 'Case', made_with: str, duration_s: float, label: str = 'demo bag') -> None:
+    """The hidden truth of a demo bag, beside it in ``<bag>.truth.yaml``, and one line saying so."""
+    truth = bag.parent / f'{bag.name}.truth.yaml'
+    truth.write_text(f'# Hidden truth of bags/{bag.name} (the discrepancy tool never reads this file).\n'
+                     f'# Made by: discrepancy_bench {made_with}\n'
                      + yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
-    size = sum(f.stat().st_size for f in bag.iterdir()) / 1e6
-    print(f'demo bag {bag} ({duration:.1f} s, {size:.2f} MB); truth in {truth}')
+    print(f'{label} {bag} ({duration_s:.1f} s, {_bag_mb(bag):.2f} MB); truth in {truth}')
 
 
 def make_walk_demo(out_dir: Path, seed: int) -> None:
@@ -335,12 +343,7 @@ def make_walk_demo(out_dir: Path, seed: int) -> None:
             f.rename(final / f.name.replace(bag.name, final.name, 1))
     meta = final / 'metadata.yaml'
     meta.write_text(meta.read_text().replace(bag.name, final.name))
-    truth = out_dir / 'discrepancy_walk_demo.truth.yaml'
-    truth.write_text('# Hidden truth of bags/discrepancy_walk_demo (the discrepancy tool never reads this file).\n'
-                     f'# Made by: discrepancy_bench --make-walk-demo {out_dir} --seed {seed}\n'
-                     + yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
-    size = sum(f.stat().st_size for f in final.iterdir()) / 1e6
-    print(f'walk demo bag {final} ({duration:.1f} s, {size:.2f} MB); truth in {truth}')
+    _write_demo_truth(final, case, f'--make-walk-demo {out_dir} --seed {seed}', duration, 'walk demo bag')
 
 
 def main(argv=None) -> int:
