@@ -28,8 +28,8 @@ from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_STATES, POWER, 
 from hexapod_model.description import LEGS, DescriptionError, load_robot, parse_joint_name
 from hexapod_model.swing_model import LegModel
 
-from .detector import DetectorError, phase_from_fields, replay_swing_down
-from .metrics import MetricsError, cost_of_transport, roll_pitch_yaw, swing_down_variances
+from .detector import STOP_THETA_FIN, DetectorError, phase_from_fields, replay_swing_down
+from .metrics import MetricsError, roll_pitch_yaw, swing_down_variances, walk_cost_of_transport
 
 
 class AnalysisError(RuntimeError):
@@ -145,7 +145,7 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
             rows = defaultdict(list)
             try:
                 replay_swing_down(ph, reads, on_read=lambda r, rows=rows: rows[r.leg].append(
-                    (r.t_swing_s, r.err_tick, r.threshold_tick, r.stopped)))
+                    (r.t_swing_s, r.err_tick, r.threshold_tick, r.stopped, r.stop_reason)))
             except DetectorError as exc:
                 problems.append(f'swing-down {i} at t={t0:.3f} s, {det} detector: {exc}')
             res[det] = ph
@@ -199,7 +199,8 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
         tp, pw = np.array(power).T
         ps = np.array(pose)
         try:
-            out['cot'] = cost_of_transport(ps[:, 0], ps[:, 1:3], tp, pw, robot.total_mass_kg, robot.gravity_mps2)
+            out['cot'] = walk_cost_of_transport(ps[:, 0], ps[:, 1:3], tp, pw, swings[0][0], robot.total_mass_kg,
+                                                robot.gravity_mps2)
         except MetricsError as exc:
             out['cot'] = None
             out['cot_note'] = str(exc)
@@ -222,22 +223,25 @@ def _stats(values):
     return {'n': len(a), 'median': float(np.median(a)), 'max': float(a.max())}
 
 
-def plot(result: dict, path: Path) -> None:
+def plot(result: dict, path: Path) -> list[str]:
+    """The first swing-downs' error traces, both thresholds and where each detector stopped each leg
+    (threshold crossed, or theta_fin reached without a detection); returns the legend's labels."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     traces = result['_traces']
     if not traces:
-        return
+        return []
     fig, axes = plt.subplots(len(traces), 1, figsize=(9, 2.4 * len(traces)), squeeze=False)
     colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
+    seen = set()                       # each stop marker is named once in the legend
     for ax, tr in zip(axes[:, 0], traces):
         for slot, leg in enumerate(tr.legs):
             c = colours[slot % len(colours)]
             for det, style, mark in (('adaptive', '--', 'o'), ('fixed', ':', 's')):
                 rows = tr.traces.get(det, {}).get(leg, [])
                 n = next((i + 1 for i, r in enumerate(rows) if r[3]), len(rows))   # up to the stop
-                a = np.array(rows[:n]) if n else np.zeros((0, 4))
+                a = np.array(rows[:n]) if n else np.zeros((0, 5))
                 if not len(a):
                     continue
                 recorded = det == tr.detector
@@ -248,16 +252,26 @@ def plot(result: dict, path: Path) -> None:
                 else:
                     ax.plot(a[:, 0], a[:, 2], style, color='0.5', lw=1, label='fixed threshold' if slot == 0 else None)
                 if rows[n - 1][3]:      # this detector stopped the leg here (filled: the recorded detector)
-                    ax.plot(a[-1, 0], a[-1, 1], mark, color=c, ms=5, mfc=c if recorded else 'none',
-                            label=f'{det} stop' + (' (recorded)' if recorded else '') if slot == 0 else None)
-        ax.set_title(f'swing-down at t={tr.t_start_s:.2f} s, legs {tr.legs} (o adaptive stop, s fixed stop; filled: recorded)', fontsize=9)
+                    fin = rows[n - 1][4] == STOP_THETA_FIN      # no contact detected: the leg ran to theta_fin
+                    what = f'{det}: ran to theta_fin' if fin else f'{det} stop (threshold crossed)'
+                    label = what + (' (recorded)' if recorded else '')
+                    ax.plot(a[-1, 0], a[-1, 1], 'x' if fin else mark, color=c, ms=6 if fin else 5,
+                            mfc=c if recorded else 'none', label=None if label in seen else label)
+                    seen.add(label)
+        ax.set_title(f'swing-down at t={tr.t_start_s:.2f} s, legs {tr.legs} (o adaptive stop, s fixed stop, '
+                     f'x theta_fin reached; filled: recorded)', fontsize=9)
         ax.set_ylabel('lag [ticks]')
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel('time since swing-down start [s]')
-    axes[0, 0].legend(fontsize=6, ncol=4, loc='lower left', bbox_to_anchor=(0, 1.15))
+    legend = {}                        # every axes' labels (a stop kind may first occur further down)
+    for ax in axes[:, 0]:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(lab, h)
+    axes[0, 0].legend(legend.values(), legend.keys(), fontsize=6, ncol=4, loc='lower left', bbox_to_anchor=(0, 1.15))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+    return list(legend)
 
 
 def report_lines(r: dict, json_path: str | None = None) -> list[str]:

@@ -1,7 +1,8 @@
 """Performance indicators of the paper's Sec. 8, computed from time series. Pure numpy.
 
 * Cost of transport, Eq. 18: ``CoT = P / (m g v)`` with ``v = ds/dt`` over ``dt = 10 s`` windows
-  and the power averaged over the same windows (Sec. 8.3).
+  and the power averaged over the same windows (Sec. 8.3); for a walk the windows start at its first
+  swing-down (:func:`walk_cost_of_transport`, used by the demo and by ``analyse`` alike).
 * Stability, Fig. 11: per swing-down phase and leg, the variance of body pitch, roll and vertical
   acceleration from the IMU, sampled at 400 Hz while the legs swing down.
 * Ground-detection quality (only measurable in simulation): delay from true contact to detection,
@@ -29,37 +30,54 @@ class MetricsError(ValueError):
     """Not enough data to compute an indicator (the message says which)."""
 
 
-def windowed_speed_and_power(t_s, xy_m, t_power_s, power_w, window_s: float = 10.0):
-    """Per-window speed [m/s] (displacement over the window / window) and mean power [W]."""
+def windowed_speed_and_power(t_s, xy_m, t_power_s, power_w, window_s: float = 10.0, start_s: float | None = None):
+    """Per-window speed [m/s] (displacement over the window / window) and mean power [W].
+
+    The windows follow each other from ``start_s`` (default: the first pose sample) while a whole
+    window fits before the last pose sample. A power sample is the mean over the period before its
+    stamp (:class:`hexapod_sim.plant.PowerMeter`), so a window ``(start, end]`` averages the samples
+    stamped in it."""
     t = np.asarray(t_s, dtype=float)
     xy = np.asarray(xy_m, dtype=float)
     tp = np.asarray(t_power_s, dtype=float)
     p = np.asarray(power_w, dtype=float)
     if len(t) < 2 or len(tp) < 2:
         raise MetricsError('need at least two pose and two power samples')
-    if t[-1] - t[0] < window_s - 1e-9:
-        raise MetricsError(f'walk lasted {t[-1] - t[0]:.1f} s, shorter than one {window_s:.0f} s window')
+    start = t[0] if start_s is None else float(start_s)
+    if t[-1] - start < window_s - 1e-9:
+        raise MetricsError(f'walk lasted {max(t[-1] - start, 0.0):.1f} s, shorter than one {window_s:.0f} s window')
     speeds, powers = [], []
-    start = t[0]
     while start + window_s <= t[-1] + 1e-9:
         end = start + window_s
         a = np.array([np.interp(start, t, xy[:, i]) for i in range(xy.shape[1])])
         b = np.array([np.interp(end, t, xy[:, i]) for i in range(xy.shape[1])])
         speeds.append(np.linalg.norm(b - a) / window_s)
-        sel = (tp >= start) & (tp < end)
+        sel = (tp > start + 1e-9) & (tp <= end + 1e-9)
         powers.append(p[sel].mean() if sel.any() else np.interp(start + window_s / 2, tp, p))
         start = end
     return np.array(speeds), np.array(powers)
 
 
 def cost_of_transport(t_s, xy_m, t_power_s, power_w, mass_kg: float, gravity_mps2: float = 9.81,
-                      window_s: float = 10.0) -> dict:
+                      window_s: float = 10.0, start_s: float | None = None) -> dict:
     """Eq. 18 over 10 s windows; returns the mean CoT, speed and power, and the per-window values."""
-    v, p = windowed_speed_and_power(t_s, xy_m, t_power_s, power_w, window_s)
+    v, p = windowed_speed_and_power(t_s, xy_m, t_power_s, power_w, window_s, start_s)
     with np.errstate(divide='ignore'):
         cot = p / (mass_kg * gravity_mps2 * v)
     return {'cot': float(np.mean(cot)), 'speed_mps': float(np.mean(v)), 'power_w': float(np.mean(p)),
             'windows': len(v), 'cot_per_window': cot.tolist(), 'speed_per_window': v.tolist()}
+
+
+def walk_cost_of_transport(pose_t_s, pose_xy_m, power_t_s, power_w, first_swing_down_s: float, mass_kg: float,
+                           gravity_mps2: float) -> dict:
+    """Eq. 18 of a recorded walk: 10 s windows from the first swing-down on (the stand-up before the
+    first gait phase is no walking), over the body pose and the battery power samples.
+
+    ``./hexapod demo`` (from the samples it records) and ``./hexapod analyse`` (from the bag's
+    /sim/body_pose, /power and first /swing_down, which carry the same samples) both call this, so
+    one walk has one CoT."""
+    return cost_of_transport(pose_t_s, pose_xy_m, power_t_s, power_w, mass_kg, gravity_mps2,
+                             start_s=first_swing_down_s)
 
 
 def swing_down_variances(t_imu_s, roll_rad, pitch_rad, acc_z_mps2, intervals) -> list[dict]:

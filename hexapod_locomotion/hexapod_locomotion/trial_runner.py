@@ -18,14 +18,14 @@ import numpy as np
 from hexapod_model import diagnostics
 from hexapod_model.contract import (DIAGNOSTICS, GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
                                     SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN, stamp_dict, stamp_parts)
-from hexapod_model.description import ALL_JOINTS, LEGS, Robot, joint_name, load_robot, parse_joint_name
+from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name, load_robot, parse_joint_name
 from hexapod_model.kinematics import forward
 
-from .controller import GaitController, LocomotionError, LocomotionParams, PhaseReport, VelocityCommand
+from .controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
 from .detector import DetectorConfig, ReadResult, SwingDownPhase, swing_start_fields
 from .gait import get_gait
-from .metrics import (DetectionEvent, MetricsError, cost_of_transport, detection_quality, roll_pitch_yaw,
-                      swing_down_variances)
+from .metrics import (DetectionEvent, MetricsError, detection_quality, roll_pitch_yaw, swing_down_variances,
+                      walk_cost_of_transport)
 
 FALL_TILT_RAD = 0.6          # roll or pitch beyond this counts as a fall
 FALL_HEIGHT_M = 0.035        # trunk this close to the ground counts as a fall
@@ -82,12 +82,14 @@ class ProbeBus:
         self.pose_t: list[float] = []
         self.pose_xyz: list[np.ndarray] = []
         self.pose_quat: list[np.ndarray] = []
-        self.energy: list[float] = []
+        self.power_w: list[float] = []         # battery power, mean over each probe period (as /power)
         self.temps: list[np.ndarray] = []
         self.imu_t: list[float] = []
         self.imu_rpy: list[tuple] = []
         self.imu_acc_z: list[float] = []
         self.femur_reads: dict[int, list[tuple]] = {leg: [] for leg in LEGS}
+        from hexapod_sim.plant import PowerMeter
+        self._power_meter = PowerMeter(sim)
         self._probe()
 
     # -- ServoBus
@@ -142,11 +144,11 @@ class ProbeBus:
         t = self.sim.now()
         self._next_probe = t + self.probe_period_s
         pos, quat = self.sim.body_pose()
-        bat = self.sim.battery()
+        bat = self._power_meter.sample()
         self.pose_t.append(t)
         self.pose_xyz.append(pos)
         self.pose_quat.append(quat)
-        self.energy.append(bat.energy_j)
+        self.power_w.append(bat.power_w)
         temps = self.sim.temperatures_c()
         self.temps.append(temps)
         if self.on_probe is not None:
@@ -213,12 +215,13 @@ class ProbeBus:
 @dataclass
 class TrialResult:
     config: dict
-    sim_time_s: float
+    sim_time_s: float                   # walking time (after the stand-up)
+    walk_start_s: float                 # simulated time at which the walk began (the first gait phase)
     distance_m: float                   # net progress along x
     path_length_m: float                # length of the trunk's path (turning walks)
     fell: bool
     reached_course_end: bool
-    phases: int
+    phases: int                         # swing-down phases finished (every leg of the group stopped)
     cot: dict | None
     detection: dict | None
     stability: list[dict]
@@ -232,13 +235,17 @@ class TrialResult:
         return asdict(self)
 
 
-def _detection_events(robot: Robot, probe: ProbeBus, rep: PhaseReport, controller: GaitController,
+def _detection_events(robot: Robot, probe: ProbeBus, phase: SwingDownPhase,
                       detector: DetectorConfig) -> list[DetectionEvent]:
+    """Simulation truth for each leg of a finished swing-down (every leg has stopped)."""
     out = []
-    t_con = len(rep.legs) * probe.t_com_s
-    for o in rep.outcomes:
-        t_stop = rep.t_swing_down_start_s + o.stop_time_s
-        reads = [r for r in probe.femur_reads[o.leg] if rep.t_swing_down_start_s - 1e-9 <= r[0] <= t_stop + 0.1]
+    t_con = len(phase.legs) * probe.t_com_s
+    t0 = phase.t_start_s
+    goals = phase.goals(0)          # all legs stopped: the frozen goals, whatever the step
+    for leg in phase.legs:
+        st = phase.state[leg]
+        t_stop = st.stop_time_s
+        reads = [r for r in probe.femur_reads[leg] if t0 - 1e-9 <= r[0] <= t_stop + 0.1]
         in_swing = [r for r in reads if r[0] <= t_stop + 1e-9]
         t_contact = next((r[0] for r in in_swing if r[1]), math.nan)
         at_stop = in_swing[-1] if in_swing else None
@@ -246,12 +253,12 @@ def _detection_events(robot: Robot, probe: ProbeBus, rep: PhaseReport, controlle
         # acceleration is not a contact load)
         peak = max((abs(r[2]) for r in reads if math.isfinite(t_contact) and r[0] >= t_contact), default=math.nan)
         overshoot = math.nan
-        if at_stop is not None:
-            goal = controller.leg_angles(o.leg)
-            overshoot = float(forward(robot, o.leg, at_stop[3])[2] - forward(robot, o.leg, goal)[2])
-        floor = detector.epsilon_tick / o.femur_step_tick if detector.kind == 'adaptive' and o.femur_step_tick > 0 \
-            else math.nan
-        out.append(DetectionEvent(o.leg, detector.kind, rep.t_swing_down_start_s, t_stop, o.stop_reason, t_contact,
+        if at_stop is not None:       # the goal the leg was left at when it stopped vs where it truly was
+            goal = [goals[joint_name(leg, r)] for r in JOINT_ROLES]
+            overshoot = float(forward(robot, leg, at_stop[3])[2] - forward(robot, leg, goal)[2])
+        step = phase.femur_step_tick(leg)
+        floor = detector.epsilon_tick / step if detector.kind == 'adaptive' and step > 0 else math.nan
+        out.append(DetectionEvent(leg, detector.kind, t0, t_stop, st.stop_reason, t_contact,
                                   t_con, at_stop[2] if at_stop else math.nan, peak, overshoot, floor))
     return out
 
@@ -286,12 +293,14 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
                 frames.append(Image.fromarray(render_frame(s, renderer, distance=0.8, azimuth=120.0)))
             count[0] += 1
     probe = ProbeBus(sim, cfg.probe_period_s, recorder, on_probe, real_time=live is not None)
-    reports: list[PhaseReport] = []
+    swing_downs: list[SwingDownPhase] = []
+
+    def on_swing_start(phase):
+        swing_downs.append(phase)
+        probe.record_swing_start(phase)
     det = DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
     controller = GaitController(robot, get_gait(cfg.gait), LocomotionParams(t_des_s=cfg.t_des_s), det,
-                                t_com_s=sim.t_com_s, on_read=probe.record_detection, on_phase=reports.append,
-                                on_swing_start=probe.record_swing_start)
-    events: list[DetectionEvent] = []
+                                t_com_s=sim.t_com_s, on_read=probe.record_detection, on_swing_start=on_swing_start)
     warnings: list[str] = []
     fell = reached = False
     try:
@@ -306,11 +315,11 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
                 warnings.append(f'controller stopped: {exc}')
                 break
             except TimeLimitReached:
-                warnings.append(f'time limit {cfg.duration_s:g} s reached within a gait phase; '
-                                'that phase is not counted')
+                warnings.append(f'time limit {cfg.duration_s:g} s reached within a gait phase'
+                                + ('' if swing_downs and swing_downs[-1].done else
+                                   '; its swing-down is not counted'))
                 break
             warnings.extend(rep.warnings)
-            events.extend(_detection_events(robot, probe, rep, controller, det))
             pos, quat = sim.body_pose()
             roll, pitch, _ = roll_pitch_yaw(quat)
             if abs(roll) > FALL_TILT_RAD or abs(pitch) > FALL_TILT_RAD or pos[2] - sim.scene.terrain.height_at(pos[0], pos[1]) < FALL_HEIGHT_M:
@@ -337,10 +346,13 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     t = np.array(probe.pose_t)
     xyz = np.array(probe.pose_xyz)
     walk = t >= walk_start - 1e-9
-    energy = np.array(probe.energy)
-    power = np.gradient(energy[walk], t[walk]) if walk.sum() > 2 else np.array([])
+    finished = [ph for ph in swing_downs if ph.done]      # a swing-down cut off by the time limit is not counted
+    events = [e for ph in finished for e in _detection_events(robot, probe, ph, det)]
     try:
-        cot = cost_of_transport(t[walk], xyz[walk, :2], t[walk], power, robot.total_mass_kg, robot.gravity_mps2)
+        if not swing_downs:
+            raise MetricsError('no swing-down')
+        cot = walk_cost_of_transport(t, xyz[:, :2], t, probe.power_w, swing_downs[0].t_start_s,
+                                     robot.total_mass_kg, robot.gravity_mps2)
     except MetricsError as exc:
         cot = None
         warnings.append(f'CoT not computed: {exc}')
@@ -357,9 +369,9 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     tib = [ALL_JOINTS.index(joint_name(leg, 'tibia')) for leg in LEGS]
     step = max(1, int(round(1.0 / cfg.probe_period_s)))
     return TrialResult(
-        config=asdict(cfg), sim_time_s=float(sim.now() - walk_start), distance_m=float(xyz[-1, 0] - x0),
+        config=asdict(cfg), sim_time_s=float(sim.now() - walk_start), walk_start_s=float(walk_start), distance_m=float(xyz[-1, 0] - x0),
         path_length_m=float(np.sum(np.linalg.norm(np.diff(xyz[walk, :2], axis=0), axis=1))),
-        fell=fell, reached_course_end=reached, phases=len(reports), cot=cot, detection=detection,
+        fell=fell, reached_course_end=reached, phases=len(finished), cot=cot, detection=detection,
         stability=stability, temperature_femur_c=temps[::step, fem].mean(axis=1).tolist(),
         temperature_tibia_c=temps[::step, tib].mean(axis=1).tolist(), temperature_t_s=t[::step].tolist(),
         warnings=sorted(set(warnings)), events=[asdict(e) for e in events])

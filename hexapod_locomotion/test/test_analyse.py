@@ -35,6 +35,19 @@ def test_cli_json_and_plot(walk_bag, tmp_path, capsys):
     assert 'reproduces' in capsys.readouterr().out
 
 
+def test_plot_of_a_fixed_detector_bag_marks_what_the_fixed_detector_did(tmp_path):
+    """On the fixed-detector reference bag most legs run to theta_fin without a detection and one
+    crosses the 21-tick threshold: both are marked as the recorded detector's stops."""
+    from pathlib import Path
+
+    from hexapod_locomotion.analyse import plot
+    bag = Path(__file__).resolve().parents[2] / 'bags' / 'tripod_blocks_fixed'
+    labels = plot(rerun_detectors(str(bag)), tmp_path / 'fixed.png')
+    assert 'fixed: ran to theta_fin (recorded)' in labels
+    assert 'fixed stop (threshold crossed) (recorded)' in labels
+    assert 'adaptive stop (threshold crossed)' in labels and 'fixed threshold' in labels
+
+
 def test_bag_without_swing_downs_is_refused(tmp_path):
     with BagWriter(tmp_path / 'js') as w:
         w.write('/joint_states', 'sensor_msgs/msg/JointState', {'name': ['leg1_femur'], 'position': [0.1]}, 1000)
@@ -78,13 +91,35 @@ def test_truncated_bag_reports_the_cut_off_swing_down_as_incomplete(walk_bag, tm
 
 
 def test_demo_and_analyse_use_the_same_words_and_counts(walk_bag):
-    """The report names 'swing-down phases' and 'leg swing-downs' with the same numbers."""
+    """The demo's summary and analyse's report of one bag: 'swing-down phases' and 'leg swing-downs'
+    with the same numbers, and the same speed, power and CoT line (one function, the same samples,
+    windows from the first swing-down on)."""
     from hexapod_locomotion.analyse import report_lines
     from hexapod_locomotion.demo import summary_lines
     bag, res = walk_bag
-    demo_text = '\n'.join(summary_lines(res))
-    text = '\n'.join(report_lines(rerun_detectors(str(bag))))
+    demo = summary_lines(res)
+    r = rerun_detectors(str(bag))
+    report = [line.strip() for line in report_lines(r)]
     phases = f'{res.phases} swing-down phases'
     legs = f'{res.detection["swing_downs"]} leg swing-downs'
-    assert phases in demo_text and phases in text
-    assert legs in demo_text and legs in text
+    assert phases in '\n'.join(demo) and phases in '\n'.join(report)
+    assert legs in '\n'.join(demo) and legs in '\n'.join(report)
+    cot = next(line for line in demo if 'cost of transport' in line)
+    assert cot in report, (cot, report)
+    for k in ('cot', 'speed_mps', 'power_w', 'windows'):
+        assert r['cot'][k] == pytest.approx(res.cot[k], rel=1e-6), k     # float32 in the bag's /power
+
+
+def test_a_swing_down_finished_before_the_time_limit_is_counted_by_both(tmp_path):
+    """The time limit falls after the last swing-down's decisions but before its gait phase ends
+    (body leveling): the demo counts that swing-down, as analyse does from the bag."""
+    cfg = dict(gait='tripod', detector='adaptive', t_des_s=0.5, terrain='flat')
+    probe = run_trial(TrialConfig(**cfg, duration_s=1.5))
+    first = [e for e in probe.events if e['t_swing_start_s'] == probe.events[0]['t_swing_start_s']]
+    limit = max(e['t_stop_s'] for e in first) + 0.05       # 50 ms into the 0.3 s of body leveling
+    bag = tmp_path / 'cut'
+    res = run_trial(TrialConfig(**cfg, duration_s=limit - probe.walk_start_s, record=str(bag)))
+    assert any(w.startswith('time limit') for w in res.warnings), res.warnings
+    r = rerun_detectors(str(bag))
+    assert r['incomplete_swing_downs'] == []
+    assert res.phases == r['swing_downs'] == 1 and res.detection['swing_downs'] == r['legs_evaluated'] == 3

@@ -25,7 +25,7 @@ import numpy as np
 
 from hexapod_model.description import ALL_JOINTS, LEGS
 
-from .plant import FootContacts, HexapodSim, ImuSample, ServoTelemetry, SimError
+from .plant import FootContacts, HexapodSim, ImuSample, PowerMeter, ServoTelemetry, SimError
 
 
 @dataclass(frozen=True)
@@ -103,7 +103,7 @@ class SimBusLoop:
         self._timing = _Every(timing_period_s, 'timing_period_s')
         self._truth = _Every(truth_period_s, 'truth_period_s')
         self._clock = _Every(clock_period_s, 'clock_period_s')
-        self._last_energy = (sim.now(), sim.battery().energy_j)
+        self._power_meter = PowerMeter(sim)
         self._last_counts = dict(sim.bus_stats)
         self._imu_poll = _Every(IMU_POLL_S, 'IMU poll period')
         self._timers = (self._power, self._diag, self._timing, self._truth, self._clock, self._imu_poll)
@@ -190,11 +190,8 @@ class SimBusLoop:
         if self._clock.due(now) is not None:
             out.append(ClockTick(now))
         if self._power.due(now) is not None:
-            b = sim.battery()
-            t0, e0 = self._last_energy
-            p = (b.energy_j - e0) / (now - t0) if now > t0 else b.power_w
-            out.append(PowerSample(now, b.voltage_v, p / b.voltage_v, p, b.energy_j))
-            self._last_energy = (now, b.energy_j)
+            b = self._power_meter.sample()
+            out.append(PowerSample(now, b.voltage_v, b.current_a, b.power_w, b.energy_j))
         if self._diag.due(now) is not None:
             out.append(sim.servo_state())
         if self._truth.due(now) is not None:

@@ -589,6 +589,24 @@ class HexapodSim:
         return out
 
 
+class PowerMeter:
+    """The battery as a sampled power sensor reports it: voltage, and current and power averaged
+    over the period since the previous sample (energy drawn / time), so the mean of the samples
+    over any stretch of samples is the true mean power of that stretch. The sim node's /power and
+    the demo's recording both sample through it."""
+
+    def __init__(self, sim: HexapodSim):
+        self.sim = sim
+        self._last = (sim.now(), sim.battery().energy_j)
+
+    def sample(self) -> BatteryReading:
+        b = self.sim.battery()
+        t0, e0 = self._last
+        p = (b.energy_j - e0) / (b.t_s - t0) if b.t_s > t0 else b.power_w
+        self._last = (b.t_s, b.energy_j)
+        return BatteryReading(b.t_s, b.voltage_v, p / b.voltage_v, p, b.energy_j)
+
+
 def _rotate_to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """R(q)^T v for rows of unit quaternions q (w, x, y, z) and vectors v (world -> body).
 

@@ -9,7 +9,7 @@ from hexapod_model.description import ALL_JOINTS, Effect, joint_name, load_robot
 from hexapod_model.servo import firmware_torque_nm, quantize_tick, theta_to_tick, winding_loss_w
 from hexapod_model.swing_model import interpolated_goals, predict_swing_down
 from hexapod_sim.mjcf import FOOT_RADIUS_M
-from hexapod_sim.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, SimError
+from hexapod_sim.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, PowerMeter, SimError
 
 RAISED = [0.45, 0.1]     # femur, tibia at the end of swing-forward [rad] (as in the model's tests)
 BELOW = [-0.15, -0.05]   # theta_fin below the (absent) ground
@@ -433,6 +433,23 @@ def test_battery_idle_and_holding_power(robot):
     assert np.count_nonzero(tau) >= 2
     want = robot.electronics_idle_power_w + float(np.sum(winding_loss_w(tau, robot.servo)))
     assert held.battery().power_w == pytest.approx(want, abs=1e-3)
+
+
+def test_power_meter_samples_average_over_their_period(robot):
+    """/power samples (sim node and demo recording): each is the mean power since the previous one,
+    so the mean of the samples over a stretch is the energy drawn over it / its length, whatever the
+    instantaneous power did in between (a leg swinging here)."""
+    sim = HexapodSim(robot, fixed_base=True)
+    meter = PowerMeter(sim)
+    e0, samples = sim.battery().energy_j, []
+    for k in range(40):
+        sim.sync_write({'leg1_femur': 0.5 * math.sin(k / 4), 'leg1_tibia': 1.0})
+        sim.step(0.05)
+        samples.append(meter.sample())
+    b = sim.battery()
+    assert np.mean([s.power_w for s in samples]) == pytest.approx((b.energy_j - e0) / 2.0, rel=1e-9)
+    assert all(s.current_a * s.voltage_v == pytest.approx(s.power_w) for s in samples)
+    assert np.std([s.power_w for s in samples]) > 0.1          # the swinging leg did change the power
 
 
 def test_temperature_follows_the_first_order_thermal_model(robot):
