@@ -40,17 +40,46 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_sim', 'replay', ['nonexistent_bag']),
     ('hexapod_driver', 'servo_tool', ['scan', '--device', '/dev/nonexistent_tty']),
     ('hexapod_driver', 'servo_tool', ['set-id', '--to', '-3']),
+    # description, overlay and bag errors name the file the user edits or gave, once
+    ('hexapod_locomotion', 'demo', ['--overlay', 'NEG_OVERLAY']),
+    ('hexapod_locomotion', 'demo', ['--overlay', 'BAD_YAML']),
+    ('hexapod_sim', 'sim', ['--overlay', 'NEG_OVERLAY']),
+    ('hexapod_sim', 'sim', ['--record', 'BAG']),
+    ('hexapod_sim', 'discrepancy', ['EMPTY_DIR']),
+    ('hexapod_sim', 'discrepancy', ['BAG', '--overlay', 'NEG_OVERLAY']),
+    ('hexapod_locomotion', 'analyse', ['EMPTY_DIR']),
+    ('hexapod_locomotion', 'analyse', ['BAD_YAML']),
+    ('hexapod_sim', 'replay', ['EMPTY_DIR']),
+    ('hexapod_sim', 'replay', ['BAG', '--rate', 'nan']),
+    ('hexapod_model', 'bench_model', ['--repeats', '-1']),
+    ('hexapod_model', 'bench_model', ['--t-des', '0.0001']),
+    ('hexapod_sim', 'record_contract', ['--out', 'BAG']),
+    ('hexapod_sim', 'record_contract', ['--out', 'new_bag', '--duration', 'nan']),
+    ('hexapod_sim', 'stand_calibration', ['--out', 'new_bag', '--speed-scale', '-1']),
+    ('hexapod_locomotion', 'experiment', ['sweep', 't_des_s', 'nan']),
+    ('hexapod_locomotion', 'discrepancy_bench', ['--jobs', '0']),
+    ('hexapod_locomotion', 'cmd_vel_pub', ['--vx', 'nan']),
+    ('hexapod_locomotion', 'cmd_vel_pub', ['--duration', '-1']),
+    ('hexapod_locomotion', 'teleop_keyboard', ['--rate', 'nan']),
+    ('hexapod_locomotion', 'robot', ['--gait', 'bogus']),      # a node: parameters are -p NAME:=VALUE
+    ('hexapod_driver', 'driver_node', ['--device', '/dev/ttyUSB0']),
 ]
+ROS_NODES = {'robot', 'driver_node'}    # --help lists ROS parameters: 'name (default X): ...'
 
 
 @pytest.mark.parametrize('pkg, exe, args', CASES, ids=[f'{c[1]} {" ".join(c[2])}' for c in CASES])
 def test_bad_input_is_one_line_and_leaves_nothing(tmp_path, pkg, exe, args):
+    raw = args
     script = INSTALL / pkg / 'lib' / pkg / exe
     assert script.exists(), script
-    overlay = tmp_path / 'typo_overlay.yaml'
-    overlay.write_text('efects: []\n')
-    bag = ROOT / 'bags' / 'tripod_blocks_fixed'
-    args = [str(overlay) if a == 'OVERLAY' else str(bag) if a == 'BAG' else a for a in args]
+    files = {'OVERLAY': tmp_path / 'typo_overlay.yaml', 'NEG_OVERLAY': tmp_path / 'negative_mass.yaml',
+             'BAD_YAML': tmp_path / 'broken.yaml', 'EMPTY_DIR': tmp_path / 'empty_dir',
+             'BAG': ROOT / 'bags' / 'tripod_blocks_fixed'}
+    files['OVERLAY'].write_text('efects: []\n')
+    files['NEG_OVERLAY'].write_text('total_mass_kg: -1\n')
+    files['BAD_YAML'].write_text('servo: [unclosed\n')
+    files['EMPTY_DIR'].mkdir()
+    args = [str(files[a]) if a in files else a for a in args]
     run_dir = tmp_path / 'cwd'
     run_dir.mkdir()
     bags = tmp_path / 'bags'
@@ -63,6 +92,14 @@ def test_bad_input_is_one_line_and_leaves_nothing(tmp_path, pkg, exe, args):
     assert 'Traceback' not in res.stderr and 'warnings.warn' not in res.stderr
     assert err[0].startswith(f'./hexapod {exe}') and ': error: ' in err[0], err[0]
     assert list(run_dir.iterdir()) == [] and list(bags.iterdir()) == []      # nothing created
+    assert list((tmp_path / 'empty_dir').iterdir()) == []
+    # a file is named as the user gave it or by its source (never the copy under build/ or install/), once
+    assert '/build/' not in err[0] and '/install/' not in err[0], err[0]
+    for a in args:
+        if a.startswith(str(tmp_path)) or a.startswith(str(ROOT)):
+            assert err[0].count(a) <= 1, err[0]
+    if 'NEG_OVERLAY' in raw:
+        assert f'merged over {ROOT}/hexapod_model/hexapod_model/data/robot.yaml' in err[0], err[0]
 
 
 @pytest.mark.parametrize('pkg, exe', sorted({(c[0], c[1]) for c in CASES}))
@@ -72,6 +109,6 @@ def test_help_names_the_hexapod_command_and_shows_defaults(pkg, exe):
     res = subprocess.run([str(script), '--help'], env=env, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert res.stdout.startswith(f'usage: ./hexapod {exe} ')
-    assert '(default: ' in ' '.join(res.stdout.split())
+    assert ('(default ' if exe in ROS_NODES else '(default: ') in ' '.join(res.stdout.split())
     first = next(line for line in res.stdout.split('\n\n')[1].splitlines() if line.strip())
     assert res.stdout.count(first.strip()) == 1          # the description is printed once

@@ -31,8 +31,9 @@ from std_srvs.srv import Trigger
 
 from hexapod_model import contract, diagnostics
 from hexapod_model.bus import BusError
+from hexapod_model.cli_common import prog_name
 from hexapod_model.description import ALL_JOINTS, DescriptionError
-from hexapod_model.node_params import NodeParams
+from hexapod_model.node_params import NodeParams, node_command_line
 from hexapod_model.param_schema import ParameterError, RobotSource, help_lines
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoStatus
 from hexapod_msgs.srv import SetReadSchedule
@@ -320,26 +321,24 @@ class DriverNode(Node):
             print(f'[hexapod_driver] {text}', file=sys.stderr, flush=True)
 
 
-HELP = """usage: driver_node [-h] [--ros-args -p NAME:=VALUE ...]
+HELP = """usage: {prog} [-h] [--ros-args -p NAME:=VALUE ...]
 
 The AX-12A bus as ROS 2 topics (see docs/real-robot.md). Servo IDs, mounting directions and offsets
 come from the robot description (robot_description + robot_overlays). Parameters (-p NAME:=VALUE):
 """
 
 
-def print_help() -> None:
-    lines = [HELP, *help_lines(NODE.schemas, NODE.defaults())]
+def help_text() -> str:
+    lines = [HELP.format(prog=prog_name('driver_node')), *help_lines(NODE.schemas, NODE.defaults())]
     lines.append(f'\nExit codes: {EXIT_OK} clean shutdown; {EXIT_STARTUP} bad parameter or start-up failure; '
                  f'{EXIT_BUS_LOOP_CRASH} the bus loop crashed (torque turned off, ERROR on /servo_diagnostics).')
-    print('\n'.join(lines))
+    return '\n'.join(lines)
 
 
 def main(args=None) -> int:
-    argv = sys.argv[1:] if args is None else list(args)
-    own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
-    if '-h' in own or '--help' in own:
-        print_help()                     # never opens the serial device
-        return EXIT_OK
+    rc = node_command_line(args, 'driver_node', help_text)      # --help never opens the serial device
+    if rc is not None:
+        return rc
     rclpy.init(args=args)
     node = None
     rc = EXIT_OK

@@ -22,6 +22,7 @@ import sys
 import threading
 import time
 
+from hexapod_model.cli_common import make_parser, prog_name
 from hexapod_model.contract import CMD_VEL
 
 from .controller import LocomotionError, VelocityCommand
@@ -32,13 +33,6 @@ ACK_TIMEOUT_S = 1.0    # wait this long for subscribers to acknowledge the final
 
 class CliError(Exception):
     """Bad command-line input; the message is the one line shown to the user."""
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """argparse with a one-line error message (exit 2) instead of usage + error."""
-
-    def error(self, message):
-        self.exit(2, f'{self.prog}: {message} (see --help)\n')
 
 
 def check_velocity(vx: float, vy: float, wz: float) -> VelocityCommand:
@@ -157,9 +151,8 @@ def finish_ros(node, pub) -> bool:
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    ap = OneLineParser(prog='cmd_vel_pub', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-                       description='Publish a fixed geometry_msgs/Twist on cmd_vel at a fixed rate, then a zero '
-                                   'Twist. Also accepts --ros-args (e.g. -r cmd_vel:=/other).')
+    ap = make_parser('cmd_vel_pub', 'Publish a fixed geometry_msgs/Twist on cmd_vel at a fixed rate, then a zero\n'
+                                    'Twist. Also accepts --ros-args (e.g. -r cmd_vel:=/other).')
     ap.add_argument('--vx', type=float, default=0.0, help='forward speed [m/s]')
     ap.add_argument('--vy', type=float, default=0.0, help='leftward speed [m/s]')
     ap.add_argument('--wz', type=float, default=0.0, help='yaw rate, counter-clockwise [rad/s]')
@@ -176,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
         rate = check_number('--rate', args.rate, positive=True)
         duration = check_number('--duration', args.duration)
     except CliError as exc:
-        print(f'cmd_vel_pub: {exc}', file=sys.stderr)
+        print(f'{prog_name("cmd_vel_pub")}: error: {exc}', file=sys.stderr)
         return 2
     warning = rate_warning(rate, controller_cmd_vel_timeout_s())
     if warning:
@@ -210,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
             executor.spin_once(timeout_sec=min(0.1, max(0.0, t_end - time.monotonic())))
         executor.shutdown()
     except CliError as exc:
-        print(f'cmd_vel_pub: {exc}', file=sys.stderr)
+        print(f'{prog_name("cmd_vel_pub")}: error: {exc}', file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -13,7 +13,7 @@ from typing import Mapping
 
 import yaml
 
-from hexapod_model.description import LEGS
+from hexapod_model.description import LEGS, source_path, yaml_problem
 
 
 class GaitError(ValueError):
@@ -55,7 +55,7 @@ class Gait:
 
 def gaits_from_mapping(data: Mapping) -> dict[str, Gait]:
     if not isinstance(data, Mapping):
-        raise GaitError('gait file: expected a mapping name -> {groups: [[legs...], ...]}')
+        raise GaitError('expected a mapping name -> {groups: [[legs...], ...]}')
     out = {}
     for name, spec in data.items():
         if not isinstance(spec, Mapping) or 'groups' not in spec:
@@ -70,12 +70,17 @@ def gaits_from_mapping(data: Mapping) -> dict[str, Gait]:
 
 def load_gaits(path: str | Path | None = None) -> dict[str, Gait]:
     """Gaits from a YAML file (default: the packaged ``gaits.yaml``)."""
-    p = Path(path) if path else Path(str(resources.files('hexapod_locomotion').joinpath('data/gaits.yaml')))
+    p = source_path(path if path else str(resources.files('hexapod_locomotion').joinpath('data/gaits.yaml')))
     try:
         data = yaml.safe_load(p.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise GaitError(f'cannot load gaits from {p}: {exc}') from exc
-    return gaits_from_mapping(data)
+    except OSError as exc:
+        raise GaitError(f'{p}: cannot read: {exc.strerror or exc}') from None
+    except yaml.YAMLError as exc:
+        raise GaitError(f'{p}: not valid YAML: {yaml_problem(exc)}') from None
+    try:
+        return gaits_from_mapping(data)
+    except GaitError as exc:
+        raise GaitError(f'{p}: {exc}') from None
 
 
 def get_gait(name: str, path: str | Path | None = None) -> Gait:

@@ -25,7 +25,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from hexapod_model.bus import BusError
 from hexapod_model.description import DescriptionError
-from hexapod_model.node_params import NodeParams, report
+from hexapod_model.node_params import NodeParams, node_command_line, report
 from hexapod_model.param_schema import ParameterError
 
 from .controller import LocomotionError
@@ -56,7 +56,21 @@ def _bus_master(hardware: str):
     return node, node.local_bus(), node.close
 
 
+def help_text() -> str:
+    from hexapod_model.cli_common import prog_name
+    from hexapod_model.param_schema import help_lines
+
+    from .params import NODE
+    lines = [f'usage: {prog_name("robot")} [-h] [--ros-args -p NAME:=VALUE ...]', '', __doc__.strip(), '',
+             'Parameters (-p NAME:=VALUE), besides those of sim_node / driver_node and model_node:',
+             *help_lines((ComposedParams, *NODE.schemas))]
+    return '\n'.join(lines)
+
+
 def main(args=None) -> None:
+    rc = node_command_line(None if args is None else list(args)[1:], 'robot', help_text)
+    if rc is not None:
+        raise SystemExit(rc)
     from hexapod_model.model_node import ModelNode
     from hexapod_sim.plant import SimError
 

@@ -24,7 +24,9 @@ import sys
 import threading
 from dataclasses import dataclass
 
-from .cmd_vel_pub import (CliError, OneLineParser, StopFlag, check_number, finish_ros, start_ros, twist,
+from hexapod_model.cli_common import make_parser, prog_name
+
+from .cmd_vel_pub import (CliError, StopFlag, check_number, finish_ros, start_ros, twist,
                           user_args)
 from .controller import LocomotionParams, VelocityCommand
 from .gait import load_gaits
@@ -117,10 +119,10 @@ def keys_from_bytes(data: bytes) -> list[str]:
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     max_lin, max_ang = controller_limits()
-    ap = OneLineParser(prog='teleop_keyboard', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-                       description='Drive the robot from the keyboard on cmd_vel (needs a terminal; for scripts '
-                                   'use cmd_vel_pub). Keys: w/x forward/back, a/d turn, j/l strafe, s or space '
-                                   'stop, q quit. Also accepts --ros-args (e.g. -r cmd_vel:=/other).')
+    ap = make_parser('teleop_keyboard',
+                     'Drive the robot from the keyboard on cmd_vel (needs a terminal; for scripts\n'
+                     'use ./hexapod cmd-vel). Keys: w/x forward/back, a/d turn, j/l strafe, s or space '
+                     'stop, q quit. Also accepts --ros-args (e.g. -r cmd_vel:=/other).')
     ap.add_argument('--lin-step', type=float, default=0.005, help='vx / vy change per key press [m/s]')
     ap.add_argument('--ang-step', type=float, default=0.02, help='wz change per key press [rad/s]')
     ap.add_argument('--max-lin', type=float, default=round(max_lin, 4),
@@ -143,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         teleop = Teleop(args.lin_step, args.ang_step, args.max_lin, args.max_ang)
         rate = check_number('--rate', args.rate, positive=True)
     except CliError as exc:
-        print(f'teleop_keyboard: {exc}', file=sys.stderr)
+        print(f'{prog_name("teleop_keyboard")}: error: {exc}', file=sys.stderr)
         return 2
     fd = sys.stdin.fileno()
     if not os.isatty(fd):
@@ -203,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
                     break
             _show(teleop.status())
     except CliError as exc:
-        print(f'teleop_keyboard: {exc}', file=sys.stderr)
+        print(f'{prog_name("teleop_keyboard")}: error: {exc}', file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -338,11 +338,11 @@ def test_teleop_without_a_terminal():
 def test_teleop_bad_flag_is_one_line():
     res = subprocess.run([executable('teleop_keyboard'), '--rate', '-5'], env=proc_env(),
                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=WAIT_S)
-    assert res.returncode == 2 and res.stderr.strip().splitlines() == ['teleop_keyboard: --rate must be > 0, got -5.0']
+    assert res.returncode == 2 and res.stderr.strip().splitlines() == ['teleop_keyboard: error: --rate must be > 0, got -5.0']
 
 
 def test_teleop_bad_ros_args_is_one_line():
     res = subprocess.run([executable('teleop_keyboard'), '--ros-args', '-r', 'cmd_vel:=1bad name'], env=proc_env(),
                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=WAIT_S)
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
-    assert res.stderr.startswith('teleop_keyboard: bad --ros-args: ')
+    assert res.stderr.startswith('teleop_keyboard: error: bad --ros-args: ')

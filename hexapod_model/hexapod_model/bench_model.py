@@ -16,10 +16,10 @@ TARGET_MS = 0.3
 
 
 def main(argv=None) -> None:
-    from .cli_common import make_parser
+    from .cli_common import fail, make_parser, positive_float, positive_int
     ap = make_parser('bench_model', __doc__.splitlines()[0])
-    ap.add_argument('--repeats', type=int, default=500)
-    ap.add_argument('--t-des', type=float, default=2.0, help='swing-down duration [s]')
+    ap.add_argument('--repeats', type=positive_int, default=500, help='timed predictions')
+    ap.add_argument('--t-des', type=positive_float, default=2.0, help='swing-down duration [s]')
     args = ap.parse_args(argv)
     robot = load_robot()
     legs = [1, 6, 3]
@@ -27,6 +27,8 @@ def main(argv=None) -> None:
     fin = np.array([[-0.15, -0.05]] * 3)
     t_com = robot.bus.t_com_s
     n_steps = int(round(args.t_des / (len(legs) * t_com)))      # exactly t_des of control steps
+    if n_steps < 1:
+        fail(ap, f'--t-des {args.t_des:g} is shorter than one control period ({len(legs) * t_com * 1e3:g} ms)')
     models = {leg: LegModel(robot, leg) for leg in legs}
     t0 = time.perf_counter()
     predict_swing_down(robot, legs, init, fin, args.t_des, t_com, n_steps=n_steps, models=models)

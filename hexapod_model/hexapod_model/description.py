@@ -490,6 +490,16 @@ def source_path(path: str | Path) -> Path:
         return p
 
 
+def yaml_problem(exc: yaml.YAMLError) -> str:
+    """What is wrong in a YAML file and where, on one line ('line 3, column 1: expected ...'),
+    without PyYAML's multi-line excerpt and its '"<unicode string>"' stream name."""
+    mark = getattr(exc, 'problem_mark', None)
+    problem = ' '.join(str(getattr(exc, 'problem', None) or exc).split())
+    context = ' '.join(str(getattr(exc, 'context', None) or '').split())
+    where = f'line {mark.line + 1}, column {mark.column + 1}: ' if mark is not None else ''
+    return where + (f'{context}: ' if context else '') + problem
+
+
 def _read_yaml(path: Path) -> dict[str, Any]:
     try:
         text = Path(path).read_text()
@@ -500,7 +510,7 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise DescriptionError(f'{path}: not valid YAML: {" ".join(str(exc).split())}') from None
+        raise DescriptionError(f'{path}: not valid YAML: {yaml_problem(exc)}') from None
     if not isinstance(data, Mapping):
         raise DescriptionError(f'{path}: expected a YAML mapping at the top level')
     return dict(data)

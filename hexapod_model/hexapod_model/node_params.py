@@ -129,6 +129,26 @@ def _with_default(spec: ParamSpec, default) -> ParamSpec:
     return replace(spec, default=default)
 
 
+def node_command_line(argv: list[str] | None, exe: str, help_text: Callable[[], str]) -> int | None:
+    """The part of a node's command line before ``--ros-args``: ``-h``/``--help`` prints
+    ``help_text()`` (nothing is started, no device opened) and exit code 0 is returned; any other
+    argument there (which rclpy would silently ignore, e.g. ``--gait bogus`` for ``-p gait:=bogus``)
+    is refused in one line and 2 is returned; ``None``: start the node. ``argv`` without the
+    program name (default ``sys.argv[1:]``)."""
+    from .cli_common import prog_name
+    argv = sys.argv[1:] if argv is None else list(argv)
+    own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
+    if '-h' in own or '--help' in own:
+        print(help_text())
+        return 0
+    if own:
+        prog = prog_name(exe)
+        print(f'{prog}: error: unrecognized arguments: {" ".join(own)} (parameters are given as '
+              f'--ros-args -p NAME:=VALUE; see {prog} --help)', file=sys.stderr, flush=True)
+        return 2
+    return None
+
+
 def report(node_name: str, exc: ParameterError) -> int:
     """Print the one line for a refused start value; the exit code to use."""
     print(f'{node_name}: {exc}', file=sys.stderr, flush=True)

@@ -81,8 +81,10 @@ def test_unreadable_and_non_yaml(tmp_path):
     assert str(info.value).count('missing.yaml') == 1          # the path once, not two or three times
     p = tmp_path / 'bad.yaml'
     p.write_text('servo: [unclosed')
-    with pytest.raises(DescriptionError, match='not valid YAML'):
+    with pytest.raises(DescriptionError, match=f'^{p}: not valid YAML: line 1, column 17: ') as info:
         load_robot(p)
+    assert '\n' not in str(info.value) and 'unicode string' not in str(info.value)   # one line, the file once
+    assert str(info.value).count('bad.yaml') == 1
 
 
 def test_overlay_merges_and_resolves_effects(tmp_path, robot):

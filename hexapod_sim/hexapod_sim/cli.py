@@ -74,6 +74,14 @@ def main(argv=None) -> int:
     if args.urdf is not None:
         return _write_urdf(ap, args)
     if args.render is None and args.video is None and args.mjcf is None:
+        from .recorder import RecorderError, check_bag_dir, resolve_bag_dir
+        try:                  # a bad overlay or bag place is named here, in this command's words, before the node starts
+            load_robot(overlays=args.overlay)
+            if args.record:
+                check_bag_dir(resolve_bag_dir(args.record))
+        except (DescriptionError, RecorderError) as exc:
+            print(f'{ap.prog}: error: {exc}', file=sys.stderr)
+            return 2
         from . import sim_node
         ros = ['sim', '--ros-args', '-p', f'terrain:={args.terrain}', '-p', f'seed:={args.seed}',
                '-p', f'real_time_factor:={float(args.rtf)}', '-p', f'lockstep:={str(args.lockstep).lower()}',

@@ -139,7 +139,7 @@ def load_recording(path: str | Path, robot=None) -> Recording:
     try:
         series = joint_series(BagReader(str(p)), log_time=True)
     except BagError as exc:
-        raise RecordingError(f'{p}: {exc}') from None
+        raise RecordingError(str(exc) if str(exc).startswith(str(p)) else f'{p}: {exc}') from None   # named once
     for topic, d in series.items():
         for j, a in d.items():
             if not np.all(np.isfinite(a[:, :2])):
