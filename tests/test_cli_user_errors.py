@@ -45,6 +45,7 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_locomotion', 'demo', ['--overlay', 'BAD_YAML']),
     ('hexapod_sim', 'sim', ['--overlay', 'NEG_OVERLAY']),
     ('hexapod_sim', 'sim', ['--record', 'BAG']),
+    ('hexapod_locomotion', 'demo', ['--record', '/proc/no_bag_here']),   # looks writable to root, is not
     ('hexapod_sim', 'discrepancy', ['EMPTY_DIR']),
     ('hexapod_sim', 'discrepancy', ['BAG', '--overlay', 'NEG_OVERLAY']),
     ('hexapod_locomotion', 'analyse', ['EMPTY_DIR']),

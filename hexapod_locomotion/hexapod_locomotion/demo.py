@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from pathlib import Path
 
 from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, fail, finite_float, make_parser,
                                       nonnegative_int, output_file, port_number, positive_float)
@@ -103,6 +104,14 @@ def main(argv=None) -> int:
             live = LiveView(args.foxglove, name='hexapod demo')
         except LiveViewError as exc:
             fail(ap, str(exc))
+    if bag:          # the last check: a place that looks writable may still refuse (root under /proc)
+        try:
+            Path(bag).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            if live is not None:
+                live.close()
+            fail(ap, f'{bag}: cannot create the bag directory: {exc.strerror or exc}')
+    if live is not None:
         print(f'live view: {live.url} (Foxglove app: Open connection -> Foxglove WebSocket)', flush=True)
     cfg = TrialConfig(gait=args.gait, detector=args.detector, t_des_s=args.t_des, terrain=args.terrain,
                       seed=args.seed, duration_s=args.duration, course_end_m=args.course_end, record=bag,

@@ -55,6 +55,7 @@ from hexapod_msgs.srv import SetReadSchedule
 from .live import LiveView, LiveViewError
 from .params import SimParams
 from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
+from .bagio import BagError
 from .recorder import Recorder, resolve_bag_dir
 from .plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
 from .bus_master_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
@@ -383,7 +384,7 @@ def main(args=None) -> None:
     except RCLError:
         if rclpy.ok():          # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
             raise
-    except (ParameterError, DescriptionError, SimError) as exc:
+    except (ParameterError, DescriptionError, SimError, BagError) as exc:
         raise SystemExit(report('sim_node', exc))      # one line, exit 1: nothing was started
     finally:
         if node is not None:

@@ -87,7 +87,10 @@ class BagWriter:
         if self.path.exists() and (not self.path.is_dir() or any(self.path.iterdir())):
             raise BagError(f'{self.path} already exists and is not an empty directory; refusing to '
                            'overwrite a recording')
-        self.path.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:           # e.g. under /proc: the parent looks writable but is not
+            raise BagError(f'{self.path}: cannot create the bag directory: {exc.strerror or exc}') from None
         self.mcap_path = self.path / f'{self.path.name}_0.mcap'
         self.metadata_path = self.path / 'metadata.yaml'
         self.flush_period_s = float(flush_period_s)
