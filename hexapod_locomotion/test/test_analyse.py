@@ -123,3 +123,26 @@ def test_a_swing_down_finished_before_the_time_limit_is_counted_by_both(tmp_path
     r = rerun_detectors(str(bag))
     assert r['incomplete_swing_downs'] == []
     assert res.phases == r['swing_downs'] == 1 and res.detection['swing_downs'] == r['legs_evaluated'] == 3
+
+
+def test_demo_and_analyse_commands_print_the_same_figures_for_one_bag(tmp_path, capsys):
+    """./hexapod demo, then ./hexapod analyse on its bag: the same swing-down counts and the same
+    speed / power / CoT line; the demo's progress bar is on stderr (``demo > log`` holds the
+    results only) and its time limit is kept within one control period."""
+    import json
+
+    from hexapod_locomotion.demo import main as demo_main
+    bag, out = tmp_path / 'walk', tmp_path / 'walk.json'
+    assert demo_main(['--terrain', 'flat', '--duration', '12', '--record', str(bag), '--json', str(out)]) == 0
+    demo_out, demo_err = capsys.readouterr()
+    assert 'walking:' in demo_err and 'walking:' not in demo_out
+    res = json.loads(out.read_text())
+    t_con = max(e['t_con_s'] for e in res['events'])
+    assert 12.0 <= res['sim_time_s'] <= 12.0 + t_con + 1e-9
+    assert main([str(bag), '--no-progress']) == 0
+    report = capsys.readouterr().out
+    assert f'{res["phases"]} swing-down phases, {res["detection"]["swing_downs"]} leg swing-downs' in report
+    assert f'{res["phases"]} swing-down phases' in demo_out
+    assert f'ground detection: {res["detection"]["swing_downs"]} leg swing-downs' in demo_out
+    cot = next(line for line in demo_out.splitlines() if 'cost of transport' in line)
+    assert f'  {cot}\n' in report, (cot, report)
