@@ -33,10 +33,12 @@ def _one_phase(robot, kind):
     sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
     probe = ProbeBus(sim)
     det = DetectorConfig(kind=kind)
-    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=1.0), det, t_com_s=sim.t_com_s)
+    swing = []
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=1.0), det, t_com_s=sim.t_com_s,
+                       on_swing_start=swing.append)
     c.startup(probe)
     rep = c.step_phase(probe, VelocityCommand(0.05, 0.0, 0.0))      # legs 1, 6, 3 swing
-    return {e.leg: e for e in _detection_events(robot, probe, rep, c, det)}, rep
+    return {e.leg: e for e in _detection_events(robot, probe, swing[0], det)}, rep
 
 
 @pytest.fixture(scope='module')
