@@ -238,21 +238,24 @@ class BagPlayer(Node):
 # -------------------------------------------------------------------------------------- main --
 
 def _parser() -> argparse.ArgumentParser:
-    from hexapod_model.cli_common import make_parser
+    from hexapod_model.cli_common import make_parser, nonnegative_float, positive_float, positive_int
     p = make_parser('replay', 'Replay a recorded rosbag2/MCAP bag on ROS 2 with its recorded timing '
                               '(like ros2 bag play).')
     p.add_argument('bag', help='rosbag2 directory or .mcap file')
-    p.add_argument('--rate', type=float, default=1.0, help='playback speed factor (> 0; 2 = twice as fast)')
+    p.add_argument('--rate', type=positive_float, default=1.0, help='playback speed factor (2 = twice as fast)')
     p.add_argument('--loop', action='store_true', help='start over at the end until Ctrl-C')
     p.add_argument('--topics', nargs='+', metavar='TOPIC', help='replay only these topics')
-    p.add_argument('--start', type=float, default=0.0, metavar='S', help='skip the first S seconds of the bag')
-    p.add_argument('--duration', type=float, default=None, metavar='D', help='replay only D seconds of bag time')
-    p.add_argument('--clock', type=float, nargs='?', const=100.0, default=0.0, metavar='HZ',
+    p.add_argument('--start', type=nonnegative_float, default=0.0, metavar='S',
+                   help='skip the first S seconds of the bag')
+    p.add_argument('--duration', type=positive_float, default=None, metavar='D',
+                   help='replay only D seconds of bag time (default: to the end)')
+    p.add_argument('--clock', type=nonnegative_float, nargs='?', const=100.0, default=0.0, metavar='HZ',
                    help=f'publish the playback time on {contract.CLOCK} at HZ (default 100 Hz when given)')
-    p.add_argument('--delay', type=float, default=0.0, metavar='S', help='wait S seconds (wall) before playing')
-    p.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='S',
+    p.add_argument('--delay', type=nonnegative_float, default=0.0, metavar='S',
+                   help='wait S seconds (wall) before playing')
+    p.add_argument('--wait-for-subscribers', type=nonnegative_float, default=0.0, metavar='S',
                    help='wait up to S seconds for every replayed topic to have a subscriber')
-    p.add_argument('--qos-depth', type=int, default=100, help='publisher history depth')
+    p.add_argument('--qos-depth', type=positive_int, default=100, help='publisher history depth')
     p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None,
                    help='progress bar on stderr (default: when stderr is a terminal)')
     return p

@@ -230,8 +230,11 @@ def test_cli_garbage_and_bad_options(tmp_path):
     res = run_cli(tmp_path / 'nope')
     assert res.returncode == 2 and 'no such file or directory' in res.stderr
     bag = make_bag(tmp_path / 'bag', n=6)
-    res = run_cli(bag, '--rate', '0')
-    assert res.returncode == 2 and '--rate must be > 0' in res.stderr
+    for flag, value, want in (('--rate', '0', '> 0'), ('--duration', 'nan', '> 0'), ('--delay', 'nan', '>= 0'),
+                              ('--wait-for-subscribers', '-1', '>= 0'), ('--qos-depth', '0', '>= 1')):
+        res = run_cli(bag, flag, value)       # refused while parsing, before ROS starts
+        assert res.returncode == 2 and f'argument {flag}: must be' in res.stderr and want in res.stderr, res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1
     res = run_cli(bag, '--topics', '/nope')
     assert res.returncode == 2 and "['/nope'] not in the bag" in res.stderr
 
