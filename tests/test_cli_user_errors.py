@@ -59,6 +59,10 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_sim', 'stand_calibration', ['--out', 'new_bag', '--speed-scale', '-1']),
     ('hexapod_locomotion', 'experiment', ['sweep', 't_des_s', 'nan']),
     ('hexapod_locomotion', 'discrepancy_bench', ['--jobs', '0']),
+    ('hexapod_locomotion', 'discrepancy_bench', ['--seed', '-1']),
+    ('hexapod_locomotion', 'discrepancy_bench', ['--legs', '9']),
+    ('hexapod_locomotion', 'discrepancy_bench', ['--json', 'no_such_dir/x.json']),   # not after the whole run
+    ('hexapod_sim', 'replay', ['BAG', '--delay', 'nan']),
     ('hexapod_locomotion', 'cmd_vel_pub', ['--vx', 'nan']),
     ('hexapod_locomotion', 'cmd_vel_pub', ['--duration', '-1']),
     ('hexapod_locomotion', 'teleop_keyboard', ['--rate', 'nan']),
@@ -66,6 +70,7 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_driver', 'driver_node', ['--device', '/dev/ttyUSB0']),
 ]
 ROS_NODES = {'robot', 'driver_node'}    # --help lists ROS parameters: 'name (default X): ...'
+NO_DEFAULTS = {'analyse'}               # every option is an output asked for (--json, --plot) or a switch
 
 
 @pytest.mark.parametrize('pkg, exe, args', CASES, ids=[f'{c[1]} {" ".join(c[2])}' for c in CASES])
@@ -110,6 +115,9 @@ def test_help_names_the_hexapod_command_and_shows_defaults(pkg, exe):
     res = subprocess.run([str(script), '--help'], env=env, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert res.stdout.startswith(f'usage: ./hexapod {exe} ')
-    assert ('(default ' if exe in ROS_NODES else '(default: ') in ' '.join(res.stdout.split())
+    text = ' '.join(res.stdout.split())
+    assert '(default: True)' not in text and '(default: False)' not in text      # switches show none
+    if exe not in NO_DEFAULTS:
+        assert ('(default ' if exe in ROS_NODES else '(default: ') in text
     first = next(line for line in res.stdout.split('\n\n')[1].splitlines() if line.strip())
     assert res.stdout.count(first.strip()) == 1          # the description is printed once

@@ -347,23 +347,25 @@ def make_walk_demo(out_dir: Path, seed: int) -> None:
 
 
 def main(argv=None) -> int:
-    from hexapod_model.cli_common import make_parser
+    from hexapod_model.cli_common import add_no_progress_option, make_parser, nonnegative_int, output_file
     from hexapod_model.executor import ExecutorError, add_executor_options
     ap = make_parser('discrepancy_bench', __doc__.splitlines()[0])
-    ap.add_argument('--seed', type=int, default=0, help='draws the magnitudes and joints of the cases')
+    ap.add_argument('--seed', type=nonnegative_int, default=0, help='draws the magnitudes and joints of the cases')
     ap.add_argument('--cases', nargs='+', metavar='NAME', help='run only these cases (names as in the table)')
-    ap.add_argument('--legs', nargs='+', type=int, default=list(LEGS), help='legs the routine moves (default all)')
+    ap.add_argument('--legs', nargs='+', type=int, choices=LEGS, default=list(LEGS), metavar='LEG',
+                    help='legs the routine moves (default all)')
     ap.add_argument('--set', choices=('stand', 'walk', 'all'), default='stand',
                     help='stand: the calibration routine on a stand (default); walk: %d s walks of the three gaits '
                          'on flat ground and the blocks; all: both' % WALK_S)
     ap.add_argument('--keep', metavar='DIR', help='keep the bags and JSON results here')
-    ap.add_argument('--json', metavar='OUT.json', help='write the scored results here')
+    ap.add_argument('--json', metavar='OUT.json', type=output_file(('.json',)), help='write the scored results here')
     ap.add_argument('--list', action='store_true', help='list the cases (names only, not the truth) and exit')
     ap.add_argument('--make-demo', metavar='DIR', help='write the demo bag and its truth file into DIR and exit')
     add_executor_options(ap, 'cases')
     ap.set_defaults(jobs=1)      # one case at a time unless asked: the s/min figures are per core
     ap.add_argument('--make-walk-demo', metavar='DIR',
                     help='write the walk demo bag (tripod over the blocks, one hidden effect) and its truth into DIR')
+    add_no_progress_option(ap)
     args = ap.parse_args(argv)
     if args.make_demo:
         make_demo(Path(args.make_demo), args.seed)
@@ -382,7 +384,8 @@ def main(argv=None) -> int:
             ap.error(f'unknown case(s) {unknown}; see --list')
         cases = [c for c in cases if c.name in args.cases]
     try:
-        results = run(cases, args.legs, Path(args.keep) if args.keep else None, jobs=args.jobs, ray_address=args.ray)
+        results = run(cases, args.legs, Path(args.keep) if args.keep else None, progress=args.progress, jobs=args.jobs,
+                      ray_address=args.ray)
     except ExecutorError as exc:
         print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 1

@@ -38,7 +38,8 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         text = action.help or ''
         d = action.default
         if ('default' in text or d is None or d is False or d is argparse.SUPPRESS or d == '' or d == []
-                or isinstance(action, (argparse._HelpAction, argparse._VersionAction))):
+                or isinstance(action, (argparse._HelpAction, argparse._VersionAction, argparse._StoreTrueAction,
+                                       argparse._StoreFalseAction))):      # a switch has no default to show
             return text
         if action.option_strings or action.nargs in (argparse.OPTIONAL, argparse.ZERO_OR_MORE):
             if isinstance(d, (list, tuple)):
