@@ -129,8 +129,8 @@ def main(argv=None) -> int:
         bar.n = round(max(0.0, min(dist, total)), 2)
         bar.set_postfix_str(f'sim {t_sim:.0f} s')
 
-    def on_video(n_frames):
-        bar.clear()
+    def on_video(n_frames):          # the walk is over: the bar ends, and the pause that follows is explained
+        bar.close()
         print(f'writing GIF {args.video} ({n_frames} frames)...', file=sys.stderr, flush=True)
 
     try:

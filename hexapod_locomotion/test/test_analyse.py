@@ -146,3 +146,15 @@ def test_demo_and_analyse_commands_print_the_same_figures_for_one_bag(tmp_path, 
     assert f'ground detection: {res["detection"]["swing_downs"]} leg swing-downs' in demo_out
     cot = next(line for line in demo_out.splitlines() if 'cost of transport' in line)
     assert f'  {cot}\n' in report, (cot, report)
+
+
+def test_demo_says_when_it_writes_the_gif(tmp_path, capsys):
+    """The GIF is written after the walk (a pause of seconds): stderr says so after the progress bar,
+    stdout names the file."""
+    from hexapod_locomotion.demo import main as demo_main
+    gif = tmp_path / 'walk.gif'
+    assert demo_main(['--terrain', 'flat', '--duration', '1', '--record', '', '--video', str(gif)]) == 0
+    out, err = capsys.readouterr()
+    assert gif.stat().st_size > 10_000 and f'video: {gif}' in out
+    tail = err.replace('\r', '\n').rstrip().splitlines()
+    assert tail[-1].startswith(f'writing GIF {gif} (') and 'walking:' in err     # the bar is not redrawn after it
