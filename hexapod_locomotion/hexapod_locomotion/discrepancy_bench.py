@@ -7,7 +7,10 @@ hands the tool only that bag path (the command-line entry point, in process). Th
 sees the truth or the sim's model. The result is scored against the hidden truth:
 
 * named: every injected effect is reported by name, and nothing else;
-* located: the reported joints equal the injected ones (a payload: the same legs);
+* located: the reported joints equal the injected ones (a payload: the same legs); an injected joint
+  missing from them counts only if the tool lists it under "cannot show" for that effect and the
+  bench confirms with the hidden truth that the recording indeed cannot show it (:func:`score`,
+  :func:`unshown_check`); the strict figure without that is printed too;
 * parameter error, relative, goal within 25 % (friction, backlash, damping, dead-band) or 10 %
   (saturation, delay, payload);
 * held-out improvement: RMS before/after on the effect's joints, goal at least 1.5x;
@@ -25,6 +28,7 @@ one leg), three effects on a whole leg, three robot-wide, two pairs at once, two
 controller over the MuJoCo terrain instead (:func:`hexapod_locomotion.trial_runner.run_trial`, as
 ``./hexapod demo``), the three gaits on flat ground and on the blocks in turn, plus a clean walk of
 every gait on both; ``--set all`` runs both sets. ``--make-walk-demo DIR`` writes the walk demo bag.
+Recording a walk takes most of a case's time: ``--keep DIR --reuse`` analyses the bags kept there again.
 """
 from __future__ import annotations
 
