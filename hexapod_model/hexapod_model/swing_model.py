@@ -279,9 +279,13 @@ def _rigid_substep(c, tau2, tau3, q2, q3, v2, v3, c2, s2, c3, s3):
     f3 = 0.0
     for _it in range(3):  # Gauss-Seidel on the two friction impulses
         u2 = w2 + h * (inv11 * f2 + inv12 * f3)
-        f2 = min(max(f2 - u2 * k2, -lim2), lim2)
-        u3 = w3 + h * (inv12 * f2 + inv22 * f3)
-        f3 = min(max(f3 - u3 * k3, -lim3), lim3)
+        n2 = min(max(f2 - u2 * k2, -lim2), lim2)
+        u3 = w3 + h * (inv12 * n2 + inv22 * f3)
+        n3 = min(max(f3 - u3 * k3, -lim3), lim3)
+        if n2 == f2 and n3 == f3:   # a sweep that changes nothing repeats forever: stop (exact)
+            break
+        f2 = n2
+        f3 = n3
     v2 = w2 + h * (inv11 * f2 + inv12 * f3)
     v3 = w3 + h * (inv12 * f2 + inv22 * f3)
     if abs(v2) < V_STICK:
@@ -638,20 +642,37 @@ def _eq15_goal(init_tick, fin_tick, k, n_interp):
 
 
 @njit(cache=True, nogil=True)
-def _swing_down_kernel(params, init_t, fin_t, q0, qd0, gap0, n_interp, t_con, t_com, read_delay, center,
-                       rad_per_tick, direction, epsilon, goal_buf, idx, out_t_read, out_des, out_est, out_err,
-                       out_thr, out_q, out_qd, out_tau, out_gap):
+def _swing_down_kernel(params, q0, q_fin, qd0, gap0, n_interp, n_reach, t_con, t_com, read_delay, center,
+                       rad_per_tick, epsilon, ticks, direction, reached, goal_buf, idx, out_t_read, out_des,
+                       out_est, out_err, out_thr, out_q, out_qd, out_tau, out_gap):
     """CalcModel for all swinging legs in one call, allocating nothing (every array is the caller's).
 
-    Per leg slot ``l``: the goal in effect at each servo period (Eq. 15 step ``k = floor(t / t_con)``,
-    capped at the last step) into ``goal_buf`` (L, n, 2); the legs simulated together by
-    :func:`_rollout_legs` (``idx`` its (L,) scratch); then per step ``k`` the read instant
-    ``k t_con + l t_com``, the goal, the predicted tick at the (delayed) sample instant (linear
-    interpolation between servo periods, as ``np.interp``), the lag in the direction of motion and
-    the Eq. 17 threshold.
+    Returns False, and computes nothing, when an initial or final angle (``q0``, ``q_fin``: (L, 2)
+    rad) is not finite. Otherwise per leg slot ``l``: the initial and final angles as continuous
+    ticks into ``ticks`` (2, L, 2) (the operations of :func:`hexapod_model.servo.theta_to_tick`) and
+    the sign of the femur motion into ``direction`` (L,); the goal in effect at each servo period
+    (Eq. 15 step ``k = floor(t / t_con)``, capped at the last step) into ``goal_buf`` (L, n, 2); the
+    legs simulated together by :func:`_rollout_legs` (``idx`` its (L,) scratch); then per step ``k``
+    the read instant ``k t_con + l t_com``, the goal, the predicted tick at the (delayed) sample
+    instant (linear interpolation between servo periods, as ``np.interp``), the lag in the
+    direction of motion and the Eq. 17 threshold; ``reached`` (K,) whether step ``k``'s goal is
+    theta_fin (``k + 1 >= n_reach``, the number of interpolation steps).
     """
     n_legs = params.shape[0]
     n_steps = out_des.shape[0]
+    for l in range(n_legs):
+        for j in range(2):
+            if not (math.isfinite(q0[l, j]) and math.isfinite(q_fin[l, j])):
+                return False
+    init_t = ticks[0]
+    fin_t = ticks[1]
+    for l in range(n_legs):
+        for j in range(2):
+            init_t[l, j] = center + q0[l, j] / rad_per_tick
+            fin_t[l, j] = center + q_fin[l, j] / rad_per_tick
+        direction[l] = 1.0 if fin_t[l, 0] >= init_t[l, 0] else -1.0
+    for k in range(n_steps):
+        reached[k] = k + 1 >= n_reach
     n_periods = goal_buf.shape[1]
     dt = params[0, P_DT]
     ratio = t_con / dt
@@ -709,6 +730,7 @@ def _swing_down_kernel(params, init_t, fin_t, q0, qd0, gap0, n_interp, t_con, t_
             out_est[k, l] = est
             out_err[k, l] = direction[l] * (des - est)
             out_thr[k, l] = out_err[k, l] + epsilon
+    return True
 
 
 def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_s: float, t_com_s: float,
@@ -733,15 +755,11 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
     for name, v in (('t_des_s', t_des_s), ('t_com_s', t_com_s), ('epsilon_tick', epsilon_tick)):
         if not math.isfinite(v) or (name != 'epsilon_tick' and v <= 0):
             raise SwingDownError(f'{name} must be a finite positive number, got {v!r}')
-    if not (np.isfinite(init).all() and np.isfinite(fin).all()):
-        raise SwingDownError('initial or final joint angles contain NaN or infinity')
     servo = robot.servo
     t_con = L * t_com_s                                         # Algorithm 1, line 1
     n_interp = int(math.ceil(t_des_s / t_con - 1e-9))
     if n_steps is None:
         n_steps = int(math.ceil(n_interp * 1.2)) + 1
-    init_t = theta_to_tick(init, servo)
-    fin_t = theta_to_tick(fin, servo)
     qd0 = np.zeros((L, 2)) if qd0_rad_s is None else np.asarray(qd0_rad_s, dtype=float).reshape(L, 2)
     delay = np.zeros(L) if read_delay_s is None else np.asarray(read_delay_s, dtype=float).reshape(L)
     dt = servo.control_period_s
@@ -753,23 +771,28 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
         model = (models or {}).get(leg) or LegModel(robot, leg)
         params[slot] = model.params
         if model.params[P_BL2] > 0.0 or model.params[P_BL3] > 0.0:
-            gap0[slot] = model.default_gap_rad(init[slot])
-    direction = np.where(fin_t[:, 0] >= init_t[:, 0], 1.0, -1.0)
-    # the result in one allocation: 5 (K, L) tables, per leg q/qd/gap (n+1, 2) and tau (n, 2); the
-    # kernel's scratch (goals per period) at its end
+            gap0[slot] = model.default_gap_rad(init[slot]) if np.isfinite(init[slot]).all() else 0.0
+    # the result in one allocation: 5 (K, L) tables, the init/fin ticks (2, L, 2), the direction (L,),
+    # per leg q/qd/gap (n+1, 2) and tau (n, 2); the kernel's scratch (goals per period) at its end
     kl = 5 * n_steps * L
     rows = L * (n_periods + 1) * 2
-    block = np.empty(kl + 3 * rows + 2 * L * n_periods * 2)
+    block = np.empty(kl + 5 * L + 3 * rows + 2 * L * n_periods * 2)
     tables = block[:kl].reshape(5, n_steps, L)
-    q, qd, gap = (block[kl + i * rows:kl + (i + 1) * rows].reshape(L, n_periods + 1, 2) for i in range(3))
-    o = kl + 3 * rows
+    ticks = block[kl:kl + 4 * L].reshape(2, L, 2)
+    direction = block[kl + 4 * L:kl + 5 * L]
+    o = kl + 5 * L
+    q, qd, gap = (block[o + i * rows:o + (i + 1) * rows].reshape(L, n_periods + 1, 2) for i in range(3))
+    o += 3 * rows
     tau = block[o:o + L * n_periods * 2].reshape(L, n_periods, 2)
     goal_buf = block[o + L * n_periods * 2:].reshape(L, n_periods, 2)
-    _swing_down_kernel(params, init_t, fin_t, init, qd0, gap0, float(t_des_s / t_con), t_con, float(t_com_s), delay,
-                       float(servo.center_tick), float(servo.rad_per_tick), direction, float(epsilon_tick), goal_buf,
-                       np.empty(L, np.int64), tables[0], tables[1], tables[2], tables[3], tables[4], q, qd, tau, gap)
+    reached = np.empty(n_steps, dtype=np.bool_)
+    if not _swing_down_kernel(params, init, fin, qd0, gap0, float(t_des_s / t_con), n_interp, t_con, float(t_com_s),
+                              delay, float(servo.center_tick), float(servo.rad_per_tick), float(epsilon_tick),
+                              ticks, direction, reached, goal_buf, np.empty(L, np.int64), tables[0], tables[1],
+                              tables[2], tables[3], tables[4], q, qd, tau, gap):
+        raise SwingDownError('initial or final joint angles contain NaN or infinity')
     rollouts = tuple(Rollout(dt, q[slot], qd[slot], tau[slot], gap[slot]) for slot in range(L))
     return SwingDownPrediction(
         legs=legs, t_con_s=t_con, t_com_s=t_com_s, epsilon_tick=float(epsilon_tick), direction=direction,
         t_read_s=tables[0], theta_des_tick=tables[1], theta_est_tick=tables[2], err_est_tick=tables[3],
-        threshold_tick=tables[4], reached_fin=(np.arange(n_steps) + 1) >= n_interp, rollouts=rollouts)
+        threshold_tick=tables[4], reached_fin=reached, rollouts=rollouts)
