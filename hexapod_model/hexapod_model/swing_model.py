@@ -224,6 +224,16 @@ def _rotate(c, s, d):
 
 
 @njit(cache=True, fastmath=True, nogil=True, inline='always')
+def _rotate_small(c, s, d):
+    """:func:`_rotate` for |d| < 0.01 only (its Taylor branch, no branch: callers check |d| and redo
+    larger increments with :func:`_rotate`)."""
+    d2 = d * d
+    cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 * (1.0 / 720.0)))
+    sd = d * (1.0 - d2 * (1.0 / 6.0 - d2 * (1.0 / 120.0 - d2 * (1.0 / 5040.0))))
+    return c * cd - s * sd, s * cd + c * sd
+
+
+@njit(cache=True, fastmath=True, nogil=True, inline='always')
 def _servo_torques(p, goal2, goal3, q2, q3):
     """Both servos' firmware torques for the link angles: the present tick as the servo reports it
     (nearest integer, clipped) and the law of :func:`hexapod_model.servo.firmware_torque_scalar`."""
@@ -251,8 +261,10 @@ def _rigid_constants(p):
 def _rigid_substep(c, tau2, tau3, q2, q3, v2, v3, c2, s2, c3, s3):
     """One semi-implicit Euler substep of a leg without backlash (Eq. 14, damping implicit, Coulomb
     / break-away friction as velocity-level impulses by Gauss-Seidel). ``c``: :func:`_rigid_constants`;
-    ``c2, s2, c3, s3``: cos/sin of the link angles psi, carried along by :func:`_rotate` (no trig
-    call per substep). Returns the new ``(q2, q3, v2, v3, c2, s2, c3, s3)``."""
+    ``c2, s2, c3, s3``: cos/sin of the link angles psi, carried along by :func:`_rotate_small` (no
+    trig call, no branch). Returns the new ``(q2, q3, v2, v3, c2, s2, c3, s3, d2, d3)`` with the
+    position increments ``d``: where one is 0.01 rad or more the caller redoes its rotation with
+    :func:`_rotate` (from the old cos/sin), so the result is :func:`_rotate`'s either way."""
     k11c, k12c, k22, kc, gm1, gm2, a22, inv_ha22, h, b2, fc2, fc3, fs2, fs3 = c
     d11 = k11c + 2.0 * kc * c3
     d12 = k12c + kc * c3
@@ -292,9 +304,11 @@ def _rigid_substep(c, tau2, tau3, q2, q3, v2, v3, c2, s2, c3, s3):
         v2 = 0.0
     if abs(v3) < V_STICK:
         v3 = 0.0
-    c2, s2 = _rotate(c2, s2, h * v2)
-    c3, s3 = _rotate(c3, s3, h * v3)
-    return q2 + h * v2, q3 + h * v3, v2, v3, c2, s2, c3, s3
+    d2 = h * v2
+    d3 = h * v3
+    c2n, s2n = _rotate_small(c2, s2, d2)
+    c3n, s3n = _rotate_small(c3, s3, d3)
+    return q2 + d2, q3 + d3, v2, v3, c2n, s2n, c3n, s3n, d2, d3
 
 
 @njit(cache=True, fastmath=True, nogil=True)
@@ -333,9 +347,22 @@ def _rollout_rigid3(pa, pb, pc, q0a, q0b, q0c, v0a, v0b, v0c, ga, gb, gc, per, q
         tb2, tb3 = _servo_torques(pb, gb[row, 0], gb[row, 1], qb2, qb3)
         tc2, tc3 = _servo_torques(pc, gc[row, 0], gc[row, 1], qc2, qc3)
         for _ in range(n_sub):
-            qa2, qa3, va2, va3, ac2, as2, ac3, as3 = _rigid_substep(ca, ta2, ta3, qa2, qa3, va2, va3, ac2, as2, ac3, as3)
-            qb2, qb3, vb2, vb3, bc2, bs2, bc3, bs3 = _rigid_substep(cb, tb2, tb3, qb2, qb3, vb2, vb3, bc2, bs2, bc3, bs3)
-            qc2, qc3, vc2, vc3, cc2, cs2, cc3, cs3 = _rigid_substep(cc, tc2, tc3, qc2, qc3, vc2, vc3, cc2, cs2, cc3, cs3)
+            qa2, qa3, va2, va3, nac2, nas2, nac3, nas3, da2, da3 = _rigid_substep(
+                ca, ta2, ta3, qa2, qa3, va2, va3, ac2, as2, ac3, as3)
+            qb2, qb3, vb2, vb3, nbc2, nbs2, nbc3, nbs3, db2, db3 = _rigid_substep(
+                cb, tb2, tb3, qb2, qb3, vb2, vb3, bc2, bs2, bc3, bs3)
+            qc2, qc3, vc2, vc3, ncc2, ncs2, ncc3, ncs3, dc2, dc3 = _rigid_substep(
+                cc, tc2, tc3, qc2, qc3, vc2, vc3, cc2, cs2, cc3, cs3)
+            if max(max(abs(da2), abs(da3)), max(abs(db2), abs(db3)), max(abs(dc2), abs(dc3))) >= 0.01:
+                nac2, nas2 = _rotate(ac2, as2, da2)    # a fast joint: the exact rotation (rare)
+                nac3, nas3 = _rotate(ac3, as3, da3)
+                nbc2, nbs2 = _rotate(bc2, bs2, db2)
+                nbc3, nbs3 = _rotate(bc3, bs3, db3)
+                ncc2, ncs2 = _rotate(cc2, cs2, dc2)
+                ncc3, ncs3 = _rotate(cc3, cs3, dc3)
+            ac2, as2, ac3, as3 = nac2, nas2, nac3, nas3
+            bc2, bs2, bc3, bs3 = nbc2, nbs2, nbc3, nbs3
+            cc2, cs2, cc3, cs3 = ncc2, ncs2, ncc3, ncs3
         ta[k, 0], ta[k, 1], tb[k, 0], tb[k, 1], tc[k, 0], tc[k, 1] = ta2, ta3, tb2, tb3, tc2, tc3
         qa[k + 1, 0], qa[k + 1, 1], va[k + 1, 0], va[k + 1, 1] = qa2, qa3, va2, va3
         qb[k + 1, 0], qb[k + 1, 1], vb[k + 1, 0], vb[k + 1, 1] = qb2, qb3, vb2, vb3
