@@ -21,7 +21,7 @@ extra Coulomb friction and viscous damping (per-joint attributes), payload (a po
 tibia tip, folded into the tibia inertial exactly as the swing-down model does), and backlash:
 the motor hinge then drives a ``leg{l}_{role}_rotor`` body of negligible mass and the link hangs on
 a second hinge ``leg{l}_{role}_backlash`` with range ``+-width/2`` (a hard-ish joint limit plays
-the gear teeth). MuJoCo handles a joint limit robustly with the implicit integrator; the servo's
+the gear teeth). MuJoCo solves a joint limit as a constraint, robustly; the servo's
 potentiometer sits on the output shaft, so the position the firmware sees is motor + play.
 Effects that act in the firmware or on the bus (static friction, torque saturation, dead-band,
 readout delay) are applied by :mod:`hexapod_sim.plant`.
