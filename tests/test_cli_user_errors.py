@@ -37,6 +37,7 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_sim', 'discrepancy', ['BAG', '--overlay', 'OVERLAY']),
     ('hexapod_sim', 'discrepancy', ['BAG', '--min-ratio', '0.5']),
     ('hexapod_locomotion', 'discrepancy_bench', ['--seed', 'x']),
+    ('hexapod_locomotion', 'discrepancy_bench', ['--reuse']),
     ('hexapod_sim', 'replay', ['nonexistent_bag']),
     ('hexapod_driver', 'servo_tool', ['scan', '--device', '/dev/nonexistent_tty']),
     ('hexapod_driver', 'servo_tool', ['set-id', '--to', '-3']),

@@ -150,26 +150,41 @@ def test_there_are_a_robot_and_a_simulation_launch_file_and_they_are_installed()
     for p in LAUNCH_FILES:
         assert (share / p.name).is_file(), share / p.name
     execs = {p.name: sorted(n['executable'] for n in launch_nodes(p)) for p in LAUNCH_FILES}
-    assert execs == {'robot.launch.py': ['driver_node', 'locomotion_node', 'model_node'],
-                     'sim.launch.py': ['locomotion_node', 'model_node', 'sim_node']}
+    # the composed robot (the default route) and the same nodes as separate processes
+    assert execs == {'robot.launch.py': ['driver_node', 'locomotion_node', 'model_node', 'robot'],
+                     'sim.launch.py': ['locomotion_node', 'model_node', 'robot', 'sim_node']}
+
+
+def _members(launch: Path) -> list:
+    """The node specs the composed ``robot`` runs in one process in this launch file."""
+    master = DRIVER if launch.name == 'robot.launch.py' else SIM
+    return [master, MODEL_NODE, LOCOMOTION]
 
 
 @pytest.mark.parametrize('launch', LAUNCH_FILES, ids=lambda p: p.name)
 def test_launch_file_names_installed_executables_files_and_declared_parameters(launch):
     import yaml
+    from hexapod_locomotion.params import ComposedParams
+    from hexapod_model.param_schema import specs as schema_specs
     nodes = launch_nodes(launch)
     assert nodes
     for n in nodes:
-        spec = NODES[n['executable']]
-        assert n['package'] == spec.package and n['name'] == spec.node_name, n
+        if n['executable'] == 'robot':           # one process, each node under its own name
+            specs = _members(launch)
+            assert n['package'] == 'hexapod_locomotion' and 'name' not in n, n
+            declared = set().union(*(set(s.names()) for s in specs)) | set(schema_specs(ComposedParams))
+        else:
+            specs = [NODES[n['executable']]]
+            assert n['package'] == specs[0].package and n['name'] == specs[0].node_name, n
+            declared = set(specs[0].names())
         exe = install_prefix(n['package']) / 'lib' / n['package'] / n['executable']
         assert exe.is_file() and os.access(exe, os.X_OK), exe
-        assert n['files'] == [(spec.package, f'{spec.executable}.yaml')], n
-        for pkg, file in n['files']:
+        assert n['files'] == [(s.package, f'{s.executable}.yaml') for s in specs], n
+        for (pkg, file), spec in zip(n['files'], specs):
             path = install_prefix(pkg) / 'share' / pkg / 'config' / file
             assert path.is_file(), path
             assert spec.node_name in yaml.safe_load(path.read_text()), f'{path} does not address {spec.node_name}'
-        undeclared = n['keys'] - set(spec.names()) - ROS_DECLARED
+        undeclared = n['keys'] - declared - ROS_DECLARED
         assert not undeclared, f'{launch.name}: {n["executable"]} does not declare {sorted(undeclared)}'
 
 
@@ -178,3 +193,35 @@ def test_the_launch_files_are_python_launch_files():
         tree = ast.parse(p.read_text())
         assert any(isinstance(f, ast.FunctionDef) and f.name == 'generate_launch_description' for f in tree.body)
         compile(p.read_text(), str(p), 'exec')
+
+
+def test_the_composed_robot_takes_parameters_as_the_launch_files_pass_them(tmp_path):
+    """What ``launch_ros`` hands the composed ``robot`` of sim.launch.py: one --params-file per node
+    (each addressing its node by name) and the launch file's dicts in a ``/**`` file: every node gets
+    its parameters, the shared ones reach all, and Ctrl-C ends it cleanly."""
+    import signal
+    import time
+    wild = tmp_path / 'launch_params.yaml'
+    wild.write_text("/**:\n  ros__parameters:\n    hardware: sim\n    terrain: stairs\n    robot_overlays: ['']\n")
+    files = [install_prefix(s.package) / 'share' / s.package / 'config' / f'{s.executable}.yaml'
+             for s in (SIM, MODEL_NODE, LOCOMOTION)]
+    cmd = [str(install_prefix('hexapod_locomotion') / 'lib' / 'hexapod_locomotion' / 'robot'), '--ros-args']
+    for f in [*files, wild]:
+        cmd += ['--params-file', str(f)]
+    env = dict(node_env(), ROS_DOMAIN_ID=str(190 + os.getpid() % 30))
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    seen, t_end = [], time.monotonic() + 90
+    try:
+        for line in proc.stdout:
+            seen.append(line)
+            if 'serving /predict_swing_down' in ''.join(seen) and 'sim ready' in ''.join(seen):
+                break
+            if time.monotonic() > t_end:
+                break
+    finally:
+        proc.send_signal(signal.SIGINT)
+        rest, _ = proc.communicate(timeout=30)
+    log = ''.join(seen) + rest
+    assert 'sim ready: terrain=stairs' in log, log
+    assert 'serving /predict_swing_down' in log, log
+    assert proc.returncode == 0 and 'Traceback' not in log, log

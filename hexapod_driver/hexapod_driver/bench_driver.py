@@ -8,13 +8,24 @@ instruction 8 bytes + status 8 bytes (2 data bytes), 10 bits per byte, plus the 
 Two runs: ``software`` (the emulator answers as fast as it can: T_com is pure host/driver
 overhead) and ``wire`` (the emulator holds each reply back by the wire time, as a real 1 Mbps bus
 would: T_com should approach wire time + overhead).
+
+Both processes stamp with the same wall clock, so each wire-mode read is split into its parts: the
+transport from the driver's write to the emulator (the pseudo-terminal, where a real bus has the
+USB adapter), the servo's time (wire time + return delay, held by the emulator), the transport back,
+and what is left: the driver's own overhead.
 """
 from __future__ import annotations
 
 import argparse
+import multiprocessing
+import os
+import pty
+import select
 import subprocess
 import sys
+import tempfile
 import time
+import tty
 
 import numpy as np
 from tqdm import tqdm
@@ -26,8 +37,8 @@ from .config import DriverConfig
 from .dynamixel_bus import DynamixelBus
 
 
-def _start_emulator(wire_time: bool, robot_path: str | None) -> tuple[subprocess.Popen, str]:
-    cmd = [sys.executable, '-m', 'hexapod_driver.emulator']
+def _start_emulator(wire_time: bool, robot_path: str | None, timing_out: str) -> tuple[subprocess.Popen, str]:
+    cmd = [sys.executable, '-m', 'hexapod_driver.emulator', '--timing-out', timing_out]
     if wire_time:
         cmd.append('--wire-time')
     if robot_path:
@@ -40,19 +51,74 @@ def _start_emulator(wire_time: bool, robot_path: str | None) -> tuple[subprocess
     return proc, line.rsplit(' on ', 1)[1].strip()
 
 
+def split_round_trips(stamps: np.ndarray, t_com: np.ndarray, emulator: np.ndarray) -> dict:
+    """Medians of (up, servo, down) [s] per read: ``stamps`` are the driver's write times, ``t_com`` the
+    read durations, ``emulator`` the (arrival, reply) wall times of the emulator's answered instructions.
+    up + servo + down = T_com: the driver's own work is inside up (writing) and down (waking, parsing)."""
+    arrival, reply = emulator[:, 0], emulator[:, 1]
+    k = np.searchsorted(arrival, stamps)
+    ok = k < len(arrival)
+    k, s, d = k[ok], stamps[ok], t_com[ok]
+    same = arrival[k] < s + d                    # the first arrival after the write belongs to this read
+    k, s, d = k[same], s[same], d[same]
+    up, servo, down = arrival[k] - s, reply[k] - arrival[k], s + d - reply[k]
+    return dict(up=float(np.median(up)), servo=float(np.median(servo)), down=float(np.median(down)),
+                matched=int(len(k)))
+
+
+def _echo(fd: int) -> None:
+    while True:
+        select.select([fd], [], [])
+        data = os.read(fd, 64)
+        if data == b'q':
+            return
+        os.write(fd, data)
+
+
+def pty_round_trip(n: int = 2000, size: int = 8) -> float:
+    """Median round trip [s] of ``size`` bytes through a bare pseudo-terminal to an echoing process and
+    back, both sides waiting in select(): the transport cost with no driver and no emulator work."""
+    master, slave = pty.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    child = multiprocessing.get_context('fork').Process(target=_echo, args=(master,), daemon=True)
+    child.start()
+    msg, rt = b'\x55' * size, []
+    try:
+        for _ in range(n):
+            t0 = time.perf_counter()
+            os.write(slave, msg)
+            got = 0
+            while got < size:
+                select.select([slave], [], [])
+                got += len(os.read(slave, 64))
+            rt.append(time.perf_counter() - t0)
+        os.write(slave, b'q')
+        child.join(timeout=5)
+    finally:
+        if child.is_alive():
+            child.kill()
+        os.close(master)
+        os.close(slave)
+    return float(np.median(rt))
+
+
 def run(mode: str, n_reads: int, robot, robot_path, return_delay: int) -> dict:
-    proc, port = _start_emulator(mode == 'wire', robot_path)
+    fd, timing_out = tempfile.mkstemp(suffix='.npy', prefix='bench_driver_')
+    os.close(fd)
+    proc, port = _start_emulator(mode == 'wire', robot_path, timing_out)
     try:
         bus = DynamixelBus(robot, DriverConfig(device=port, return_delay_time=return_delay,
                                                diagnostics_period_s=1e9, command_timeout_s=0.0))
         bus.start()
         bus.timing.snapshot(reset=True)
-        t_com = []
+        t_com, stamps = [], []
         t0 = time.perf_counter()
         with tqdm(total=n_reads, desc=f'{mode:8s} reads', unit='read', leave=False) as bar:
             while len(t_com) < n_reads:
                 res = bus.step()
                 t_com += [s.t_com_s for s in res.samples]
+                stamps += [s.stamp for s in res.samples]
                 bar.update(len(res.samples))
         elapsed = time.perf_counter() - t0
         snap = bus.timing.snapshot(reset=True)
@@ -63,12 +129,17 @@ def run(mode: str, n_reads: int, robot, robot_path, return_delay: int) -> dict:
             bus.sync_write(goals)
             tw.append(time.perf_counter() - a)
         bus.close()
-    finally:
         proc.terminate()
         proc.wait(timeout=5)
+        emulator = np.load(timing_out)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        os.unlink(timing_out)
     t = np.asarray(t_com)
     return dict(mode=mode, reads=len(t), reads_per_s=len(t) / elapsed, mean=t.mean(), p50=np.median(t),
-                p99=np.percentile(t, 99), max=t.max(), failed=snap.failed_reads, write=float(np.median(tw)))
+                p99=np.percentile(t, 99), max=t.max(), failed=snap.failed_reads, write=float(np.median(tw)),
+                split=split_round_trips(np.asarray(stamps), t, emulator))
 
 
 def main(argv=None) -> int:
@@ -97,8 +168,19 @@ def main(argv=None) -> int:
               f'{r["reads_per_s"] * wire * 100:5.1f} %')
     for r in rows:
         if r['mode'] == 'wire':
+            sp = r['split']
             print(f'wire mode: mean T_com {r["mean"] * 1e6:.0f} us = wire time {wire * 1e6:.0f} us + '
-                  f'{(r["mean"] - wire) * 1e6:.0f} us host/driver overhead')
+                  f'{(r["mean"] - wire) * 1e6:.0f} us host/driver overhead; median T_com {r["p50"] * 1e6:.0f} us '
+                  f'= {r["p50"] / wire:.2f} x wire time')
+            rt = pty_round_trip()
+            driver = sp['up'] + sp['down'] - rt
+            print(f'  median split of {sp["matched"]} reads (one wall clock in both processes): driver write -> '
+                  f'emulator {sp["up"] * 1e6:.0f} us, servo {sp["servo"] * 1e6:.0f} us (wire time + return delay, '
+                  f'held by the emulator), emulator -> driver {sp["down"] * 1e6:.0f} us')
+            print(f'  a bare pseudo-terminal round trip (8 bytes, echo process, no work) takes {rt * 1e6:.0f} us here; '
+                  f'the rest of the two transports, {driver * 1e6:.0f} us, is the driver and emulator code')
+            print(f'  T_com less the pseudo-terminal (a bus with a zero-latency adapter): {(r["p50"] - rt) * 1e6:.0f} us '
+                  f'= {(r["p50"] - rt) / wire:.2f} x wire time')
     return 0
 
 

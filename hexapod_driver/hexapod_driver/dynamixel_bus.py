@@ -183,6 +183,11 @@ class DynamixelBus:
     def now(self) -> float:
         return self.clock()
 
+    @property
+    def next_read_t(self) -> float:
+        """When :meth:`step` may read next (read pacing, ``read_period_s``); -inf without pacing."""
+        return self._next_read_t if self.config.read_period_s > 0 else -math.inf
+
     def wait_until(self, t: float) -> None:
         while True:
             left = t - self.clock()

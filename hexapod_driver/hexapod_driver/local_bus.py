@@ -66,8 +66,12 @@ class LocalDriverBus:
         return theta, stamp
 
     def wait_until(self, t: float) -> None:
-        """The driver's own loop until ``t``: scheduled reads, diagnostics, reconnects."""
-        while not self.stopped.is_set() and self.core.now() + self.t_com_s <= t:
+        """The driver's own loop until ``t``: scheduled reads, diagnostics, reconnects.
+
+        A step first waits for its read slot (``read_period_s`` after the last read, the
+        controller's femur reads included) and then takes up to ``t_com_s``; it is started only if
+        it ends by ``t``, so the controller's next write is never delayed by a background read."""
+        while not self.stopped.is_set() and max(self.core.now(), self.core.next_read_t) + self.t_com_s <= t:
             self.on_step(self.core.step())
         self.core.wait_until(t)
 

@@ -8,12 +8,14 @@ Routes (``--route``):
             the reads and commands over DDS
   driver    ``robot hardware:=driver`` (driver + model + locomotion in one process, the controller
             running the AX-12A bus) against ``bus_emulator --backend sim`` (MuJoCo physics behind
-            a pseudo-terminal, in real time): the hardware path; the truth (body position, foot
-            contacts) comes from the emulator's ``--truth-out`` file
+            a pseudo-terminal, in real time): the hardware path
 
-Each route runs ``--seconds`` of wall time from the first swing-down, the sim publishing its truth
-topics at ``--truth-rate`` (1 kHz: true contact times to the millisecond); nothing is recorded.
-From what this process receives: distance walked
+Each route runs ``--seconds`` of wall time from the first swing-down with every node at its default
+rates; nothing is recorded. The truth (body position, foot contacts per millisecond of physics)
+comes from a file the sim writes when it stops (``sim_node -p truth_out:=...``, ``bus_emulator
+--truth-out``), not from topics: publishing it at 1 kHz loaded the process under test enough to
+slow the composed controller from 3 to 11 ms per control step. From the truth and what this
+process receives (``/ground_detection``, ``/swing_down``): distance walked
 per minute of wall time and of simulated time, the swing-down read cadence t_con (stamp gaps
 between consecutive reads of one femur within one swing-down, as the controller consumed them,
 against L x T_com), the detection delay after the first true contact, and the CPU each process
@@ -38,6 +40,7 @@ import numpy as np
 from hexapod_model.contract import stamp_seconds
 
 ROUTES = ('composed', 'dds', 'driver')
+TRUTH_FILE = 'truth.npz'
 
 
 def _exe(pkg: str, name: str) -> str:
@@ -53,14 +56,15 @@ def _cpu_s(pid: int) -> float:
 
 
 def _processes(route: str, args, workdir: str) -> list[tuple[str, list[str]]]:
-    sim_params = [f'terrain:={args.terrain}', f'seed:={args.seed}', f'truth_rate_hz:={args.truth_rate}']
+    sim_params = [f'terrain:={args.terrain}', f'seed:={args.seed}',
+                  f'truth_out:={os.path.join(workdir, TRUTH_FILE)}']
     loco_params = [f'gait:={args.gait}']
     p = lambda params: [a for x in params for a in ('-p', x)]  # noqa: E731
     if route == 'driver':
         link = os.path.join(workdir, 'ttyHEX')
         return [('bus_emulator (sim)', [_exe('hexapod_driver', 'bus_emulator'), '--backend', 'sim',
                                         '--terrain', args.terrain, '--terrain-seed', str(args.seed), '--link', link,
-                                        '--truth-out', os.path.join(workdir, 'truth.npz')]),
+                                        '--truth-out', os.path.join(workdir, TRUTH_FILE)]),
                 ('robot (driver+model+locomotion)', [_exe('hexapod_locomotion', 'robot'), '--ros-args',
                                                      *p(['hardware:=driver', f'device:={link}'] + loco_params)])]
     if route == 'composed':
@@ -74,14 +78,10 @@ class _Probe:
     """Collects what the figures need, in this process (the graph under test records nothing)."""
 
     def __init__(self, node):
-        from geometry_msgs.msg import PoseStamped
-        from hexapod_model.contract import GROUND_DETECTION, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN
+        from hexapod_model.contract import GROUND_DETECTION, SWING_DOWN
         from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
-        from std_msgs.msg import Float64MultiArray
         self.pose, self.contacts, self.reads, self.swings = [], [], {}, []
         self.first_swing = threading.Event()
-        node.create_subscription(PoseStamped, SIM_TRUTH_POSE, self._pose, 1000)
-        node.create_subscription(Float64MultiArray, SIM_TRUTH_CONTACTS, self._contacts, 1000)
         node.create_subscription(LegGroundDetection, GROUND_DETECTION, self._read, 1000)
         node.create_subscription(SwingDownStart, SWING_DOWN, self._swing, 100)
         self.measuring = False
@@ -90,15 +90,6 @@ class _Probe:
         self.first_swing.set()
         if self.measuring:
             self.swings.append(stamp_seconds(m.header.stamp))
-
-    def _pose(self, m):
-        if self.measuring:
-            self.pose.append((stamp_seconds(m.header.stamp), m.pose.position.x))
-
-    def _contacts(self, m):
-        # the truth topic has no header: the sim publishes it with the pose, same stamp
-        if self.measuring and self.pose:
-            self.contacts.append((self.pose[-1][0], [bool(c) for c in m.data[:6]]))
 
     def _read(self, m):
         if self.measuring:
@@ -163,27 +154,32 @@ def run_route(route: str, args, workdir: str) -> dict:
         ex.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
-    sim_s = None
-    if route == 'driver':
-        sim_s = _truth_from_emulator(probe, os.path.join(workdir, 'truth.npz'), window)
+    # the driver stamps its reads with the wall clock, the sim with simulated time
+    sim_s = _truth_from_file(probe, os.path.join(workdir, TRUTH_FILE), window, wall_stamps=route == 'driver')
     out = figures(probe, args.gait)
-    if sim_s is not None:
-        out['sim_s'] = sim_s
+    out['sim_s'] = sim_s
     out.update(route=route, wall_s=wall, cpu=cpu, ended=ended)
     return out
 
 
-def _truth_from_emulator(probe: _Probe, path: str, window) -> float:
-    """Fill the probe's pose and contacts from the emulator's truth file, on the wall clock the
-    driver stamps its reads with; returns the simulated seconds within the window."""
+def _truth_from_file(probe: _Probe, path: str, window, wall_stamps: bool) -> float:
+    """Fill the probe's pose and contacts from the truth file of the sim or the emulator
+    (:mod:`hexapod_sim.truth_log`), on the clock the reads are stamped with; returns the simulated
+    seconds within the wall-clock window."""
+    from hexapod_sim.plant import SimError
+    from hexapod_sim.truth_log import load_truth
     if not os.path.exists(path):
-        raise RuntimeError(f'driver: the bus emulator wrote no truth file ({path})')
-    truth = np.load(path)['truth']
+        raise RuntimeError(f'the sim wrote no truth file ({path})')
+    try:
+        truth = load_truth(path)
+    except SimError as exc:
+        raise RuntimeError(str(exc)) from None
     sel = truth[(truth[:, 0] >= window[0]) & (truth[:, 0] <= window[1])]
     if len(sel) < 2:
-        raise RuntimeError(f'driver: the emulator\'s truth holds {len(sel)} samples in the measured window')
-    probe.pose = [(row[0], row[2]) for row in sel]
-    probe.contacts = [(row[0], [bool(c) for c in row[5:11]]) for row in sel]
+        raise RuntimeError(f'the truth file holds {len(sel)} samples in the measured window')
+    t = sel[:, 0] if wall_stamps else sel[:, 1]
+    probe.pose = list(zip(t, sel[:, 2]))
+    probe.contacts = [(ti, [bool(c) for c in row[5:11]]) for ti, row in zip(t, sel)]
     return float(sel[-1, 1] - sel[0, 1])
 
 
@@ -244,8 +240,6 @@ def main(argv=None) -> int:
     ap.add_argument('--seed', type=int, default=0, help='terrain seed (the in-process reference uses it too)')
     ap.add_argument('--vx', type=finite_float, default=0.05, help='/cmd_vel forward speed [m/s]')
     ap.add_argument('--domain-id', type=int, default=86, help='ROS_DOMAIN_ID of the graph (loopback only)')
-    ap.add_argument('--truth-rate', type=float, default=1000.0,
-                    help='rate of the sim truth topics [Hz]: the resolution of the true contact times')
     ap.add_argument('--keep', metavar='DIR', help='keep the node logs in DIR')
     args = ap.parse_args(argv)
     from .gait import GaitError, get_gait

@@ -13,6 +13,7 @@ thread and talks to a servo bus:
 """
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import threading
@@ -168,7 +169,14 @@ class LocomotionNode(Node):
 
 def spin_while_walking(executor, node: LocomotionNode) -> None:
     """Spin until shutdown, or until the controller thread has ended (then raise SystemExit(1) if it
-    failed: a supervisor or the user restarts the node; the bus master holds the last goals)."""
+    failed: a supervisor or the user restarts the node; the bus master holds the last goals).
+
+    Everything made while starting (imports, the robot model, compiled kernels, the MuJoCo model:
+    about 180,000 objects) is moved out of the garbage collector's reach first (``gc.freeze``).
+    Without that, each full collection traverses them all: 120-290 ms with the interpreter held,
+    measured in the composed robot: twice during start-up and once in a 25 s walk (none with the freeze)
+    - a stall in which a landing leg keeps pushing against the ground."""
+    gc.freeze()
     while rclpy.ok(context=node.context) and node.running:
         executor.spin_once(timeout_sec=0.1)
     if node.failed:

@@ -224,6 +224,16 @@ def _rotate(c, s, d):
 
 
 @njit(cache=True, fastmath=True, nogil=True, inline='always')
+def _rotate_small(c, s, d):
+    """:func:`_rotate` for |d| < 0.01 only (its Taylor branch, no branch: callers check |d| and redo
+    larger increments with :func:`_rotate`)."""
+    d2 = d * d
+    cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 * (1.0 / 720.0)))
+    sd = d * (1.0 - d2 * (1.0 / 6.0 - d2 * (1.0 / 120.0 - d2 * (1.0 / 5040.0))))
+    return c * cd - s * sd, s * cd + c * sd
+
+
+@njit(cache=True, fastmath=True, nogil=True, inline='always')
 def _servo_torques(p, goal2, goal3, q2, q3):
     """Both servos' firmware torques for the link angles: the present tick as the servo reports it
     (nearest integer, clipped) and the law of :func:`hexapod_model.servo.firmware_torque_scalar`."""
@@ -251,8 +261,10 @@ def _rigid_constants(p):
 def _rigid_substep(c, tau2, tau3, q2, q3, v2, v3, c2, s2, c3, s3):
     """One semi-implicit Euler substep of a leg without backlash (Eq. 14, damping implicit, Coulomb
     / break-away friction as velocity-level impulses by Gauss-Seidel). ``c``: :func:`_rigid_constants`;
-    ``c2, s2, c3, s3``: cos/sin of the link angles psi, carried along by :func:`_rotate` (no trig
-    call per substep). Returns the new ``(q2, q3, v2, v3, c2, s2, c3, s3)``."""
+    ``c2, s2, c3, s3``: cos/sin of the link angles psi, carried along by :func:`_rotate_small` (no
+    trig call, no branch). Returns the new ``(q2, q3, v2, v3, c2, s2, c3, s3, d2, d3)`` with the
+    position increments ``d``: where one is 0.01 rad or more the caller redoes its rotation with
+    :func:`_rotate` (from the old cos/sin), so the result is :func:`_rotate`'s either way."""
     k11c, k12c, k22, kc, gm1, gm2, a22, inv_ha22, h, b2, fc2, fc3, fs2, fs3 = c
     d11 = k11c + 2.0 * kc * c3
     d12 = k12c + kc * c3
@@ -279,28 +291,35 @@ def _rigid_substep(c, tau2, tau3, q2, q3, v2, v3, c2, s2, c3, s3):
     f3 = 0.0
     for _it in range(3):  # Gauss-Seidel on the two friction impulses
         u2 = w2 + h * (inv11 * f2 + inv12 * f3)
-        f2 = min(max(f2 - u2 * k2, -lim2), lim2)
-        u3 = w3 + h * (inv12 * f2 + inv22 * f3)
-        f3 = min(max(f3 - u3 * k3, -lim3), lim3)
+        n2 = min(max(f2 - u2 * k2, -lim2), lim2)
+        u3 = w3 + h * (inv12 * n2 + inv22 * f3)
+        n3 = min(max(f3 - u3 * k3, -lim3), lim3)
+        if n2 == f2 and n3 == f3:   # a sweep that changes nothing repeats forever: stop (exact)
+            break
+        f2 = n2
+        f3 = n3
     v2 = w2 + h * (inv11 * f2 + inv12 * f3)
     v3 = w3 + h * (inv12 * f2 + inv22 * f3)
     if abs(v2) < V_STICK:
         v2 = 0.0
     if abs(v3) < V_STICK:
         v3 = 0.0
-    c2, s2 = _rotate(c2, s2, h * v2)
-    c3, s3 = _rotate(c3, s3, h * v3)
-    return q2 + h * v2, q3 + h * v3, v2, v3, c2, s2, c3, s3
+    d2 = h * v2
+    d3 = h * v3
+    c2n, s2n = _rotate_small(c2, s2, d2)
+    c3n, s3n = _rotate_small(c3, s3, d3)
+    return q2 + d2, q3 + d3, v2, v3, c2n, s2n, c3n, s3n, d2, d3
 
 
 @njit(cache=True, fastmath=True, nogil=True)
-def _rollout_rigid3(pa, pb, pc, q0a, q0b, q0c, v0a, v0b, v0c, ga, gb, gc, qa, qb, qc, va, vb, vc, ta, tb, tc):
+def _rollout_rigid3(pa, pb, pc, q0a, q0b, q0c, v0a, v0b, v0c, ga, gb, gc, per, qa, qb, qc, va, vb, vc, ta, tb, tc):
     """Three legs without backlash stepped side by side (see :func:`_rollout_legs`).
 
     A leg's substep is one serial chain (tick -> torque -> velocity -> friction -> position), so one
     leg alone leaves the CPU waiting on latencies; three independent chains in one loop body
     overlap. Fewer than three legs: pass one leg twice (it writes the same values twice).
-    ``q0*``/``v0*`` (2,) initial state; ``g*`` (n, 2) goals; ``q*``/``v*`` (n + 1, 2); ``t*`` (n, 2).
+    ``q0*``/``v0*`` (2,) initial state; ``g*`` (r, 2) goal rows, each held for ``per`` periods (the
+    last one to the end); ``q*``/``v*`` (n + 1, 2); ``t*`` (n, 2) for n periods.
     """
     ca, cb, cc = _rigid_constants(pa), _rigid_constants(pb), _rigid_constants(pc)
     n_sub = int(pa[P_SUBSTEPS])
@@ -316,14 +335,34 @@ def _rollout_rigid3(pa, pb, pc, q0a, q0b, q0c, v0a, v0b, v0c, ga, gb, gc, qa, qb
     qa[0, 0], qa[0, 1], va[0, 0], va[0, 1] = qa2, qa3, va2, va3
     qb[0, 0], qb[0, 1], vb[0, 0], vb[0, 1] = qb2, qb3, vb2, vb3
     qc[0, 0], qc[0, 1], vc[0, 0], vc[0, 1] = qc2, qc3, vc2, vc3
-    for k in range(ga.shape[0]):
-        ta2, ta3 = _servo_torques(pa, ga[k, 0], ga[k, 1], qa2, qa3)
-        tb2, tb3 = _servo_torques(pb, gb[k, 0], gb[k, 1], qb2, qb3)
-        tc2, tc3 = _servo_torques(pc, gc[k, 0], gc[k, 1], qc2, qc3)
+    last = ga.shape[0] - 1
+    row = 0
+    held = 0
+    for k in range(ta.shape[0]):
+        if held == per:                      # the next goal row (k // per, counted), capped at the last
+            held = 0
+            row = min(row + 1, last)
+        held += 1
+        ta2, ta3 = _servo_torques(pa, ga[row, 0], ga[row, 1], qa2, qa3)
+        tb2, tb3 = _servo_torques(pb, gb[row, 0], gb[row, 1], qb2, qb3)
+        tc2, tc3 = _servo_torques(pc, gc[row, 0], gc[row, 1], qc2, qc3)
         for _ in range(n_sub):
-            qa2, qa3, va2, va3, ac2, as2, ac3, as3 = _rigid_substep(ca, ta2, ta3, qa2, qa3, va2, va3, ac2, as2, ac3, as3)
-            qb2, qb3, vb2, vb3, bc2, bs2, bc3, bs3 = _rigid_substep(cb, tb2, tb3, qb2, qb3, vb2, vb3, bc2, bs2, bc3, bs3)
-            qc2, qc3, vc2, vc3, cc2, cs2, cc3, cs3 = _rigid_substep(cc, tc2, tc3, qc2, qc3, vc2, vc3, cc2, cs2, cc3, cs3)
+            qa2, qa3, va2, va3, nac2, nas2, nac3, nas3, da2, da3 = _rigid_substep(
+                ca, ta2, ta3, qa2, qa3, va2, va3, ac2, as2, ac3, as3)
+            qb2, qb3, vb2, vb3, nbc2, nbs2, nbc3, nbs3, db2, db3 = _rigid_substep(
+                cb, tb2, tb3, qb2, qb3, vb2, vb3, bc2, bs2, bc3, bs3)
+            qc2, qc3, vc2, vc3, ncc2, ncs2, ncc3, ncs3, dc2, dc3 = _rigid_substep(
+                cc, tc2, tc3, qc2, qc3, vc2, vc3, cc2, cs2, cc3, cs3)
+            if max(max(abs(da2), abs(da3)), max(abs(db2), abs(db3)), max(abs(dc2), abs(dc3))) >= 0.01:
+                nac2, nas2 = _rotate(ac2, as2, da2)    # a fast joint: the exact rotation (rare)
+                nac3, nas3 = _rotate(ac3, as3, da3)
+                nbc2, nbs2 = _rotate(bc2, bs2, db2)
+                nbc3, nbs3 = _rotate(bc3, bs3, db3)
+                ncc2, ncs2 = _rotate(cc2, cs2, dc2)
+                ncc3, ncs3 = _rotate(cc3, cs3, dc3)
+            ac2, as2, ac3, as3 = nac2, nas2, nac3, nas3
+            bc2, bs2, bc3, bs3 = nbc2, nbs2, nbc3, nbs3
+            cc2, cs2, cc3, cs3 = ncc2, ncs2, ncc3, ncs3
         ta[k, 0], ta[k, 1], tb[k, 0], tb[k, 1], tc[k, 0], tc[k, 1] = ta2, ta3, tb2, tb3, tc2, tc3
         qa[k + 1, 0], qa[k + 1, 1], va[k + 1, 0], va[k + 1, 1] = qa2, qa3, va2, va3
         qb[k + 1, 0], qb[k + 1, 1], vb[k + 1, 0], vb[k + 1, 1] = qb2, qb3, vb2, vb3
@@ -331,7 +370,7 @@ def _rollout_rigid3(pa, pb, pc, q0a, q0b, q0c, v0a, v0b, v0c, ga, gb, gc, qa, qb
 
 
 @njit(cache=True, fastmath=True, nogil=True)
-def _rollout_backlash(p, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap):
+def _rollout_backlash(p, q0, qd0, goals, per, out_q, out_qd, out_tau, gap0, out_gap):
     """One leg with gear backlash on one or both joints: :func:`_backlash_substep` per substep."""
     n_sub = int(p[P_SUBSTEPS])
     h = p[P_DT] / n_sub
@@ -346,8 +385,15 @@ def _rollout_backlash(p, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap):
     out_qd[0, 1] = v3
     out_gap[0, 0] = qm2 - q2
     out_gap[0, 1] = qm3 - q3
-    for k in range(goals.shape[0]):
-        tau2, tau3 = _servo_torques(p, goals[k, 0], goals[k, 1], q2, q3)
+    last = goals.shape[0] - 1
+    row = 0
+    held = 0
+    for k in range(out_tau.shape[0]):
+        if held == per:                      # as in _rollout_rigid3
+            held = 0
+            row = min(row + 1, last)
+        held += 1
+        tau2, tau3 = _servo_torques(p, goals[row, 0], goals[row, 1], q2, q3)
         out_tau[k, 0] = tau2
         out_tau[k, 1] = tau3
         for _ in range(n_sub):
@@ -362,11 +408,12 @@ def _rollout_backlash(p, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap):
 
 
 @njit(cache=True, nogil=True)
-def _rollout_legs(params, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap, idx):
-    """Simulate ``L`` legs over ``goals.shape[1]`` control periods; allocates nothing.
+def _rollout_legs(params, q0, qd0, goals, per, out_q, out_qd, out_tau, gap0, out_gap, idx):
+    """Simulate ``L`` legs over ``n = out_tau.shape[1]`` control periods; allocates nothing.
 
-    ``params`` (L, N_PARAMS); ``q0``, ``qd0``, ``gap0`` (L, 2); ``goals`` (L, n, 2) integer goal ticks
-    per period; ``out_q[l, k]``/``out_qd[l, k]`` the state at the start of period k (L, n + 1, 2),
+    ``params`` (L, N_PARAMS); ``q0``, ``qd0``, ``gap0`` (L, 2); ``goals`` (L, r, 2) integer goal ticks,
+    row ``i`` in effect for periods ``[i per, (i + 1) per)`` and the last row to the end (``per`` = 1:
+    one row per period); ``out_q[l, k]``/``out_qd[l, k]`` the state at the start of period k (L, n + 1, 2),
     ``out_tau`` (L, n, 2) the firmware torque held over period k, ``out_gap`` the backlash gap
     ``q_motor - q_link`` (zero without backlash); ``idx`` (L,) int64 scratch. Legs with backlash
     run one by one (:func:`_rollout_backlash`), the others in groups of three sharing a substep
@@ -376,7 +423,7 @@ def _rollout_legs(params, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap,
     for l in range(params.shape[0]):
         p = params[l]
         if p[P_BL2] > 0.0 or p[P_BL3] > 0.0:
-            _rollout_backlash(p, q0[l], qd0[l], goals[l], out_q[l], out_qd[l], out_tau[l], gap0[l], out_gap[l])
+            _rollout_backlash(p, q0[l], qd0[l], goals[l], per, out_q[l], out_qd[l], out_tau[l], gap0[l], out_gap[l])
         else:
             out_gap[l, :, :] = 0.0
             idx[n_rigid] = l
@@ -393,7 +440,7 @@ def _rollout_legs(params, q0, qd0, goals, out_q, out_qd, out_tau, gap0, out_gap,
                 c = idx[start + 2]
         start += 1 + (b != a) + (c != b)
         _rollout_rigid3(params[a], params[b], params[c], q0[a], q0[b], q0[c], qd0[a], qd0[b], qd0[c],
-                        goals[a], goals[b], goals[c], out_q[a], out_q[b], out_q[c],
+                        goals[a], goals[b], goals[c], per, out_q[a], out_q[b], out_q[c],
                         out_qd[a], out_qd[b], out_qd[c], out_tau[a], out_tau[b], out_tau[c])
 
 
@@ -486,7 +533,7 @@ class LegModel:
         qd = np.empty((1, n + 1, 2))
         tau = np.empty((1, n, 2))
         gap = np.empty((1, n + 1, 2))
-        _rollout_legs(p[None], q0[None], qd0[None], goals[None], q, qd, tau, gap0[None], gap, np.empty(1, np.int64))
+        _rollout_legs(p[None], q0[None], qd0[None], goals[None], 1, q, qd, tau, gap0[None], gap, np.empty(1, np.int64))
         return Rollout(self.dt_s, q[0], qd[0], tau[0], gap[0])
 
     # -- analysis helpers used by tests and tools
@@ -638,48 +685,62 @@ def _eq15_goal(init_tick, fin_tick, k, n_interp):
 
 
 @njit(cache=True, nogil=True)
-def _swing_down_kernel(params, init_t, fin_t, q0, qd0, gap0, n_interp, t_con, t_com, read_delay, center,
-                       rad_per_tick, direction, epsilon, goal_buf, idx, out_t_read, out_des, out_est, out_err,
-                       out_thr, out_q, out_qd, out_tau, out_gap):
+def _swing_down_kernel(params, q0, q_fin, qd0, gap0, n_interp, n_reach, t_con, per_step, t_com, read_delay, center,
+                       rad_per_tick, epsilon, ticks, direction, reached, goal_buf, idx, out_t_read, out_des,
+                       out_est, out_err, out_thr, out_q, out_qd, out_tau, out_gap):
     """CalcModel for all swinging legs in one call, allocating nothing (every array is the caller's).
 
-    Per leg slot ``l``: the goal in effect at each servo period (Eq. 15 step ``k = floor(t / t_con)``,
-    capped at the last step) into ``goal_buf`` (L, n, 2); the legs simulated together by
-    :func:`_rollout_legs` (``idx`` its (L,) scratch); then per step ``k`` the read instant
-    ``k t_con + l t_com``, the goal, the predicted tick at the (delayed) sample instant (linear
-    interpolation between servo periods, as ``np.interp``), the lag in the direction of motion and
-    the Eq. 17 threshold.
+    Returns False, and computes nothing, when an initial or final angle (``q0``, ``q_fin``: (L, 2)
+    rad) is not finite. Otherwise per leg slot ``l``: the initial and final angles as continuous
+    ticks into ``ticks`` (2, L, 2) (the operations of :func:`hexapod_model.servo.theta_to_tick`) and
+    the sign of the femur motion into ``direction`` (L,); the Eq. 15 goals into ``goal_buf``: when
+    ``t_con`` is ``per_step`` whole servo periods, one row per step (L, K, 2), each held for
+    ``per_step`` periods; otherwise (``per_step`` = 0) the goal in effect at each servo period (step
+    ``k = floor(t / t_con)``, capped at the last step; (L, n, 2)); the legs simulated together by
+    :func:`_rollout_legs` over the n periods of ``out_tau`` (``idx`` its (L,) scratch); then per step ``k``
+    the read instant ``k t_con + l t_com``, the goal, the predicted tick at the (delayed) sample
+    instant (linear interpolation between servo periods, as ``np.interp``), the lag in the
+    direction of motion and the Eq. 17 threshold; ``reached`` (K,) whether step ``k``'s goal is
+    theta_fin (``k + 1 >= n_reach``, the number of interpolation steps).
     """
     n_legs = params.shape[0]
     n_steps = out_des.shape[0]
-    n_periods = goal_buf.shape[1]
-    dt = params[0, P_DT]
-    ratio = t_con / dt
-    per_step = int(round(ratio)) if abs(ratio - round(ratio)) < 1e-9 else 0   # t_con in whole periods
     for l in range(n_legs):
-        k_prev = -1
-        g2 = 0.0
-        g3 = 0.0
-        k = 0
-        count = 0
-        for j in range(n_periods):
-            # the step whose goal is in effect: floor(j dt / t_con) (as goals_per_period), capped;
-            # counted up when t_con is a whole number of periods (no division per period)
-            if per_step > 0:
-                if count == per_step:
-                    count = 0
-                    k += 1
-                count += 1
-            else:
-                k = int(math.floor(j * dt / t_con + 1e-9))
-            kk = min(k, n_steps - 1)
-            if kk != k_prev:
-                g2 = _eq15_goal(init_t[l, 0], fin_t[l, 0], kk, n_interp)
-                g3 = _eq15_goal(init_t[l, 1], fin_t[l, 1], kk, n_interp)
-                k_prev = kk
-            goal_buf[l, j, 0] = g2
-            goal_buf[l, j, 1] = g3
-    _rollout_legs(params, q0, qd0, goal_buf, out_q, out_qd, out_tau, gap0, out_gap, idx)
+        for j in range(2):
+            if not (math.isfinite(q0[l, j]) and math.isfinite(q_fin[l, j])):
+                return False
+    init_t = ticks[0]
+    fin_t = ticks[1]
+    for l in range(n_legs):
+        for j in range(2):
+            init_t[l, j] = center + q0[l, j] / rad_per_tick
+            fin_t[l, j] = center + q_fin[l, j] / rad_per_tick
+        direction[l] = 1.0 if fin_t[l, 0] >= init_t[l, 0] else -1.0
+    for k in range(n_steps):
+        reached[k] = k + 1 >= n_reach
+    n_periods = out_tau.shape[1]
+    dt = params[0, P_DT]
+    if per_step > 0:
+        for l in range(n_legs):
+            for k in range(n_steps):
+                goal_buf[l, k, 0] = _eq15_goal(init_t[l, 0], fin_t[l, 0], k, n_interp)
+                goal_buf[l, k, 1] = _eq15_goal(init_t[l, 1], fin_t[l, 1], k, n_interp)
+        _rollout_legs(params, q0, qd0, goal_buf, per_step, out_q, out_qd, out_tau, gap0, out_gap, idx)
+    else:
+        for l in range(n_legs):
+            k_prev = -1
+            g2 = 0.0
+            g3 = 0.0
+            for j in range(n_periods):
+                # the step whose goal is in effect: floor(j dt / t_con) (as goals_per_period), capped
+                kk = min(int(math.floor(j * dt / t_con + 1e-9)), n_steps - 1)
+                if kk != k_prev:
+                    g2 = _eq15_goal(init_t[l, 0], fin_t[l, 0], kk, n_interp)
+                    g3 = _eq15_goal(init_t[l, 1], fin_t[l, 1], kk, n_interp)
+                    k_prev = kk
+                goal_buf[l, j, 0] = g2
+                goal_buf[l, j, 1] = g3
+        _rollout_legs(params, q0, qd0, goal_buf, 1, out_q, out_qd, out_tau, gap0, out_gap, idx)
     last = n_periods            # out_q has n_periods + 1 rows on the grid j dt
     x_last = last * dt
     for l in range(n_legs):
@@ -709,6 +770,7 @@ def _swing_down_kernel(params, init_t, fin_t, q0, qd0, gap0, n_interp, t_con, t_
             out_est[k, l] = est
             out_err[k, l] = direction[l] * (des - est)
             out_thr[k, l] = out_err[k, l] + epsilon
+    return True
 
 
 def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_s: float, t_com_s: float,
@@ -733,15 +795,11 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
     for name, v in (('t_des_s', t_des_s), ('t_com_s', t_com_s), ('epsilon_tick', epsilon_tick)):
         if not math.isfinite(v) or (name != 'epsilon_tick' and v <= 0):
             raise SwingDownError(f'{name} must be a finite positive number, got {v!r}')
-    if not (np.isfinite(init).all() and np.isfinite(fin).all()):
-        raise SwingDownError('initial or final joint angles contain NaN or infinity')
     servo = robot.servo
     t_con = L * t_com_s                                         # Algorithm 1, line 1
     n_interp = int(math.ceil(t_des_s / t_con - 1e-9))
     if n_steps is None:
         n_steps = int(math.ceil(n_interp * 1.2)) + 1
-    init_t = theta_to_tick(init, servo)
-    fin_t = theta_to_tick(fin, servo)
     qd0 = np.zeros((L, 2)) if qd0_rad_s is None else np.asarray(qd0_rad_s, dtype=float).reshape(L, 2)
     delay = np.zeros(L) if read_delay_s is None else np.asarray(read_delay_s, dtype=float).reshape(L)
     dt = servo.control_period_s
@@ -753,23 +811,31 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
         model = (models or {}).get(leg) or LegModel(robot, leg)
         params[slot] = model.params
         if model.params[P_BL2] > 0.0 or model.params[P_BL3] > 0.0:
-            gap0[slot] = model.default_gap_rad(init[slot])
-    direction = np.where(fin_t[:, 0] >= init_t[:, 0], 1.0, -1.0)
-    # the result in one allocation: 5 (K, L) tables, per leg q/qd/gap (n+1, 2) and tau (n, 2); the
-    # kernel's scratch (goals per period) at its end
+            gap0[slot] = model.default_gap_rad(init[slot]) if np.isfinite(init[slot]).all() else 0.0
+    ratio = t_con / dt
+    per_step = int(round(ratio)) if abs(ratio - round(ratio)) < 1e-9 else 0   # t_con in whole servo periods
+    goal_rows = n_steps if per_step else n_periods
+    # the result in one allocation: 5 (K, L) tables, the init/fin ticks (2, L, 2), the direction (L,),
+    # per leg q/qd/gap (n+1, 2) and tau (n, 2); the kernel's scratch (the goals) at its end
     kl = 5 * n_steps * L
     rows = L * (n_periods + 1) * 2
-    block = np.empty(kl + 3 * rows + 2 * L * n_periods * 2)
+    block = np.empty(kl + 5 * L + 3 * rows + L * n_periods * 2 + L * goal_rows * 2)
     tables = block[:kl].reshape(5, n_steps, L)
-    q, qd, gap = (block[kl + i * rows:kl + (i + 1) * rows].reshape(L, n_periods + 1, 2) for i in range(3))
-    o = kl + 3 * rows
+    ticks = block[kl:kl + 4 * L].reshape(2, L, 2)
+    direction = block[kl + 4 * L:kl + 5 * L]
+    o = kl + 5 * L
+    q, qd, gap = (block[o + i * rows:o + (i + 1) * rows].reshape(L, n_periods + 1, 2) for i in range(3))
+    o += 3 * rows
     tau = block[o:o + L * n_periods * 2].reshape(L, n_periods, 2)
-    goal_buf = block[o + L * n_periods * 2:].reshape(L, n_periods, 2)
-    _swing_down_kernel(params, init_t, fin_t, init, qd0, gap0, float(t_des_s / t_con), t_con, float(t_com_s), delay,
-                       float(servo.center_tick), float(servo.rad_per_tick), direction, float(epsilon_tick), goal_buf,
-                       np.empty(L, np.int64), tables[0], tables[1], tables[2], tables[3], tables[4], q, qd, tau, gap)
+    goal_buf = block[o + L * n_periods * 2:].reshape(L, goal_rows, 2)
+    reached = np.empty(n_steps, dtype=np.bool_)
+    if not _swing_down_kernel(params, init, fin, qd0, gap0, float(t_des_s / t_con), n_interp, t_con, per_step,
+                              float(t_com_s), delay, float(servo.center_tick), float(servo.rad_per_tick),
+                              float(epsilon_tick), ticks, direction, reached, goal_buf, np.empty(L, np.int64),
+                              tables[0], tables[1], tables[2], tables[3], tables[4], q, qd, tau, gap):
+        raise SwingDownError('initial or final joint angles contain NaN or infinity')
     rollouts = tuple(Rollout(dt, q[slot], qd[slot], tau[slot], gap[slot]) for slot in range(L))
     return SwingDownPrediction(
         legs=legs, t_con_s=t_con, t_com_s=t_com_s, epsilon_tick=float(epsilon_tick), direction=direction,
         t_read_s=tables[0], theta_des_tick=tables[1], theta_est_tick=tables[2], err_est_tick=tables[3],
-        threshold_tick=tables[4], reached_fin=(np.arange(n_steps) + 1) >= n_interp, rollouts=rollouts)
+        threshold_tick=tables[4], reached_fin=reached, rollouts=rollouts)

@@ -26,6 +26,7 @@ import numpy as np
 from hexapod_model.description import ALL_JOINTS, LEGS
 
 from .plant import FootContacts, HexapodSim, ImuSample, PowerMeter, ServoTelemetry, SimError
+from .truth_log import TruthLog
 
 
 @dataclass(frozen=True)
@@ -96,8 +97,10 @@ class SimBusLoop:
     """Bus master over a :class:`HexapodSim`: cyclic reads per the schedule, writes on command."""
 
     def __init__(self, sim: HexapodSim, *, power_period_s: float = 0.01, diagnostics_period_s: float = 0.1,
-                 timing_period_s: float = 1.0, truth_period_s: float = 0.01, clock_period_s: float = 0.001):
+                 timing_period_s: float = 1.0, truth_period_s: float = 0.01, clock_period_s: float = 0.001,
+                 truth_log: TruthLog | None = None):
         self.sim = sim
+        self.truth_log = truth_log          # the benchmarks' per-ms truth, sampled after every read
         self._power = _Every(power_period_s, 'power_period_s')
         self._diag = _Every(diagnostics_period_s, 'diagnostics_period_s')
         self._timing = _Every(timing_period_s, 'timing_period_s')
@@ -168,6 +171,8 @@ class SimBusLoop:
     def _read(self, joint: str, out: list) -> None:
         theta, t = self.sim.read_position(joint)
         out.append(JointSample(joint, theta, t))
+        if self.truth_log is not None:
+            self.truth_log.sample(self.sim)
         self._periodic(out)
 
     def _finish(self, out: list) -> list:

@@ -9,41 +9,28 @@ installed without the driver importing the sim. The emulated servos' horns are t
 from __future__ import annotations
 
 import argparse
-import math
-import os
-import time
-
-import numpy as np
 
 from hexapod_driver.emulator import ServoBusBackend
 from hexapod_model.description import Robot
 
-TRUTH_PERIOD_S = 0.001       # one truth row per millisecond of physics
+from .truth_log import TruthLog
 
 
 class TruthRecordingBackend(ServoBusBackend):
-    """The adapter over a :class:`HexapodSim` that also keeps (wall time, sim time, body x, y, z,
-    six foot contacts) per millisecond of physics and writes them as .npz at exit: what a benchmark
-    compares the driver's view with (the emulator is not a ROS node, so it publishes no truth)."""
+    """The adapter over a :class:`HexapodSim` that also keeps the truth per millisecond of physics
+    (:class:`~hexapod_sim.truth_log.TruthLog`) and writes it at exit: what a benchmark compares the
+    driver's view with (the emulator is not a ROS node, so it publishes no truth)."""
 
     def __init__(self, sim, robot: Robot, path: str, max_catch_up_s: float | None = None):
         super().__init__(sim, robot, max_catch_up_s)
-        self.path = path
-        self.rows: list[tuple] = []
-        self._truth_t = -math.inf
+        self.truth = TruthLog(path)
 
     def _catch_up(self, t: float, slices: int = 1) -> None:
         super()._catch_up(t, slices)
-        now = self.bus.now()
-        if now - self._truth_t >= TRUTH_PERIOD_S:
-            self._truth_t = now
-            pos, _ = self.bus.body_pose()
-            self.rows.append((time.time(), now, *pos, *self.bus.foot_contacts().in_contact))
+        self.truth.sample(self.bus)
 
     def close(self) -> None:
-        tmp = f'{self.path}.part.npz'
-        np.savez(tmp, truth=np.array(self.rows, dtype=float).reshape(-1, 11))
-        os.replace(tmp, self.path)
+        self.truth.save()
 
 
 class SimBackend:
@@ -68,9 +55,12 @@ class SimBackend:
     def create(robot: Robot, args: argparse.Namespace) -> ServoBusBackend:
         if not args.max_catch_up_ms > 0:
             raise SystemExit(f'bus_emulator: --max-catch-up-ms must be > 0, got {args.max_catch_up_ms}')
-        if args.truth_out is not None and not os.path.isdir(os.path.dirname(os.path.abspath(args.truth_out))):
-            raise SystemExit(f'bus_emulator: --truth-out: the directory of {args.truth_out} does not exist')
-        from .plant import HexapodSim      # MuJoCo is imported only when this backend is chosen
+        from .plant import HexapodSim, SimError      # MuJoCo is imported only when this backend is chosen
+        if args.truth_out is not None:
+            try:
+                TruthLog(args.truth_out)           # checks the path before the physics is built
+            except SimError as exc:
+                raise SystemExit(f'bus_emulator: --truth-out: {exc}') from None
         sim = HexapodSim(robot, terrain=args.terrain, seed=args.terrain_seed, fixed_base=args.fixed_base)
         cap = args.max_catch_up_ms / 1000.0
         if args.truth_out is not None:

@@ -22,6 +22,7 @@ What it does per physics step, in order (the simulator's timing convention):
 from __future__ import annotations
 
 import glob
+import math
 import os
 
 import llvmlite.binding as llvm
@@ -75,6 +76,32 @@ def quantize_array(raw_tick, max_tick):
 J_QPOS, J_PLAY, J_DOF, J_ACT, J_ROW_OFF, J_GOAL_IDX = range(6)
 # rows of the per-joint float table
 F_SCALE, F_BASE = range(2)
+
+
+@njit(cache=True)
+def write_goals(idx, vals, lim_lo, lim_hi, scale, base, max_tick, angle_bit, error_bits, goal, jint):
+    """A sync write's goals (angles ``vals`` [rad] of joints ``idx``) into the loop's tables, in one call.
+
+    Returns the position in ``idx`` of the first non-finite value, and writes nothing then; else -1.
+    Per joint, as the AX-12A with its CW/CCW angle limits: the angle clamped to ``[lim_lo, lim_hi]``,
+    the angle-limit bit ``angle_bit`` of ``error_bits`` set when it was clamped and cleared when not,
+    the goal tick quantised (:func:`quantize1` of ``angle * scale + base``) into ``goal`` and its
+    torque-table index ``goal + max_tick`` into ``jint[J_GOAL_IDX]``.
+    """
+    for k in range(idx.shape[0]):
+        if not math.isfinite(vals[k]):
+            return k
+    for k in range(idx.shape[0]):
+        i = idx[k]
+        v = min(max(vals[k], lim_lo[i]), lim_hi[i])
+        if v != vals[k]:
+            error_bits[i] |= angle_bit
+        else:
+            error_bits[i] &= ~angle_bit
+        g = quantize1(v * scale[i] + base[i], max_tick)
+        goal[i] = g
+        jint[J_GOAL_IDX, i] = g + np.int64(max_tick)
+    return -1
 
 
 @njit(cache=True)

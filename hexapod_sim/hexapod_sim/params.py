@@ -34,6 +34,9 @@ class SimParams:
     bus_timing_rate_hz: float = param(1.0, '/bus_timing rate [Hz]; 0 off', min=0.0)
     truth_rate_hz: float = param(100.0, 'rate of the evaluation-only truth topics sim/foot_contacts, '
                                  'sim/body_pose [Hz]; 0 off', min=0.0)
+    truth_out: str = param('', "benchmarks: keep body position and foot contacts per ms of physics and write them to "
+                           "this .npz file at exit (hexapod_sim.truth_log; not published, so it does not load the "
+                           "graph); '' off")
     clock_rate_hz: float = param(1000.0, '/clock rate in simulated time [Hz]; 0 off', min=0.0)
     ambient_temperature_c: float = param(DEFAULT_AMBIENT_C, 'ambient temperature [C]')
     initial_temperature_c: float = param(DEFAULT_START_TEMPERATURE_C, 'servo temperature at start [C]')

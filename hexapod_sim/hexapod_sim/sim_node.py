@@ -60,6 +60,7 @@ from .recorder import Recorder, resolve_bag_dir
 from .plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
 from .bus_master_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
                        TruthSample, truth_vector)
+from .truth_log import TruthLog
 
 TIMER_PERIOD_S = 0.002        # wall period of the stepping timer
 MAX_READS_PER_TICK = 200      # bound one callback so subscriptions/services stay responsive
@@ -81,7 +82,8 @@ class SimNode(Node):
         self.loop = SimBusLoop(self.sim, power_period_s=p.period(p.power_rate_hz),
                                diagnostics_period_s=p.period(p.diagnostics_rate_hz),
                                timing_period_s=p.period(p.bus_timing_rate_hz),
-                               truth_period_s=p.period(p.truth_rate_hz), clock_period_s=p.period(p.clock_rate_hz))
+                               truth_period_s=p.period(p.truth_rate_hz), clock_period_s=p.period(p.clock_rate_hz),
+                               truth_log=TruthLog(p.truth_out) if p.truth_out else None)
         self.pacer = Pacer(p.real_time_factor, self.sim.now, max_lag_s=MAX_LAG_S)
         params.on_change('real_time_factor', self.pacer.reanchor)
         self.lockstep = p.lockstep
@@ -342,6 +344,10 @@ class SimNode(Node):
         """Finalise the bag (safe to call twice, also after the ROS context was shut down)."""
         if self._local is not None:
             self._local.stopped.set()
+        if self.loop.truth_log is not None:
+            with self._lock:
+                self.loop.truth_log.save()
+            self.loop.truth_log = None
         if self.recorder is not None:
             with self._lock:
                 self.recorder.close()

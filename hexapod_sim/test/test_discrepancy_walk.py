@@ -69,3 +69,24 @@ def test_clean_walk_replays_at_the_rounding_floor_and_no_effect_is_reported(rec,
     assert all(m.get('phase') in ('swing_up', 'swing_forward', 'swing_down') for m in doc['mismatches'])
     # the rounding floor itself: what a perfect model leaves is about 0.29 ticks
     assert np.median([v.heldout_rmse_ticks_before for v in a.joints.values()]) < 0.36
+
+
+def test_walk_is_judged_on_alternate_swings_and_cannot_show_is_computed(rec, robot):
+    """Fit and held-out reads come from alternate swings of each leg (every leg of the walk has both),
+    and each joint listed under "cannot show" is one where the typical effect changes the prediction
+    of its fitting or held-out reads by less than the drop an accepted effect needs (and vice versa)."""
+    from hexapod_sim.discrepancy.effects import BY_NAME
+    from hexapod_sim.discrepancy.fit import Predictor, prediction_change
+    a = analyse(rec, robot, workers=1)
+    for j in a.replay.joints:
+        seg = a.replay.reads[j].segment
+        assert set(seg[a.split.fit[j]]) <= set(range(0, 99, 2)), j
+        assert set(seg[a.split.hold[j]]) <= set(range(1, 99, 2)), j
+        assert a.split.fit[j].any() and a.split.hold[j].any(), j
+    pred = Predictor(a.replay, robot, workers=1)
+    p0 = pred.predict([], a.replay.joints)
+    assert 'static_friction' in a.blind and 'coulomb_friction' not in a.blind
+    for name, joint in (('static_friction', a.blind['static_friction'][0]), ('coulomb_friction', 'leg1_femur')):
+        c = BY_NAME[name]
+        change = min(prediction_change(pred, a.split, p0, c.make((joint,), c.typical)))
+        assert (change < a.min_drop_ticks) == (joint in a.blind.get(name, ())), (name, joint, change)

@@ -6,6 +6,8 @@ import signal
 import sys
 import threading
 
+import numpy as np
+
 from hexapod_model.description import load_robot
 
 from .. import protocol as p
@@ -55,6 +57,10 @@ def main(argv=None) -> int:
                     help='status return level (address 16) of every servo: 0 PING only, 1 reads only, 2 all')
     ap.add_argument('--seed', type=int, default=0, help='seed of the random faults')
     ap.add_argument('--verbose', action='store_true', help='print every instruction packet (slow)')
+    ap.add_argument('--timing-out', default=None, metavar='FILE.npy',
+                    help='at exit, write the wall-clock arrival and reply times of every answered instruction '
+                         '(an N x 2 array, time.time() seconds) still in the log (last 100000), for benchmarks '
+                         'that split a round trip into transport and servo time')
     args, unknown = ap.parse_known_args(argv)
     if args.backend != 'ideal' and args.backend not in plugins:
         ap.error(f"--backend {args.backend}: no such backend installed (installed: {', '.join(['ideal', *plugins])}); "
@@ -66,6 +72,8 @@ def main(argv=None) -> int:
         v = getattr(args, name)
         if not 0.0 <= v <= 1.0:
             ap.error(f'--{name.replace("_", "-")} must be within 0..1, got {v}')
+    if args.timing_out and not args.timing_out.endswith('.npy'):
+        ap.error(f'--timing-out {args.timing_out}: must name a .npy file')
     robot = load_robot(args.robot)
     backend = None if args.backend == 'ideal' else plugins[args.backend].create(robot, args)
     emu = BusEmulator(robot, backend, link_path=args.link, wire_time=args.wire_time, absent_ids=tuple(args.absent),
@@ -104,6 +112,9 @@ def main(argv=None) -> int:
     finally:
         emu.stop()
         print(f'served {emu.packets} packets', file=sys.stderr)
+        if args.timing_out:
+            np.save(args.timing_out, np.array([(e.wall, e.wall_reply) for e in emu.log if e.replied],
+                                              dtype=float).reshape(-1, 2))
         close = getattr(backend, 'close', None)      # a plug-in's backend may have results to write
         if close is not None:
             close()

@@ -14,8 +14,8 @@ import numpy as np
 
 from hexapod_model.description import Effect, Robot, load_robot, parse_joint_name
 from .effects import scope_name
-from .fit import FitSettings, Hypothesis, Namer, make_split
-from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions, unobservable
+from .fit import FitSettings, Hypothesis, Namer, make_split, unobservable
+from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from .recording import Recording, RecordingError
 from .segments import PHASES, gait_phases, looks_like_walk, obstructed_swings, swing_segments
 from .simulate import Replay
@@ -72,6 +72,7 @@ class Analysis:
     phase_fit: dict = field(default_factory=dict)
     # candidate effect -> analysed joints on which the recording cannot show it (locate.unobservable)
     blind: dict = field(default_factory=dict)
+    min_drop_ticks: float = 0.0      # held-out RMS drop an effect had to reach (the "cannot show" bound)
 
     @property
     def found(self) -> tuple[Effect, ...]:
@@ -111,13 +112,14 @@ def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: d
 
 
 def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=None, mode: str = 'auto',
-            settings: FitSettings | None = None, block_s: float = 2.0, progress: bool = False,
+            settings: FitSettings | None = None, block_s: float | None = None, progress: bool = False,
             workers: int = 2) -> Analysis:
     """Find what the nominal model of ``robot`` leaves out of ``rec`` (see the package docstring).
 
     ``joints``: restrict to these joints. ``windows``: list of (t_start, t_end) [s] to analyse
     (all legs), overriding the stand/walk choice. ``mode``: 'auto', 'stand' or 'walk'.
-    ``block_s``: length of the alternating fit / held-out time blocks.
+    ``block_s``: length of the alternating fit / held-out time blocks; default: 2 s on a stand or
+    given windows, alternate swings of each leg on a walk (:func:`~.fit.make_split`).
     """
     t_start = time.perf_counter()
     if mode not in MODES:
@@ -189,15 +191,16 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             else:
                 mode_used = 'stand'
                 notes.append('stand recording: every leg treated as hanging free for the whole recording')
-        split = make_split(replay, block_s=block_s, skip_start_s=skip_start_s)
+        by_swing = block_s is None and mode_used == 'walk'
+        split = make_split(replay, block_s=block_s or 2.0, skip_start_s=skip_start_s, by_segment=by_swing)
         step('motion conditions')
         traj = {leg: replay.trajectory(robot, leg) for leg in replay.legs}
         cond = read_conditions(replay, robot, traj)
         mism = mismatch_windows(replay, res0, cond)
-        blind = unobservable(replay, cond, split, settings.candidates)
         step('naming and fitting effects')
         namer = Namer(replay, robot, split, settings, progress=step, workers=workers)
         try:
+            blind = unobservable(namer.pred, split, pred0, settings.candidates, settings.min_drop_ticks)
             effects, accepted = namer.run()
             step('before/after on held-out data')
             pred1 = namer.pred.predict(effects, replay.joints)
@@ -212,6 +215,13 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                 a, _ = _rmse(r_w, split.hold, own)
                 found.append(FoundEffect(h.effect, scope_name(h.joints, replay.joints),
                                          dominant_condition(own, cond, r_wo, r_w), b, a))
+            # what was found was shown (a typical magnitude may not show where a larger one does)
+            for f in found:
+                if f.effect.effect in blind:
+                    rest = tuple(j for j in blind[f.effect.effect] if j not in f.effect.joints)
+                    blind = {k: v for k, v in blind.items() if k != f.effect.effect}
+                    if rest:
+                        blind[f.effect.effect] = rest
         finally:
             namer.close()
         res1 = {j: replay.reads[j].tick - pred1[j] for j in replay.joints}
@@ -225,12 +235,14 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             mism, phase_fit = _locate_phases(replay, phases, mism, res0, res1)
         n_hold = sum(int(np.count_nonzero(m)) for m in split.hold.values())
         n_fit = sum(int(np.count_nonzero(m)) for m in split.fit.values())
-        notes.append(f'fitted on {n_fit} reads, judged on {n_hold} held-out reads (alternating {block_s:g} s blocks)')
+        notes.append(f'fitted on {n_fit} reads, judged on {n_hold} held-out reads ('
+                     + ('alternate swings of each leg)' if by_swing else f'alternating {split.block_s:g} s blocks)'))
         return Analysis(source=rec.source, mode=mode_used, robot=robot, replay=replay, split=split,
                         duration_s=rec.duration_s, residual_before=res0, residual_after=res1, conditions=cond,
                         mismatches=mism, effects=found, joints=jfit, notes=notes,
                         runtime_s=time.perf_counter() - t_start, log=list(settings.log),
-                        glitches=tuple(rec.glitches), phase_fit=phase_fit, blind=blind)
+                        glitches=tuple(rec.glitches), phase_fit=phase_fit, blind=blind,
+                        min_drop_ticks=settings.min_drop_ticks)
     finally:
         if bar is not None:
             bar.close()

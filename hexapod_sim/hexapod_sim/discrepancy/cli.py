@@ -39,8 +39,9 @@ def build_parser():
                            '--write-overlay result); repeatable, applied in order')
     ap.add_argument('--candidates', nargs='+', choices=sorted(BY_NAME), metavar='EFFECT',
                     help=f'test only these effects (default all: {", ".join(BY_NAME)})')
-    ap.add_argument('--holdout-block', type=positive_float, default=2.0, metavar='S',
-                    help='length of the alternating fit / held-out blocks [s]')
+    ap.add_argument('--holdout-block', type=positive_float, default=None, metavar='S',
+                    help='length of the alternating fit / held-out time blocks [s] (default: 2 s on a stand, '
+                         'alternate swings of each leg on a walk)')
     ap.add_argument('--min-ratio', type=ratio_at_least_one, default=FitSettings.min_ratio,
                     help='held-out RMS improvement factor an effect must reach')
     add_no_progress_option(ap)

@@ -12,7 +12,8 @@ was taken in, from the commanded goals and the nominal prediction:
 ``start_from_rest``     the goal started moving within the last 0.15 s after a hold of >= 0.2 s
 ``large_error``         goal and predicted position differ by more than 10 ticks
 ``high_speed``          predicted speed above 0.8 rad/s
-``steady_hold``         goal unchanged for at least 0.15 s and the joint (nearly) at rest
+``steady_hold``         goal within 2 ticks for at least 0.15 s and the joint (nearly) at rest (a walk's
+                        swing-forward creeps its goal by a tick now and then: still a hold for the servo)
 ``gravity_load_high``   gravity torque above 60 % of the joint's maximum in the recording
 ``gravity_load_low``    gravity torque below 20 % of it (the coxa never carries gravity)
 ``moving``              none of the above
@@ -25,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from hexapod_model.description import Robot, joint_name, parse_joint_name
 from hexapod_model.swing_model import LegModel
@@ -44,6 +46,7 @@ CONDITION_WORDS = {
 
 REVERSAL_WINDOW_S = 0.15
 HOLD_S = 0.15
+HOLD_GOAL_TICKS = 2.0     # goal range over HOLD_S that still counts as a hold
 REST_BEFORE_S = 0.2
 MOTION_WINDOW_S = 0.06
 LARGE_ERROR_TICKS = 10.0
@@ -97,10 +100,11 @@ def period_conditions(replay: Replay, robot: Robot, joint: str, pred_traj: np.nd
     flips = np.nonzero((ff[1:] != ff[:-1]) & (ff[:-1] != 0) & (ff[1:] != 0))[0] + 1
     rev = _near_events(flips, n, 0, int(REVERSAL_WINDOW_S / dt))
     changed = np.concatenate([[False], g[1:] != g[:-1]])
-    last_change = np.where(changed, np.arange(n), -10 ** 9)
-    np.maximum.accumulate(last_change, out=last_change)
-    since_change = (np.arange(n) - last_change) * dt
-    hold = since_change >= HOLD_S
+    wh = max(int(round(HOLD_S / dt)), 1)
+    # range of the goal over the last HOLD_S (origin shifts the window to end at the period itself)
+    g_range = (maximum_filter1d(g, wh + 1, origin=wh // 2, mode='nearest')
+               - minimum_filter1d(g, wh + 1, origin=wh // 2, mode='nearest'))
+    hold = g_range <= HOLD_GOAL_TICKS
     # start from rest: first goal change after a hold of REST_BEFORE_S
     ch_idx = np.nonzero(changed)[0]
     starts = []
@@ -242,34 +246,15 @@ def dominant_condition(joints, conditions, before, after) -> str:
     return _most_telling(np.concatenate(masks), np.concatenate(gains))
 
 
-# The motion a candidate effect needs to show itself, and its words (see docs/discrepancy.md).
+# The motion a candidate effect needs to show itself, in words for the report's "cannot show" lines
+# (which joints cannot show it is computed: :func:`.fit.unobservable`).
 REVEALED_BY = {
-    'coulomb_friction': (('moving', 'high_speed', 'large_error'), 'no motion'),
-    'static_friction': (('start_from_rest',), 'no start from rest'),
-    'viscous_damping': (('high_speed',), 'no fast motion'),
-    'backlash': (('load_reversal', 'direction_reversal'), 'no load or direction reversal'),
-    'torque_saturation': (('large_error',), 'no large position error'),
-    'compliance_deadband': (('steady_hold',), 'no steady hold'),
-    'readout_delay': (('high_speed',), 'no fast motion'),
-    'mass_error': (('gravity_load_high',), 'no femur or tibia under gravity load'),
+    'coulomb_friction': 'motion',
+    'static_friction': 'a start from rest or a hold',
+    'viscous_damping': 'fast motion',
+    'backlash': 'a load reversal (on a coxa: a direction reversal)',
+    'torque_saturation': 'a large position error',
+    'compliance_deadband': 'a steady hold',
+    'readout_delay': 'fast motion',
+    'mass_error': 'a femur or tibia under changing gravity load',
 }
-
-
-def unobservable(replay: Replay, conditions: dict, split, candidates, min_reads: int = 10) -> dict[str, tuple]:
-    """Per candidate effect: the analysed joints on which the recording cannot show it, i.e. with
-    fewer than ``min_reads`` fitting or held-out reads in the conditions that reveal it."""
-    out = {}
-    for name in candidates:
-        conds, _ = REVEALED_BY[name]
-        cols = [CONDITIONS.index(c) for c in conds]
-        blind = []
-        for j in replay.joints:
-            if name == 'mass_error' and j.endswith('_coxa'):
-                continue
-            m = np.any(conditions[j][:, cols], axis=1)
-            if (np.count_nonzero(m & split.fit[j]) < min_reads
-                    or np.count_nonzero(m & split.hold[j]) < min_reads):
-                blind.append(j)
-        if blind:
-            out[name] = tuple(blind)
-    return out

@@ -80,13 +80,14 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
     if a.blind:
         n_j = len(a.replay.joints)
         lines.append('')
-        lines.append('what this recording cannot show (too few fitting or held-out reads in the motion that reveals it):')
+        lines.append(f'what this recording cannot show (a typical size of the effect changes the prediction of the '
+                     f'fitting or the held-out reads by less than the {a.min_drop_ticks:g} tick an effect must gain):')
         for name, js in a.blind.items():
             c = BY_NAME[name]
             n_all = n_j - (sum(1 for j in a.replay.joints if j.endswith('_coxa')) if name == 'mass_error' else 0)
-            where = 'on any analysed joint' if len(js) == n_all else f'on {", ".join(js)}'
-            lines.append(f'  {c.phrase}: {REVEALED_BY[name][1]} among both fitting and held-out reads {where} '
-                         '(not found there means not shown, not absent)')
+            where = 'any analysed joint' if len(js) == n_all else ', '.join(js)
+            lines.append(f'  {c.describe(c.typical)} on {where} (it needs {REVEALED_BY[name]}; '
+                         'not found there means not shown, not absent)')
     lines.append('')
     lines.append('held-out RMS error per joint [ticks], nominal model -> with the effects:')
     row = []

@@ -1,0 +1,35 @@
+"""Scoring of the discrepancy benchmark: an injected effect the tool did not find counts only where
+the tool said the recording cannot show it AND the bench's check with the hidden truth agrees."""
+from hexapod_model.description import Effect
+from hexapod_locomotion.discrepancy_bench import Case, score
+
+LEG6 = ('leg6_coxa', 'leg6_femur', 'leg6_tibia')
+CASE = Case('backlash@leg', (Effect('backlash', LEG6, {'width_rad': 0.02}),), walk=('pentapod', 'flat'))
+
+
+def _result(found_joints, blind):
+    return {'effects': [{'effect': 'backlash', 'joints': list(found_joints), 'params': {'width_rad': 0.021},
+                         'heldout_rmse_ticks_before': 2.2, 'heldout_rmse_ticks_after': 0.35}],
+            'cannot_show': {'backlash': list(blind)}}
+
+
+def test_exact_joints_are_right_without_any_check():
+    s = score(CASE, _result(LEG6, ()))
+    assert s['right'] and s['right_strict'] and s['truth'][0]['located']
+
+
+def test_missing_joints_count_only_if_said_and_confirmed():
+    said = _result(('leg6_coxa',), ('leg6_femur', 'leg6_tibia', 'leg1_femur'))
+    asked = []
+
+    def confirm(effect, joints):
+        asked.append(joints)
+        return True
+    s = score(CASE, said, truly_unshown=confirm)
+    assert s['right'] and not s['right_strict']
+    assert asked == [('leg6_femur', 'leg6_tibia')] and s['truth'][0]['unshown'] == ['leg6_femur', 'leg6_tibia']
+    assert not score(CASE, said, truly_unshown=lambda e, j: False)['right']          # the truth disagrees
+    assert not score(CASE, said)['right']                                             # no check, no credit
+    assert not score(CASE, _result(('leg6_coxa',), ('leg6_femur',)), truly_unshown=confirm)['right']  # not said
+    # found on a joint outside the truth: wrong, whatever it says it cannot show
+    assert not score(CASE, _result(('leg6_coxa', 'leg5_coxa'), LEG6), truly_unshown=confirm)['right']
