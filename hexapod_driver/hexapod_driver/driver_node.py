@@ -33,7 +33,7 @@ from hexapod_model import contract, diagnostics
 from hexapod_model.bus import BusError
 from hexapod_model.cli_common import prog_name
 from hexapod_model.description import ALL_JOINTS, DescriptionError
-from hexapod_model.node_params import NodeParams, node_command_line
+from hexapod_model.node_params import NodeParams, init_node_process, node_command_line
 from hexapod_model.param_schema import ParameterError, RobotSource, help_lines
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoStatus
 from hexapod_msgs.srv import SetReadSchedule
@@ -339,7 +339,7 @@ def main(args=None) -> int:
     rc = node_command_line(args, 'driver_node', help_text)      # --help never opens the serial device
     if rc is not None:
         return rc
-    rclpy.init(args=args)
+    init_node_process(args)
     node = None
     rc = EXIT_OK
     executor = SingleThreadedExecutor()

@@ -27,7 +27,7 @@ from rclpy.node import Node
 from hexapod_model.bus import BusError
 from hexapod_model.contract import CMD_VEL, GROUND_DETECTION, SWING_DOWN, stamp_parts
 from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
-from hexapod_model.node_params import NodeParams, report
+from hexapod_model.node_params import NodeParams, init_node_process, report
 from hexapod_model.param_schema import ParameterError, RobotSource
 
 from .controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
@@ -184,7 +184,7 @@ def spin_while_walking(executor, node: LocomotionNode) -> None:
 
 
 def main(args=None):
-    rclpy.init(args=args)
+    init_node_process(args)
     node = ex = None
     try:
         node = LocomotionNode()

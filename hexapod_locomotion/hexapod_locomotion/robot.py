@@ -25,7 +25,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from hexapod_model.bus import BusError
 from hexapod_model.description import DescriptionError
-from hexapod_model.node_params import NodeParams, node_command_line, report
+from hexapod_model.node_params import NodeParams, init_node_process, node_command_line, report
 from hexapod_model.param_schema import ParameterError
 
 from .controller import LocomotionError
@@ -75,7 +75,7 @@ def main(args=None) -> None:
     from hexapod_sim.plant import SimError
 
     from .locomotion_node import LocomotionNode, spin_while_walking
-    rclpy.init(args=args)
+    init_node_process(args)
     nodes, cleanups, loco = [], [], None
     try:
         hardware = _hardware(rclpy.get_default_context())

@@ -15,7 +15,7 @@ from rclpy.node import Node
 
 from .contract import PREDICT_SWING_DOWN
 from .description import LEGS, DescriptionError
-from .node_params import NodeParams, report
+from .node_params import NodeParams, init_node_process, report
 from .param_schema import ParameterError, RobotSource
 from .swing_model import LegModel, SwingDownError, predict_swing_down
 
@@ -57,7 +57,7 @@ class ModelNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
+    init_node_process(args)
     node = None
     try:
         node = ModelNode()

@@ -153,3 +153,22 @@ def report(node_name: str, exc: ParameterError) -> int:
     """Print the one line for a refused start value; the exit code to use."""
     print(f'{node_name}: {exc}', file=sys.stderr, flush=True)
     return EXIT_BAD_PARAMETER
+
+
+def init_node_process(args: list[str] | None = None) -> None:
+    """``rclpy.init`` for a node executable, with Ctrl-C that stops it the way SIGTERM does.
+
+    rclpy's signal handler shuts the context down (the spin loop ends with
+    ``ExternalShutdownException``, then ``main`` cleans up) and then calls the Python handler that
+    was installed before it. Python's default raises ``KeyboardInterrupt`` wherever the main thread
+    happens to be - also inside a garbage-collected rclpy ``Task.__del__``, which Python reports as
+    an ignored exception with a traceback. A handler that does nothing leaves the stop to rclpy."""
+    import signal
+
+    import rclpy
+    signal.signal(signal.SIGINT, _leave_the_stop_to_rclpy)
+    rclpy.init(args=args)
+
+
+def _leave_the_stop_to_rclpy(signum, frame) -> None:
+    """SIGINT after rclpy has shut the context down: nothing more to do."""

@@ -28,6 +28,7 @@ from std_msgs.msg import String
 
 from . import contract
 from .description import DescriptionError, load_robot
+from .node_params import init_node_process
 from .tf_tree import TfTree
 from .urdf import urdf_xml
 
@@ -91,7 +92,7 @@ class RobotStateNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
+    init_node_process(args)
     node = None
     try:
         node = RobotStateNode()

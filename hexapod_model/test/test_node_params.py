@@ -176,3 +176,29 @@ def test_robot_source_loads_description_and_overlays(ctx, tmp_path):
         assert (femur.direction, femur.offset_ticks) == (-1, 12)
     finally:
         node.destroy_node()
+
+
+def test_ctrl_c_in_a_node_process_stops_rclpy_without_a_keyboard_interrupt(tmp_path):
+    """After init_node_process, SIGINT shuts the rclpy context down and raises nothing in the main
+    thread, wherever it is (a KeyboardInterrupt landing in a collected rclpy Task printed a
+    traceback at Ctrl-C)."""
+    import os
+    import subprocess
+    import sys
+    script = tmp_path / 'node.py'
+    script.write_text(
+        'import os, signal, rclpy\n'
+        'from hexapod_model.node_params import init_node_process\n'
+        'init_node_process([])\n'
+        'os.kill(os.getpid(), signal.SIGINT)\n'
+        'try:\n'
+        '    for _ in range(2_000_000):\n'          # pure Python: where Python would raise it
+        '        pass\n'
+        '    print("ok" if not rclpy.ok() else "context still up")\n'
+        'except KeyboardInterrupt:\n'
+        '    print("KeyboardInterrupt")\n'
+        'rclpy.try_shutdown()\n')
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(120 + os.getpid() % 40))
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == 'ok', (r.stdout, r.stderr)
+    assert 'Traceback' not in r.stderr

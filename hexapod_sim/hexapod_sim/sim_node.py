@@ -44,7 +44,7 @@ from std_srvs.srv import Trigger
 
 from hexapod_model import contract, diagnostics
 from hexapod_model.description import ALL_JOINTS, DescriptionError
-from hexapod_model.node_params import NodeParams, report
+from hexapod_model.node_params import NodeParams, init_node_process, report
 from hexapod_model.param_schema import ParameterError, RobotSource
 from hexapod_model.urdf import urdf_xml
 from hexapod_model.contract import stamp_msg
@@ -380,7 +380,7 @@ def _error_text(bits: int, enabled: bool) -> str:
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
+    init_node_process(args)
     node = None
     try:
         node = SimNode()
