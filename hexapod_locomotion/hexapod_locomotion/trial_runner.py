@@ -45,6 +45,8 @@ class TrialConfig:
     t_com_s: float | None = None
     epsilon_tick: float = 3.0
     fixed_threshold_tick: float = 21.0
+    approach_rate: float = 1.0          # touchdown goal profile (LocomotionParams): 1 = the paper's Eq. 15
+    approach_height_m: float = 0.015
     probe_period_s: float = 0.05        # truth sampling period (pose, energy, temperature)
     record: str | None = None           # bag directory, or None
     overlays: tuple[str, ...] = ()
@@ -88,6 +90,8 @@ class ProbeBus:
         self.imu_rpy: list[tuple] = []
         self.imu_acc_z: list[float] = []
         self.femur_reads: dict[int, list[tuple]] = {leg: [] for leg in LEGS}
+        self.body_z: list[tuple[float, float]] = []      # (stamp, trunk z) at every femur read (truth)
+        self.detector_reads: dict[int, list[ReadResult]] = {leg: [] for leg in LEGS}
         self._probe()
 
     # -- ServoBus
@@ -115,6 +119,7 @@ class ProbeBus:
             tau = self.sim.applied_torque_nm()[ALL_JOINTS.index(joint)]
             self.femur_reads[leg].append((stamp, bool(c.in_contact[leg - 1]), float(tau),
                                           self.sim.true_joint_angles()[3 * (leg - 1):3 * leg].copy()))
+            self.body_z.append((stamp, float(self.sim.body_pose()[0][2])))
         if self.recorder is not None:
             self.recorder.write(JOINT_STATES, MSG_TYPES[JOINT_STATES], joint_state_msg(stamp, [joint], [theta]), stamp)
         self._maybe_probe()
@@ -200,6 +205,7 @@ class ProbeBus:
                             {'header': {'stamp': stamp_dict(phase.t_start_s)}, **swing_start_fields(phase)}, phase.t_start_s)
 
     def record_detection(self, r: ReadResult) -> None:
+        self.detector_reads[r.leg].append(r)
         if self.recorder is None:
             return
         self.recorder.write(GROUND_DETECTION, MSG_TYPES[GROUND_DETECTION], {
@@ -232,10 +238,17 @@ class TrialResult:
         return asdict(self)
 
 
+def body_rise_m(body_z, t0_s: float, t1_s: float) -> float:
+    """Largest rise of the trunk (truth z at the femur reads) over its height at ``t0_s``, within [t0, t1]."""
+    z = [v for t, v in body_z if t0_s - 1e-9 <= t <= t1_s + 1e-9]
+    return float(max(z) - z[0]) if z else math.nan
+
+
 def _detection_events(robot: Robot, probe: ProbeBus, rep: PhaseReport, controller: GaitController,
                       detector: DetectorConfig) -> list[DetectionEvent]:
     out = []
     t_con = len(rep.legs) * probe.t_com_s
+    rise = body_rise_m(probe.body_z, rep.t_swing_down_start_s, rep.t_swing_down_end_s)
     for o in rep.outcomes:
         t_stop = rep.t_swing_down_start_s + o.stop_time_s
         reads = [r for r in probe.femur_reads[o.leg] if rep.t_swing_down_start_s - 1e-9 <= r[0] <= t_stop + 0.1]
@@ -249,10 +262,16 @@ def _detection_events(robot: Robot, probe: ProbeBus, rep: PhaseReport, controlle
         if at_stop is not None:
             goal = controller.leg_angles(o.leg)
             overshoot = float(forward(robot, o.leg, at_stop[3])[2] - forward(robot, o.leg, goal)[2])
-        floor = detector.epsilon_tick / o.femur_step_tick if detector.kind == 'adaptive' and o.femur_step_tick > 0 \
-            else math.nan
+        # the floor: from the detector's margin (threshold - error) at the first read in contact, the
+        # fewest control periods in which even a rigidly blocked leg, whose error grows by one goal
+        # step per period, crosses the threshold (adaptive: about epsilon / step)
+        floor = math.nan
+        first = next((r for r in probe.detector_reads[o.leg] if math.isfinite(t_contact)
+                      and t_contact - 1e-9 <= r.stamp_s <= t_stop + 1e-9), None)
+        if first is not None and o.contact_step_tick > 0:
+            floor = max(0.0, first.threshold_tick - first.err_tick) / o.contact_step_tick
         out.append(DetectionEvent(o.leg, detector.kind, rep.t_swing_down_start_s, t_stop, o.stop_reason, t_contact,
-                                  t_con, at_stop[2] if at_stop else math.nan, peak, overshoot, floor))
+                                  t_con, at_stop[2] if at_stop else math.nan, peak, overshoot, floor, rise))
     return out
 
 
@@ -288,7 +307,8 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     probe = ProbeBus(sim, cfg.probe_period_s, recorder, on_probe, real_time=live is not None)
     reports: list[PhaseReport] = []
     det = DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
-    controller = GaitController(robot, get_gait(cfg.gait), LocomotionParams(t_des_s=cfg.t_des_s), det,
+    controller = GaitController(robot, get_gait(cfg.gait), LocomotionParams(t_des_s=cfg.t_des_s, approach_rate=cfg.approach_rate,
+                                                                   approach_height_m=cfg.approach_height_m), det,
                                 t_com_s=sim.t_com_s, on_read=probe.record_detection, on_phase=reports.append,
                                 on_swing_start=probe.record_swing_start)
     events: list[DetectionEvent] = []
