@@ -66,6 +66,10 @@ class LocomotionParams:
     # by that factor, at the price of a longer swing-down.
     approach_rate: float = 1.0
     approach_height_m: float = 0.015
+    # A leg whose goal has reached theta_fin keeps being read for this long [s] (and still stops on
+    # contact) before it stops at theta_fin: a contact late in a slow approach grows its error by a
+    # small step per period and can reach theta_fin before it crosses Eq. 17. 0 = Algorithm 1.
+    fin_dwell_s: float = 0.0
 
     def __post_init__(self):
         positive = ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_level_s', 'write_period_s')
@@ -246,7 +250,8 @@ class GaitController:
         t_sd = bus.now()
         phase = SwingDownPhase(self.robot, legs, coxa, init, fin, p.t_des_s, self.t_com_s, self.detector,
                                t_start_s=t_sd, models=self.models, approach_from=approach,
-                               approach_rate=p.approach_rate)
+                               approach_rate=p.approach_rate,
+                               fin_dwell_steps=int(math.ceil(p.fin_dwell_s / (L * self.t_com_s) - 1e-9)))
         if self.on_swing_start is not None:
             self.on_swing_start(phase)
         run_swing_down(bus, phase, on_read=self.on_read)

@@ -109,11 +109,15 @@ class SwingDownPhase:
     ``approach_from`` (per leg, fraction of the path theta_init -> theta_fin) and ``approach_rate``
     select the goal profile (:func:`hexapod_model.swing_model.goal_fraction`): rate 1 is the paper's
     Eq. 15; below 1 the goal slows to that fraction of the Eq. 15 rate from ``approach_from`` on
-    (the improved touchdown). The model prediction (CalcModel) uses the same profile."""
+    (the improved touchdown). The model prediction (CalcModel) uses the same profile.
+    ``fin_dwell_steps``: a leg whose goal has reached theta_fin is still read (and may still stop on
+    contact, against the model's prediction of the free leg settling) for this many more steps
+    before it stops at theta_fin; 0 is Algorithm 1 (stop at theta_fin at once)."""
 
     def __init__(self, robot: Robot, legs, coxa_rad, theta_init_rad, theta_fin_rad, t_des_s: float,
                  t_com_s: float, config: DetectorConfig, t_start_s: float = 0.0,
-                 models: dict[int, LegModel] | None = None, approach_from=1.0, approach_rate: float = 1.0):
+                 models: dict[int, LegModel] | None = None, approach_from=1.0, approach_rate: float = 1.0,
+                 fin_dwell_steps: int = 0):
         self.robot = robot
         self.legs = tuple(int(x) for x in legs)
         self.config = config
@@ -130,6 +134,9 @@ class SwingDownPhase:
         except SwingDownError as exc:
             raise DetectorError(str(exc)) from None
         self.approach_rate = float(approach_rate)
+        if int(fin_dwell_steps) != fin_dwell_steps or fin_dwell_steps < 0:
+            raise DetectorError(f'fin_dwell_steps must be a whole number >= 0, got {fin_dwell_steps!r}')
+        self.fin_dwell_steps = int(fin_dwell_steps)
         # steps until each leg's goal reaches theta_fin; n_interp: the slowest leg's
         self._n_fin = [steps_to_fin(self.t_des_s / self.t_con_s, a, self.approach_rate) for a in self.approach_from]
         self.n_interp = max(self._n_fin)
@@ -150,7 +157,7 @@ class SwingDownPhase:
         if config.kind == 'adaptive':
             self.prediction = predict_swing_down(robot, self.legs, init, fin, t_des_s, t_com_s,
                                                  epsilon_tick=config.epsilon_tick,
-                                                 n_steps=self.n_interp + 1, models=models,
+                                                 n_steps=self.n_interp + 1 + self.fin_dwell_steps, models=models,
                                                  approach_from=self.approach_from, approach_rate=self.approach_rate)
         self._start_foot_z = {leg: forward(robot, leg, [self.state[leg].coxa_rad, *init[i]])[2]
                               for i, leg in enumerate(self.legs)}
@@ -226,7 +233,7 @@ class SwingDownPhase:
                     self._stop(s, STOP_CONTACT, k, stamp_s, theta_real_rad)
             else:
                 s.suspect_count = 0
-                if self.reached_fin(k, leg):
+                if self.reached_fin(k - self.fin_dwell_steps, leg):
                     self._stop(s, STOP_THETA_FIN, k, stamp_s, theta_real_rad)
         res = ReadResult(leg=leg, detector=self.config.kind, step=k, t_swing_s=t_swing, stamp_s=stamp_s,
                          theta_des_tick=des, theta_real_tick=real, theta_est_tick=est, err_tick=err,
@@ -251,7 +258,7 @@ def run_swing_down(bus: ServoBus, phase: SwingDownPhase, on_read=None, max_steps
     the schedule the model predicted (k t_con + l T_com).
     """
     t0 = phase.t_start_s
-    limit = max_steps if max_steps is not None else phase.n_interp + 5
+    limit = max_steps if max_steps is not None else phase.n_interp + phase.fin_dwell_steps + 5
     k = 0
     while not phase.done:
         if k >= limit:
@@ -304,7 +311,7 @@ def swing_start_fields(phase: SwingDownPhase) -> dict:
             't_des_s': phase.t_des_s, 't_com_s': phase.t_com_s, 'detector': c.kind, 'epsilon_tick': c.epsilon_tick,
             'fixed_threshold_tick': c.fixed_threshold_tick, 'min_descent_m': c.min_descent_m,
             'confirm_reads': c.confirm_reads, 'approach_rate': phase.approach_rate,
-            'approach_from': [float(a) for a in phase.approach_from]}
+            'approach_from': [float(a) for a in phase.approach_from], 'fin_dwell_steps': phase.fin_dwell_steps}
 
 
 def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None,
@@ -315,6 +322,7 @@ def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None
     # recordings made before the approach profile existed carry neither field: Eq. 15
     rate = float(f.get('approach_rate', 1.0) if isinstance(f, dict) else getattr(f, 'approach_rate', 1.0))
     frm = list(f.get('approach_from', ()) if isinstance(f, dict) else getattr(f, 'approach_from', ()))
+    dwell = int(f.get('fin_dwell_steps', 0) if isinstance(f, dict) else getattr(f, 'fin_dwell_steps', 0))
     cfg = DetectorConfig(kind=kind or get('detector'), epsilon_tick=float(get('epsilon_tick')),
                          fixed_threshold_tick=float(get('fixed_threshold_tick')),
                          min_descent_m=float(get('min_descent_m')), confirm_reads=int(get('confirm_reads')))
@@ -323,4 +331,4 @@ def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None
     fin = np.column_stack([get('femur_fin_rad'), get('tibia_fin_rad')])
     return SwingDownPhase(robot, legs, list(get('coxa_rad')), init, fin, float(get('t_des_s')), float(get('t_com_s')),
                           cfg, t_start_s=t_start_s, models=models, approach_from=frm if len(frm) else 1.0,
-                          approach_rate=rate if rate > 0 else 1.0)
+                          approach_rate=rate if rate > 0 else 1.0, fin_dwell_steps=dwell)

@@ -5,7 +5,7 @@ Sub-commands (each deterministic for its seeds, lock-stepped, trials in parallel
 * ``table4``  cost of transport and speed for {tripod, tetrapod, pentapod} x t_des {0.5, 1} s x
   {fixed, adaptive, improved}, several trials each on the mockup, printed beside the paper's Table 4
   (adaptive = the paper's Algorithm 1, the reference; improved = the same detector with the approach
-  goal profile, ``--approach-rate``), with body rise and detection delay beyond the floor per cell;
+  goal profile, ``--approach-rate``, and a 50 ms dwell at theta_fin), with body rise and detection delay beyond the floor per cell;
 * ``fig11``   per-leg variance of pitch, roll and vertical acceleration during swing-down (box plots);
 * ``fig12``   servo temperature over a long tripod walk, fixed vs adaptive;
 * ``quality`` ground-detection quality: free swing on a stand at t_des {0.5, 1, 2} s (premature
@@ -38,6 +38,7 @@ DETECTORS = ('fixed', 'adaptive')
 # the approach goal profile, LocomotionParams.approach_rate; --approach-rate).
 VARIANTS = ('fixed', 'adaptive', 'improved')
 IMPROVED_APPROACH_RATE = 0.5
+IMPROVED_FIN_DWELL_S = 0.05
 APPROACH = {'rate': IMPROVED_APPROACH_RATE}      # --approach-rate
 
 
@@ -51,7 +52,7 @@ def variant(cfg: dict) -> str:
 def variant_fields(v: str) -> dict:
     """TrialConfig fields of a table cell."""
     if v == 'improved':
-        return {'detector': 'adaptive', 'approach_rate': APPROACH['rate']}
+        return {'detector': 'adaptive', 'approach_rate': APPROACH['rate'], 'fin_dwell_s': IMPROVED_FIN_DWELL_S}
     return {'detector': v}
 PAPER_TABLE4 = {  # (gait, t_des, detector): (CoT, speed m/s), paper Table 4
     ('tripod', 0.5, 'fixed'): (25.9, 0.044), ('tripod', 0.5, 'adaptive'): (22.0, 0.046),
@@ -234,7 +235,8 @@ def free_swing_quality(t_des_values=(0.5, 1.0, 2.0), phases_per_gait: int = 6) -
                 bar.update()
                 f = variant_fields(d)
                 sim = HexapodSim(robot, terrain='flat', fixed_base=True)
-                c = GaitController(robot, get_gait(g), LocomotionParams(t_des_s=t, approach_rate=f.get('approach_rate', 1.0)),
+                c = GaitController(robot, get_gait(g), LocomotionParams(t_des_s=t, approach_rate=f.get('approach_rate', 1.0),
+                                                                        fin_dwell_s=f.get('fin_dwell_s', 0.0)),
                                    DetectorConfig(kind=f['detector']), t_com_s=sim.t_com_s)
                 c.startup(sim)
                 stops = []

@@ -45,6 +45,9 @@ class LocomotionNodeParams:
     approach_height_m: float = param(_GAIT.approach_height_m, 'with approach_rate < 1: the slow approach starts this '
                                      'high above the expected ground [m]; too small and contacts meet the fast goal, too '
                                      'large and the swing-down is slow all the way', min=0.0)
+    fin_dwell_s: float = param(_GAIT.fin_dwell_s, 'keep reading a leg whose goal reached theta_fin this long [s] '
+                               'before giving up on ground (0 = Algorithm 1); too long delays the next phase when '
+                               'there is no ground', min=0.0)
     t_swing_up_s: float = param(_GAIT.t_swing_up_s, 'swing-up duration [s]; shorter is faster but jerks the body',
                                 min=0.0, min_exclusive=True)
     t_swing_forward_s: float = param(_GAIT.t_swing_forward_s, 'swing-forward duration [s]; shorter is faster but the '

@@ -47,6 +47,7 @@ class TrialConfig:
     fixed_threshold_tick: float = 21.0
     approach_rate: float = 1.0          # touchdown goal profile (LocomotionParams): 1 = the paper's Eq. 15
     approach_height_m: float = 0.015
+    fin_dwell_s: float = 0.0
     probe_period_s: float = 0.05        # truth sampling period (pose, energy, temperature)
     record: str | None = None           # bag directory, or None
     overlays: tuple[str, ...] = ()
@@ -308,7 +309,8 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     reports: list[PhaseReport] = []
     det = DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
     controller = GaitController(robot, get_gait(cfg.gait), LocomotionParams(t_des_s=cfg.t_des_s, approach_rate=cfg.approach_rate,
-                                                                   approach_height_m=cfg.approach_height_m), det,
+                                                                   approach_height_m=cfg.approach_height_m,
+                                                                   fin_dwell_s=cfg.fin_dwell_s), det,
                                 t_com_s=sim.t_com_s, on_read=probe.record_detection, on_phase=reports.append,
                                 on_swing_start=probe.record_swing_start)
     events: list[DetectionEvent] = []

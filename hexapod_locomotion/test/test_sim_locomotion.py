@@ -96,12 +96,13 @@ def test_improved_touchdown_stops_before_the_body_rises(robot, t_des):
 
 
 @pytest.mark.parametrize('t_des', [0.5, 1.0, 2.0])
-@pytest.mark.parametrize('approach_rate', [1.0, 0.5])
-def test_no_premature_stop_in_free_swing(robot, t_des, approach_rate):
+@pytest.mark.parametrize('approach_rate, fin_dwell_s', [(1.0, 0.0), (0.5, 0.05)])
+def test_no_premature_stop_in_free_swing(robot, t_des, approach_rate, fin_dwell_s):
     """On a stand (no ground) every swing-down must run to theta_fin, with the paper's Eq. 15 goals
-    and with the improved touchdown's approach profile."""
+    and with the improved touchdown's approach profile and its dwell at theta_fin."""
     sim = HexapodSim(robot, terrain='flat', fixed_base=True)
-    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=t_des, approach_rate=approach_rate),
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=t_des, approach_rate=approach_rate,
+                                                                    fin_dwell_s=fin_dwell_s),
                        DetectorConfig(kind='adaptive'), t_com_s=sim.t_com_s)
     c.startup(sim)
     for _ in range(2):
