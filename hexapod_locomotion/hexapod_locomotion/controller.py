@@ -39,13 +39,18 @@ class LocomotionParams:
     """Gait-cycle parameters. Lengths in metres, times in seconds."""
 
     t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
-    t_swing_up_s: float = 0.15
-    t_swing_forward_s: float = 0.25
-    t_level_s: float = 0.3
+    # Transfer phases. Measured on the mockup (experiment table4, 1 trial x 30 s per cell) against
+    # 0.15 / 0.25 / 0.1 / 0.3 s and a 7 cm stride: 0.1 / 0.2 / 0.1 / 0.2 s and 10 cm walk 1.2-1.8x
+    # faster with adaptive CoT still below fixed in 6/6; a 0.05 s settle (and 0.15 s swing-forward)
+    # left the legs moving at the swing-down start, which the model (started at rest) does not
+    # predict: 1-23 premature stops per cell.
+    t_swing_up_s: float = 0.1
+    t_swing_forward_s: float = 0.2
+    t_level_s: float = 0.2
     t_settle_s: float = 0.1          # pause after swing-forward so swing-down starts from rest
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
-    max_stride_m: float = 0.07       # longest foothold displacement per cycle
+    max_stride_m: float = 0.10       # longest foothold displacement per cycle (reach: about 11 cm)
     max_turn_rad: float = 0.25       # largest yaw per cycle
     # theta_fin this far below the nominal ground. Eq. 15 moves the goal from theta_init to theta_fin
     # in t_des, so a deeper theta_fin means a faster swing-down at the same t_des: more free-swing lag
@@ -82,6 +87,10 @@ class LocomotionParams:
         if not 0.0 < self.approach_rate <= 1.0:
             raise LocomotionError(f'locomotion parameter approach_rate must be in (0, 1], got {self.approach_rate!r}')
 
+    def stride_m(self, gait: Gait) -> float:
+        """Longest foothold displacement per cycle for ``gait``: max_stride_m, capped by the gait's own."""
+        return self.max_stride_m if gait.max_stride_m is None else min(self.max_stride_m, gait.max_stride_m)
+
     def cycle_s(self, gait: Gait) -> float:
         """Duration of one gait cycle (every group swings once) without waiting for ground."""
         return gait.n_phases * (self.t_swing_up_s + self.t_swing_forward_s + self.t_des_s + self.t_level_s)
@@ -89,7 +98,7 @@ class LocomotionParams:
     def saturating_velocity(self, gait: Gait) -> tuple[float, float]:
         """(|v| [m/s], |wz| [rad/s]) beyond which step_phase clamps the stride / turn per cycle."""
         c = self.cycle_s(gait)
-        return self.max_stride_m / c, self.max_turn_rad / c
+        return self.stride_m(gait) / c, self.max_turn_rad / c
 
 
 @dataclass(frozen=True)
@@ -210,8 +219,9 @@ class GaitController:
         t_start = bus.now()
         cycle_s = p.cycle_s(self.gait)
         d = np.array([cmd.vx, cmd.vy]) * cycle_s
-        if np.linalg.norm(d) > p.max_stride_m:
-            d *= p.max_stride_m / np.linalg.norm(d)
+        stride = p.stride_m(self.gait)
+        if np.linalg.norm(d) > stride:
+            d *= stride / np.linalg.norm(d)
         yaw = float(np.clip(cmd.wz * cycle_s, -p.max_turn_rad, p.max_turn_rad))
 
         # the expected ground of each swinging leg (body frame z): its foothold or the nominal ground
