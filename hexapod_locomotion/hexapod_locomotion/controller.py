@@ -43,11 +43,12 @@ class LocomotionParams:
     # 0.15 / 0.25 / 0.1 / 0.3 s and a 7 cm stride: 0.1 / 0.2 / 0.1 / 0.2 s and 10 cm walk 1.2-1.8x
     # faster with adaptive CoT still below fixed in 6/6; a 0.05 s settle (and 0.15 s swing-forward)
     # left the legs moving at the swing-down start, which the model (started at rest) does not
-    # predict: 1-23 premature stops per cell.
+    # predict: 1-23 premature stops per cell. Even the 0.1 s settle stopped one leg early in free
+    # swing at t_des 2 s (tripod on a stand); 0.15 s does not.
     t_swing_up_s: float = 0.1
     t_swing_forward_s: float = 0.2
     t_level_s: float = 0.2
-    t_settle_s: float = 0.1          # pause after swing-forward so swing-down starts from rest
+    t_settle_s: float = 0.15         # pause after swing-forward so swing-down starts from rest
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
     max_stride_m: float = 0.10       # longest foothold displacement per cycle (reach: about 11 cm)
