@@ -39,15 +39,15 @@ class LocomotionParams:
     """Gait-cycle parameters. Lengths in metres, times in seconds."""
 
     t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
-    # Transfer phases. Measured on the mockup (experiment table4, 1 trial x 30 s per cell) against
-    # 0.15 / 0.25 / 0.1 / 0.3 s and a 7 cm stride: 0.1 / 0.2 / 0.1 / 0.2 s and 10 cm walk 1.2-1.8x
-    # faster with adaptive CoT still below fixed in 6/6; a 0.05 s settle (and 0.15 s swing-forward)
-    # left the legs moving at the swing-down start, which the model (started at rest) does not
-    # predict: 1-23 premature stops per cell. Even the 0.1 s settle stopped one leg early in free
-    # swing at t_des 2 s (tripod on a stand); 0.15 s does not.
+    # Transfer phases. Measured on the mockup (experiment table4, 30 s trials) against 0.15 / 0.25 /
+    # 0.1 / 0.3 s and a 7 cm stride: 0.1 / 0.2 / 0.15 / 0.3 s and 10 cm walk faster with adaptive
+    # CoT below fixed. A 0.05 s settle (with a 0.15 s swing-forward) left the legs moving at the
+    # swing-down start, which the model (started at rest) does not predict: 1-23 premature stops
+    # per cell; 0.1 s still stopped one leg early in free swing at t_des 2 s. Leveling in 0.2 s
+    # raised the tripod CoT 1.6-2.5x (t_des 0.5 / 1 s; 13 of 162 contacts missed at 0.5 s).
     t_swing_up_s: float = 0.1
     t_swing_forward_s: float = 0.2
-    t_level_s: float = 0.2
+    t_level_s: float = 0.3
     t_settle_s: float = 0.15         # pause after swing-forward so swing-down starts from rest
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
