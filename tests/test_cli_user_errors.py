@@ -31,6 +31,7 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_sim', 'sim', ['--mjcf', 'x.xml', '--overlay', 'OVERLAY']),
     ('hexapod_locomotion', 'experiment', ['table4', '--trials', '0']),
     ('hexapod_locomotion', 'experiment', ['quality', '--duration', 'inf']),
+    ('hexapod_locomotion', 'experiment', ['table4', '--approach-rate', '1']),
     ('hexapod_locomotion', 'analyse', ['nonexistent_bag']),
     ('hexapod_locomotion', 'analyse', ['BAG', '--plot', 'p.xyz']),
     ('hexapod_sim', 'discrepancy', ['nonexistent_bag']),

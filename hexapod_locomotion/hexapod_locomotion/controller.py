@@ -39,13 +39,19 @@ class LocomotionParams:
     """Gait-cycle parameters. Lengths in metres, times in seconds."""
 
     t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
-    t_swing_up_s: float = 0.15
-    t_swing_forward_s: float = 0.25
+    # Transfer phases. Measured on the mockup (experiment table4, 30 s trials) against 0.15 / 0.25 /
+    # 0.1 / 0.3 s and a 7 cm stride: 0.1 / 0.2 / 0.15 / 0.3 s and 10 cm walk faster with adaptive
+    # CoT below fixed. A 0.05 s settle (with a 0.15 s swing-forward) left the legs moving at the
+    # swing-down start, which the model (started at rest) does not predict: 1-23 premature stops
+    # per cell; 0.1 s still stopped one leg early in free swing at t_des 2 s. Leveling in 0.2 s
+    # raised the tripod CoT 1.6-2.5x (t_des 0.5 / 1 s; 13 of 162 contacts missed at 0.5 s).
+    t_swing_up_s: float = 0.1
+    t_swing_forward_s: float = 0.2
     t_level_s: float = 0.3
-    t_settle_s: float = 0.1          # pause after swing-forward so swing-down starts from rest
+    t_settle_s: float = 0.15         # pause after swing-forward so swing-down starts from rest
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
-    max_stride_m: float = 0.07       # longest foothold displacement per cycle
+    max_stride_m: float = 0.10       # longest foothold displacement per cycle (reach: about 11 cm)
     max_turn_rad: float = 0.25       # largest yaw per cycle
     # theta_fin this far below the nominal ground. Eq. 15 moves the goal from theta_init to theta_fin
     # in t_des, so a deeper theta_fin means a faster swing-down at the same t_des: more free-swing lag
@@ -59,6 +65,17 @@ class LocomotionParams:
     # of the body weight among the legs that support the next swing (GaitController.
     # landing_preload_rad); 0 = take its goal as it is.
     landing_preload: float = 1.0
+    # Touchdown goal profile. 1 = the paper's Eq. 15 (a constant goal rate to theta_fin). Below 1 (the
+    # improved touchdown): from approach_height_m above the expected ground (the higher of the nominal
+    # ground and the leg's last foothold) the goal moves at this fraction of the Eq. 15 rate, so the
+    # free-swing lag - the force with which a foot that has just touched pushes the body up - shrinks
+    # by that factor, at the price of a longer swing-down.
+    approach_rate: float = 1.0
+    approach_height_m: float = 0.015
+    # A leg whose goal has reached theta_fin keeps being read for this long [s] (and still stops on
+    # contact) before it stops at theta_fin: a contact late in a slow approach grows its error by a
+    # small step per period and can reach theta_fin before it crosses Eq. 17. 0 = Algorithm 1.
+    fin_dwell_s: float = 0.0
 
     def __post_init__(self):
         positive = ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_level_s', 'write_period_s')
@@ -68,6 +85,12 @@ class LocomotionParams:
                 raise LocomotionError(f'locomotion parameter {f} must be finite and > 0, got {v!r}')
             if isinstance(v, float) and not (math.isfinite(v) and v >= 0):
                 raise LocomotionError(f'locomotion parameter {f} must be finite and >= 0, got {v!r}')
+        if not 0.0 < self.approach_rate <= 1.0:
+            raise LocomotionError(f'locomotion parameter approach_rate must be in (0, 1], got {self.approach_rate!r}')
+
+    def stride_m(self, gait: Gait) -> float:
+        """Longest foothold displacement per cycle for ``gait``: max_stride_m, capped by the gait's own."""
+        return self.max_stride_m if gait.max_stride_m is None else min(self.max_stride_m, gait.max_stride_m)
 
     def cycle_s(self, gait: Gait) -> float:
         """Duration of one gait cycle (every group swings once) without waiting for ground."""
@@ -76,7 +99,7 @@ class LocomotionParams:
     def saturating_velocity(self, gait: Gait) -> tuple[float, float]:
         """(|v| [m/s], |wz| [rad/s]) beyond which step_phase clamps the stride / turn per cycle."""
         c = self.cycle_s(gait)
-        return self.max_stride_m / c, self.max_turn_rad / c
+        return self.stride_m(gait) / c, self.max_turn_rad / c
 
 
 @dataclass(frozen=True)
@@ -102,6 +125,7 @@ class LegOutcome:
     peak_err_tick: float
     premature_suspects: int
     femur_step_tick: float          # |Delta theta| of the femur goal per control step (Eq. 15)
+    contact_step_tick: float = float('nan')   # the same at the stop step (the approach profile's, if on)
 
 
 @dataclass
@@ -196,9 +220,13 @@ class GaitController:
         t_start = bus.now()
         cycle_s = p.cycle_s(self.gait)
         d = np.array([cmd.vx, cmd.vy]) * cycle_s
-        if np.linalg.norm(d) > p.max_stride_m:
-            d *= p.max_stride_m / np.linalg.norm(d)
+        stride = p.stride_m(self.gait)
+        if np.linalg.norm(d) > stride:
+            d *= stride / np.linalg.norm(d)
         yaw = float(np.clip(cmd.wz * cycle_s, -p.max_turn_rad, p.max_turn_rad))
+
+        # the expected ground of each swinging leg (body frame z): its foothold or the nominal ground
+        ground_z = {leg: max(float(self.foot(leg)[2]), -self.body_height_m) for leg in legs}
 
         # 1. swing-up: lift the feet straight up
         up = {}
@@ -219,17 +247,22 @@ class GaitController:
 
         # 3. swing-down with ground detection (Algorithm 1), from the measured rest state
         self.idle_until(bus, bus.now() + p.t_settle_s)
-        init, fin, coxa = [], [], []
+        init, fin, coxa, approach = [], [], [], []
         for leg in legs:
             th = self.leg_angles(leg)
-            th_fin = self._fin_angles(leg, self.foot(leg), warnings)
+            foot = self.foot(leg)
+            th_fin = self._fin_angles(leg, foot, warnings)
             measured = [bus.read_position(joint_name(leg, r))[0] for r in ('femur', 'tibia')]
             init.append(measured)
             fin.append(th_fin[1:])
             coxa.append(th[0])
+            approach.append(self.approach_fraction(foot[2], forward(self.robot, leg, np.r_[th[0], th_fin[1:]])[2],
+                                                   ground_z[leg]))
         t_sd = bus.now()
         phase = SwingDownPhase(self.robot, legs, coxa, init, fin, p.t_des_s, self.t_com_s, self.detector,
-                               t_start_s=t_sd, models=self.models)
+                               t_start_s=t_sd, models=self.models, approach_from=approach,
+                               approach_rate=p.approach_rate,
+                               fin_dwell_steps=int(math.ceil(p.fin_dwell_s / (L * self.t_com_s) - 1e-9)))
         if self.on_swing_start is not None:
             self.on_swing_start(phase)
         run_swing_down(bus, phase, on_read=self.on_read)
@@ -245,7 +278,8 @@ class GaitController:
                 missed.add(leg)
                 warnings.append(f'leg {leg}: no ground found down to theta_fin; leg excluded from leveling')
             outcomes.append(LegOutcome(leg, st.stop_reason, st.stop_time_s - t_sd, st.stop_step,
-                                       st.peak_err_tick, st.premature_suspects, phase.femur_step_tick(leg)))
+                                       st.peak_err_tick, st.premature_suspects, phase.femur_step_tick(leg),
+                                       phase.femur_step_tick(leg, max(st.stop_step, 0))))
 
         # 4. body leveling + explicit forward motion + turn
         landed = [o.leg for o in outcomes if o.stop_reason == STOP_CONTACT]
@@ -256,6 +290,16 @@ class GaitController:
         if self.on_phase is not None:
             self.on_phase(report)
         return report
+
+    def approach_fraction(self, z_start_m: float, z_fin_m: float, ground_z_m: float) -> float:
+        """Fraction of the swing-down path (theta_init -> theta_fin) at which the foot is
+        ``approach_height_m`` above the expected ground ``ground_z_m`` (body frame z), taking the
+        foot height as linear along the joint-space path (it is within a few mm over a swing-down).
+        1 when the approach profile is off."""
+        if self.params.approach_rate >= 1.0 or z_start_m <= z_fin_m:
+            return 1.0
+        z_a = ground_z_m + self.params.approach_height_m
+        return float(np.clip((z_start_m - z_a) / (z_start_m - z_fin_m), 0.0, 1.0))
 
     def _targets(self, leg: int, foot, warnings: list[str]) -> dict[str, float]:
         try:

@@ -25,7 +25,8 @@ from hexapod_model.bus import ServoBus
 from hexapod_model.description import Robot, joint_name
 from hexapod_model.kinematics import forward
 from hexapod_model.servo import theta_to_tick, tick_to_theta
-from hexapod_model.swing_model import LegModel, SwingDownPrediction, interpolated_goals, predict_swing_down
+from hexapod_model.swing_model import (LegModel, SwingDownError, SwingDownPrediction, check_approach, goal_fraction,
+                                       interpolated_goals, predict_swing_down, steps_to_fin)
 
 STOP_NONE, STOP_CONTACT, STOP_THETA_FIN = 0, 1, 2     # as in hexapod_msgs/LegGroundDetection
 
@@ -103,11 +104,20 @@ class LegState:
 
 
 class SwingDownPhase:
-    """Algorithm 1 for the legs of one group swinging down together, read in the given order."""
+    """Algorithm 1 for the legs of one group swinging down together, read in the given order.
+
+    ``approach_from`` (per leg, fraction of the path theta_init -> theta_fin) and ``approach_rate``
+    select the goal profile (:func:`hexapod_model.swing_model.goal_fraction`): rate 1 is the paper's
+    Eq. 15; below 1 the goal slows to that fraction of the Eq. 15 rate from ``approach_from`` on
+    (the improved touchdown). The model prediction (CalcModel) uses the same profile.
+    ``fin_dwell_steps``: a leg whose goal has reached theta_fin is still read (and may still stop on
+    contact, against the model's prediction of the free leg settling) for this many more steps
+    before it stops at theta_fin; 0 is Algorithm 1 (stop at theta_fin at once)."""
 
     def __init__(self, robot: Robot, legs, coxa_rad, theta_init_rad, theta_fin_rad, t_des_s: float,
                  t_com_s: float, config: DetectorConfig, t_start_s: float = 0.0,
-                 models: dict[int, LegModel] | None = None):
+                 models: dict[int, LegModel] | None = None, approach_from=1.0, approach_rate: float = 1.0,
+                 fin_dwell_steps: int = 0):
         self.robot = robot
         self.legs = tuple(int(x) for x in legs)
         self.config = config
@@ -119,14 +129,24 @@ class SwingDownPhase:
         self.t_des_s = float(t_des_s)
         self.t_com_s = float(t_com_s)
         self.t_con_s = L * self.t_com_s                                   # line 1
-        self.n_interp = int(math.ceil(self.t_des_s / self.t_con_s - 1e-9))
+        try:
+            self.approach_from = check_approach(approach_from, approach_rate, L)
+        except SwingDownError as exc:
+            raise DetectorError(str(exc)) from None
+        self.approach_rate = float(approach_rate)
+        if int(fin_dwell_steps) != fin_dwell_steps or fin_dwell_steps < 0:
+            raise DetectorError(f'fin_dwell_steps must be a whole number >= 0, got {fin_dwell_steps!r}')
+        self.fin_dwell_steps = int(fin_dwell_steps)
+        # steps until each leg's goal reaches theta_fin; n_interp: the slowest leg's
+        self._n_fin = [steps_to_fin(self.t_des_s / self.t_con_s, a, self.approach_rate) for a in self.approach_from]
+        self.n_interp = max(self._n_fin)
         self.t_start_s = float(t_start_s)
         servo = robot.servo
         self._init_tick = theta_to_tick(init, servo)
         self._fin_tick = theta_to_tick(fin, servo)
-        # Eq. 15: the whole interpolated goal table, (n_interp, L, 2) continuous ticks
+        # Eq. 15 (or its approach profile): the whole goal table, (n_interp, L, 2) continuous ticks
         self._goal_table = interpolated_goals(self._init_tick, self._fin_tick, self.t_des_s, self.t_con_s,
-                                              self.n_interp)
+                                              self.n_interp, self.approach_from, self.approach_rate)
         self.state = {}
         for slot, leg in enumerate(self.legs):
             d = 1.0 if self._fin_tick[slot, 0] >= self._init_tick[slot, 0] else -1.0
@@ -137,7 +157,8 @@ class SwingDownPhase:
         if config.kind == 'adaptive':
             self.prediction = predict_swing_down(robot, self.legs, init, fin, t_des_s, t_com_s,
                                                  epsilon_tick=config.epsilon_tick,
-                                                 n_steps=self.n_interp + 1, models=models)
+                                                 n_steps=self.n_interp + 1 + self.fin_dwell_steps, models=models,
+                                                 approach_from=self.approach_from, approach_rate=self.approach_rate)
         self._start_foot_z = {leg: forward(robot, leg, [self.state[leg].coxa_rad, *init[i]])[2]
                               for i, leg in enumerate(self.legs)}
 
@@ -159,15 +180,22 @@ class SwingDownPhase:
             out[joint_name(leg, 'tibia')] = float(th[1])
         return out
 
-    def femur_step_tick(self, leg: int) -> float:
-        """|Delta theta| of ``leg``'s femur goal per control step, Eq. 15 [ticks]. With the leg held
-        rigidly at contact its error grows by this much per t_con, so an Eq. 17 margin of epsilon
-        needs at least epsilon / step control periods to be crossed."""
+    def femur_step_tick(self, leg: int, k: int | None = None) -> float:
+        """|Delta theta| of ``leg``'s femur goal per control step at step ``k`` (Eq. 15, or the approach
+        profile; default: the Eq. 15 step) [ticks]. With the leg held rigidly at contact its error
+        grows by this much per t_con, so an Eq. 17 margin of epsilon needs at least epsilon / step
+        control periods to be crossed."""
         slot = self.legs.index(leg)
-        return float(abs(self._fin_tick[slot, 0] - self._init_tick[slot, 0]) * self.t_con_s / self.t_des_s)
+        n = self.t_des_s / self.t_con_s
+        a = self.approach_from[slot]
+        frac = 1.0 / n if k is None else float(goal_fraction(k, n, a, self.approach_rate)
+                                                - goal_fraction(k - 1, n, a, self.approach_rate))
+        return float(abs(self._fin_tick[slot, 0] - self._init_tick[slot, 0]) * frac)
 
-    def reached_fin(self, k: int) -> bool:
-        return k + 1 >= self.n_interp
+    def reached_fin(self, k: int, leg: int | None = None) -> bool:
+        """The goal of step ``k`` is theta_fin (for ``leg``; default: for every leg)."""
+        n = self.n_interp if leg is None else self._n_fin[self.legs.index(leg)]
+        return k + 1 >= n
 
     def on_read(self, k: int, leg: int, theta_real_rad: float, stamp_s: float) -> ReadResult:
         """Lines 9-14 for one femur read of ``leg`` at step ``k``, sampled at ``stamp_s``."""
@@ -205,7 +233,7 @@ class SwingDownPhase:
                     self._stop(s, STOP_CONTACT, k, stamp_s, theta_real_rad)
             else:
                 s.suspect_count = 0
-                if self.reached_fin(k):
+                if self.reached_fin(k - self.fin_dwell_steps, leg):
                     self._stop(s, STOP_THETA_FIN, k, stamp_s, theta_real_rad)
         res = ReadResult(leg=leg, detector=self.config.kind, step=k, t_swing_s=t_swing, stamp_s=stamp_s,
                          theta_des_tick=des, theta_real_tick=real, theta_est_tick=est, err_tick=err,
@@ -230,7 +258,7 @@ def run_swing_down(bus: ServoBus, phase: SwingDownPhase, on_read=None, max_steps
     the schedule the model predicted (k t_con + l T_com).
     """
     t0 = phase.t_start_s
-    limit = max_steps if max_steps is not None else phase.n_interp + 5
+    limit = max_steps if max_steps is not None else phase.n_interp + phase.fin_dwell_steps + 5
     k = 0
     while not phase.done:
         if k >= limit:
@@ -282,7 +310,8 @@ def swing_start_fields(phase: SwingDownPhase) -> dict:
             'femur_fin_rad': [float(s.theta_fin[0]) for s in st], 'tibia_fin_rad': [float(s.theta_fin[1]) for s in st],
             't_des_s': phase.t_des_s, 't_com_s': phase.t_com_s, 'detector': c.kind, 'epsilon_tick': c.epsilon_tick,
             'fixed_threshold_tick': c.fixed_threshold_tick, 'min_descent_m': c.min_descent_m,
-            'confirm_reads': c.confirm_reads}
+            'confirm_reads': c.confirm_reads, 'approach_rate': phase.approach_rate,
+            'approach_from': [float(a) for a in phase.approach_from], 'fin_dwell_steps': phase.fin_dwell_steps}
 
 
 def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None,
@@ -290,6 +319,10 @@ def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None
     """Rebuild a :class:`SwingDownPhase` from SwingDownStart fields (dict or message), optionally
     with the other detector ``kind``."""
     get = (lambda n: f[n]) if isinstance(f, dict) else (lambda n: getattr(f, n))
+    # recordings made before the approach profile existed carry neither field: Eq. 15
+    rate = float(f.get('approach_rate', 1.0) if isinstance(f, dict) else getattr(f, 'approach_rate', 1.0))
+    frm = list(f.get('approach_from', ()) if isinstance(f, dict) else getattr(f, 'approach_from', ()))
+    dwell = int(f.get('fin_dwell_steps', 0) if isinstance(f, dict) else getattr(f, 'fin_dwell_steps', 0))
     cfg = DetectorConfig(kind=kind or get('detector'), epsilon_tick=float(get('epsilon_tick')),
                          fixed_threshold_tick=float(get('fixed_threshold_tick')),
                          min_descent_m=float(get('min_descent_m')), confirm_reads=int(get('confirm_reads')))
@@ -297,4 +330,5 @@ def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None
     init = np.column_stack([get('femur_init_rad'), get('tibia_init_rad')])
     fin = np.column_stack([get('femur_fin_rad'), get('tibia_fin_rad')])
     return SwingDownPhase(robot, legs, list(get('coxa_rad')), init, fin, float(get('t_des_s')), float(get('t_com_s')),
-                          cfg, t_start_s=t_start_s, models=models)
+                          cfg, t_start_s=t_start_s, models=models, approach_from=frm if len(frm) else 1.0,
+                          approach_rate=rate if rate > 0 else 1.0, fin_dwell_steps=dwell)

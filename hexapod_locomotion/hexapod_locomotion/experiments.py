@@ -3,7 +3,9 @@
 Sub-commands (each deterministic for its seeds, lock-stepped, trials in parallel processes):
 
 * ``table4``  cost of transport and speed for {tripod, tetrapod, pentapod} x t_des {0.5, 1} s x
-  {fixed, adaptive}, several trials each on the mockup, printed beside the paper's Table 4;
+  {fixed, adaptive, improved}, several trials each on the mockup, printed beside the paper's Table 4
+  (adaptive = the paper's Algorithm 1, the reference; improved = the same detector with the approach
+  goal profile, ``--approach-rate``, and a 50 ms dwell at theta_fin), with body rise and detection delay beyond the floor per cell;
 * ``fig11``   per-leg variance of pitch, roll and vertical acceleration during swing-down (box plots);
 * ``fig12``   servo temperature over a long tripod walk, fixed vs adaptive;
 * ``quality`` ground-detection quality: free swing on a stand at t_des {0.5, 1, 2} s (premature
@@ -31,6 +33,27 @@ from .trial_runner import TrialConfig, run_trial
 
 GAITS = ('tripod', 'tetrapod', 'pentapod')
 DETECTORS = ('fixed', 'adaptive')
+# Every table has three cells per gait x t_des: the fixed-threshold baseline, the paper's Algorithm 1
+# (Eq. 15 goals, Eq. 17 threshold: the reference) and the improved touchdown (the same detector with
+# the approach goal profile, LocomotionParams.approach_rate; --approach-rate).
+VARIANTS = ('fixed', 'adaptive', 'improved')
+IMPROVED_APPROACH_RATE = 0.5
+IMPROVED_FIN_DWELL_S = 0.05
+APPROACH = {'rate': IMPROVED_APPROACH_RATE}      # --approach-rate
+
+
+def variant(cfg: dict) -> str:
+    """The table cell of a trial config (as dict): 'fixed', 'adaptive' (paper) or 'improved'."""
+    if cfg['detector'] == 'adaptive' and cfg.get('approach_rate', 1.0) < 1.0:
+        return 'improved'
+    return cfg['detector']
+
+
+def variant_fields(v: str) -> dict:
+    """TrialConfig fields of a table cell."""
+    if v == 'improved':
+        return {'detector': 'adaptive', 'approach_rate': APPROACH['rate'], 'fin_dwell_s': IMPROVED_FIN_DWELL_S}
+    return {'detector': v}
 PAPER_TABLE4 = {  # (gait, t_des, detector): (CoT, speed m/s), paper Table 4
     ('tripod', 0.5, 'fixed'): (25.9, 0.044), ('tripod', 0.5, 'adaptive'): (22.0, 0.046),
     ('tripod', 1.0, 'fixed'): (35.4, 0.041), ('tripod', 1.0, 'adaptive'): (16.1, 0.035),
@@ -62,25 +85,29 @@ def run_many(configs: list[TrialConfig], jobs: int, desc: str) -> list[dict]:
 # ----------------------------------------------------------------------------- Table 4
 def table4_configs(trials: int, duration_s: float, terrain: str, t_des=(0.5, 1.0),
                    fixed_threshold_tick: float = 21.0) -> list[TrialConfig]:
-    return [TrialConfig(gait=g, detector=d, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s,
-                        course_end_m=2.6, fixed_threshold_tick=fixed_threshold_tick)
-            for g in GAITS for t in t_des for d in DETECTORS for s in range(trials)]
+    return [TrialConfig(gait=g, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s,
+                        course_end_m=2.6, fixed_threshold_tick=fixed_threshold_tick, **variant_fields(d))
+            for g in GAITS for t in t_des for d in VARIANTS for s in range(trials)]
 
 
 def summarize_table4(results: list[dict]) -> list[dict]:
     rows = []
     for g in GAITS:
         for t in (0.5, 1.0):
-            for d in DETECTORS:
+            for d in VARIANTS:
                 rs = [r for r in results if r['config']['gait'] == g and r['config']['t_des_s'] == t
-                      and r['config']['detector'] == d]
+                      and variant(r['config']) == d]
                 if not rs:
                     continue
+                det = [r['detection'] for r in rs if r['detection']]
+                rise = [x['body_rise_m']['median'] for x in det if x.get('body_rise_m')]
+                beyond = [x['delay_beyond_floor_periods']['median'] for x in det if x.get('delay_beyond_floor_periods')]
+                swings = sum(x['swing_downs'] for x in det)
                 cots = [r['cot']['cot'] for r in rs if r['cot'] and math.isfinite(r['cot']['cot'])]
                 speeds = [r['cot']['speed_mps'] for r in rs if r['cot']]
                 peak = [r['detection']['peak_femur_torque_nm']['median'] for r in rs
                         if r['detection'] and r['detection']['peak_femur_torque_nm']]
-                paper = PAPER_TABLE4[(g, t, d)]
+                paper = PAPER_TABLE4[(g, t, 'fixed' if d == 'fixed' else 'adaptive')]
                 rows.append({'gait': g, 't_des_s': t, 'detector': d, 'trials': len(rs),
                              'cot': float(np.mean(cots)) if cots else None,
                              'speed_mps': float(np.mean(speeds)) if speeds else None,
@@ -88,6 +115,9 @@ def summarize_table4(results: list[dict]) -> list[dict]:
                              'premature_stops': sum(r['detection']['premature_stops'] for r in rs if r['detection']),
                              'missed_contacts': sum(r['detection']['missed_contacts'] for r in rs if r['detection']),
                              'peak_femur_torque_nm': float(np.mean(peak)) if peak else None,
+                             'swing_downs': swings,
+                             'body_rise_mm': float(np.mean(rise)) * 1e3 if rise else None,
+                             'delay_beyond_floor_periods': float(np.mean(beyond)) if beyond else None,
                              'paper_cot': paper[0], 'paper_speed_mps': paper[1]})
     return rows
 
@@ -97,22 +127,29 @@ def format_table4(rows: list[dict]) -> str:
         return format(v, fmt) if v is not None else '   -'
     lines = ['Table 4 (simulation vs paper): cost of transport and speed',
              f'{"gait":9} {"t_des":>5} {"detection":9} | {"CoT":>6} {"paper":>6} | {"speed":>6} {"paper":>6} | '
-             f'{"falls":>5} {"prem.":>5} {"missed":>6} {"torque":>6}']
+             f'{"falls":>5} {"prem.":>5} {"missed":>6} {"torque":>6} {"rise":>5} {"beyond":>6}']
     for r in rows:
         lines.append(f'{r["gait"]:9} {r["t_des_s"]:5.1f} {r["detector"]:9} | {f(r["cot"], "6.1f")} {r["paper_cot"]:6.1f} | '
                      f'{f(r["speed_mps"], "6.3f")} {r["paper_speed_mps"]:6.3f} | {r["falls"]:5d} {r["premature_stops"]:5d} '
-                     f'{r["missed_contacts"]:6d} {f(r["peak_femur_torque_nm"], "6.2f")}')
-    wins = 0
-    cells = 0
-    for g in GAITS:
-        for t in (0.5, 1.0):
-            a = next((r for r in rows if (r['gait'], r['t_des_s'], r['detector']) == (g, t, 'adaptive')), None)
-            b = next((r for r in rows if (r['gait'], r['t_des_s'], r['detector']) == (g, t, 'fixed')), None)
-            if a and b and a['cot'] is not None and b['cot'] is not None:
-                cells += 1
-                wins += a['cot'] < b['cot']
-    lines.append(f'adaptive has the lower CoT in {wins} of {cells} gait x t_des cells (paper: 5 of 6); '
-                 f'torque = median peak femur torque during contact [N m]')
+                     f'{r["missed_contacts"]:6d} {f(r["peak_femur_torque_nm"], "6.2f")} {f(r["body_rise_mm"], "5.1f")} '
+                     f'{f(r["delay_beyond_floor_periods"], "6.1f")}')
+    for v in ('adaptive', 'improved'):
+        wins = 0
+        cells = 0
+        for g in GAITS:
+            for t in (0.5, 1.0):
+                a = next((r for r in rows if (r['gait'], r['t_des_s'], r['detector']) == (g, t, v)), None)
+                b = next((r for r in rows if (r['gait'], r['t_des_s'], r['detector']) == (g, t, 'fixed')), None)
+                if a and b and a['cot'] is not None and b['cot'] is not None:
+                    cells += 1
+                    wins += a['cot'] < b['cot']
+        if cells:
+            lines.append(f'{v} has a lower CoT than fixed in {wins} of {cells} gait x t_des cells'
+                         + (' (paper: 5 of 6)' if v == 'adaptive' else ''))
+    lines.append('adaptive = the paper\'s Algorithm 1; improved = the same with the approach goal profile (paper '
+                 'columns: adaptive); torque = median peak femur torque during contact [N m]; rise = median body '
+                 'rise during a swing-down [mm] (truth); beyond = median detection delay beyond the blocked-leg '
+                 'floor [control periods]')
     return '\n'.join(lines)
 
 
@@ -123,13 +160,15 @@ def plot_fig11(results: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
     labels, data = [], {'var_pitch': [], 'var_roll': [], 'var_acc_z': []}
     for g in GAITS:
-        for d in DETECTORS:
-            rs = [r for r in results if r['config']['gait'] == g and r['config']['detector'] == d
+        for d in VARIANTS:
+            rs = [r for r in results if r['config']['gait'] == g and variant(r['config']) == d
                   and r['config']['t_des_s'] == 1.0]
-            labels.append(f'{GAIT_DIGIT[g]}_{"adapt" if d == "adaptive" else "fixed"}')
+            if not rs:
+                continue
+            labels.append(f'{GAIT_DIGIT[g]}_{ {"adaptive": "adapt", "improved": "impr"}.get(d, d)}')
             for k in data:
                 data[k].append([s[k] for r in rs for s in r['stability']] or [np.nan])
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     for ax, (k, title) in zip(axes, (('var_pitch', 'pitch variance [rad$^2$]'), ('var_roll', 'roll variance [rad$^2$]'),
                                      ('var_acc_z', 'Acc$_z$ variance [(m/s$^2$)$^2$]'))):
         ax.boxplot(data[k], showfliers=False)
@@ -145,8 +184,8 @@ def plot_fig11(results: list[dict], path: Path) -> None:
 def summarize_fig11(results: list[dict]) -> list[dict]:
     out = []
     for g in GAITS:
-        for d in DETECTORS:
-            st = [s for r in results if r['config']['gait'] == g and r['config']['detector'] == d
+        for d in VARIANTS:
+            st = [s for r in results if r['config']['gait'] == g and variant(r['config']) == d
                   and r['config']['t_des_s'] == 1.0 for s in r['stability']]
             if st:
                 out.append({'gait': g, 'detector': d, 'samples': len(st),
@@ -161,10 +200,11 @@ def plot_fig12(results: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(7, 4))
     for r in results:
-        d = r['config']['detector']
+        d = variant(r['config'])
         t = np.array(r['temperature_t_s']) / 60.0
-        ax.plot(t, r['temperature_femur_c'], label=f'{d} femur', ls='-' if d == 'fixed' else '--')
-        ax.plot(t, r['temperature_tibia_c'], label=f'{d} tibia', ls='-' if d == 'fixed' else '--', alpha=0.7)
+        ls = {'fixed': '-', 'adaptive': '--'}.get(d, ':')
+        ax.plot(t, r['temperature_femur_c'], label=f'{d} femur', ls=ls)
+        ax.plot(t, r['temperature_tibia_c'], label=f'{d} tibia', ls=ls, alpha=0.7)
     ax.set_xlabel('time [min]')
     ax.set_ylabel('mean servo temperature [C]')
     ax.set_title('Fig. 12 (simulation): tripod, t_des = 1 s')
@@ -187,15 +227,17 @@ def free_swing_quality(t_des_values=(0.5, 1.0, 2.0), phases_per_gait: int = 6) -
     from tqdm import tqdm
     robot = load_robot()
     out = []
-    bar = tqdm(total=len(GAITS) * len(t_des_values) * len(DETECTORS), desc='free swing on a stand', unit='cell',
+    bar = tqdm(total=len(GAITS) * len(t_des_values) * len(VARIANTS), desc='free swing on a stand', unit='cell',
                file=sys.stderr, **PROGRESS)
     for g in GAITS:
         for t in t_des_values:
-            for d in DETECTORS:
+            for d in VARIANTS:
                 bar.update()
+                f = variant_fields(d)
                 sim = HexapodSim(robot, terrain='flat', fixed_base=True)
-                c = GaitController(robot, get_gait(g), LocomotionParams(t_des_s=t), DetectorConfig(kind=d),
-                                   t_com_s=sim.t_com_s)
+                c = GaitController(robot, get_gait(g), LocomotionParams(t_des_s=t, approach_rate=f.get('approach_rate', 1.0),
+                                                                        fin_dwell_s=f.get('fin_dwell_s', 0.0)),
+                                   DetectorConfig(kind=f['detector']), t_com_s=sim.t_com_s)
                 c.startup(sim)
                 stops = []
                 for _ in range(phases_per_gait):
@@ -219,31 +261,40 @@ def format_free_swing(rows: list[dict]) -> str:
 
 def format_quality(results: list[dict]) -> str:
     lines = ['Ground-detection quality on the mockup (simulation truth)',
-             f'{"gait":9} {"t_des":>5} {"detection":9} | {"delay ms":>8} {"periods":>7} {"floor":>5} | {"torque@stop":>11} '
-             f'{"peak torque":>11} | {"overshoot mm":>12} | {"prem.":>5} {"missed":>6}']
+             f'{"gait":9} {"t_des":>5} {"detection":9} | {"delay ms":>8} {"periods":>7} {"floor":>5} {"beyond":>6} | '
+             f'{"torque@stop":>11} {"peak torque":>11} | {"overshoot mm":>12} {"rise mm":>7} | {"prem.":>5} {"missed":>6}']
     for g in GAITS:
         for t in sorted({r['config']['t_des_s'] for r in results}):
-            for d in DETECTORS:
+            for d in VARIANTS:
                 rs = [r['detection'] for r in results if r['detection'] and (r['config']['gait'], r['config']['t_des_s'],
-                                                                             r['config']['detector']) == (g, t, d)]
+                                                                             variant(r['config'])) == (g, t, d)]
                 if not rs:
                     continue
                 detected = sum(x['detected'] for x in rs)
                 timed = [x for x in rs if x['delay_s']]
+                swings = sum(x.get('swing_downs', 0) for x in rs)
+                missed = sum(x['missed_contacts'] for x in rs)
+                rises = [x['body_rise_m']['median'] for x in rs if x.get('body_rise_m')]
+                rise = f'{np.mean(rises) * 1e3:7.1f}' if rises else f'{"-":>7}'
+                tail = (f'{sum(x["premature_stops"] for x in rs):5d} {missed:6d}   ({detected} contacts detected'
+                        + (f' in {swings} swing-downs)' if swings else ')'))
                 if not timed:       # no contact detected after a true contact: the failing cell, shown
-                    lines.append(f'{g:9} {t:5.1f} {d:9} | {"-":>8} {"-":>7} {"-":>5} | {"-":>11} {"-":>11} | '
-                                 f'{"-":>12} | {sum(x["premature_stops"] for x in rs):5d} '
-                                 f'{sum(x["missed_contacts"] for x in rs):6d}   ({detected} contacts detected)')
+                    lines.append(f'{g:9} {t:5.1f} {d:9} | {"-":>8} {"-":>7} {"-":>5} {"-":>6} | {"-":>11} {"-":>11} | '
+                                 f'{"-":>12} {rise} | {tail}')
                     continue
                 m = lambda k, s='median': float(np.mean([x[k][s] for x in timed]))  # noqa: E731
                 fl = [x['blocked_leg_floor_periods']['median'] for x in timed if x.get('blocked_leg_floor_periods')]
                 floor = f'{np.mean(fl):5.1f}' if fl else '    -'
-                lines.append(f'{g:9} {t:5.1f} {d:9} | {m("delay_s") * 1e3:8.1f} {m("delay_control_periods"):7.1f} {floor} | '
-                             f'{m("femur_torque_at_stop_nm"):11.2f} {m("peak_femur_torque_nm"):11.2f} | '
-                             f'{m("command_overshoot_m") * 1e3:12.1f} | {sum(x["premature_stops"] for x in rs):5d} '
-                             f'{sum(x["missed_contacts"] for x in rs):6d}   ({detected} contacts detected)')
-    lines.append('periods = control periods t_con from the first true contact to the stop; floor = epsilon / femur '
-                 'goal step (Eq. 15), the fewest periods in which even a rigidly blocked leg crosses Eq. 17')
+                bf = [x['delay_beyond_floor_periods']['median'] for x in timed if x.get('delay_beyond_floor_periods')]
+                beyond = f'{np.mean(bf):6.1f}' if bf else f'{"-":>6}'
+                lines.append(f'{g:9} {t:5.1f} {d:9} | {m("delay_s") * 1e3:8.1f} {m("delay_control_periods"):7.1f} {floor} '
+                             f'{beyond} | {m("femur_torque_at_stop_nm"):11.2f} {m("peak_femur_torque_nm"):11.2f} | '
+                             f'{m("command_overshoot_m") * 1e3:12.1f} {rise} | {tail}')
+    lines.append('periods = control periods t_con from the first true contact to the stop; floor = (threshold - error) '
+                 'at the first read in contact / femur goal step: the fewest periods in which even a rigidly blocked '
+                 'leg crosses the threshold (adaptive: about epsilon / step); beyond = periods - floor; rise = median '
+                 'body rise during a swing-down (truth); adaptive = the paper\'s Algorithm 1, improved = with the '
+                 'approach goal profile')
     return '\n'.join(lines)
 
 
@@ -264,9 +315,15 @@ def main(argv=None) -> int:
                     help="threshold of the fixed detector [ticks] (paper: 21, found for the authors' robot)")
     ap.add_argument('--out', default='out/experiments', help='folder for PNGs and the JSON (created)')
     ap.add_argument('--json', metavar='FILE', help='JSON results (default: OUT/<which>.json)')
+    ap.add_argument('--approach-rate', type=positive_float, default=IMPROVED_APPROACH_RATE,
+                    help='approach_rate of the improved touchdown cells (fraction of the Eq. 15 goal rate near the '
+                         'expected ground, below 1)')
     add_executor_options(ap)
     add_no_progress_option(ap)
     args = ap.parse_args(argv)
+    if not args.approach_rate < 1.0:
+        ap.error(f'--approach-rate must be below 1 (1 is the paper\'s Eq. 15), got {args.approach_rate:g}')
+    APPROACH['rate'] = args.approach_rate
     PROGRESS['disable'] = not args.progress
     EXECUTOR['ray'] = args.ray
     try:
@@ -284,7 +341,7 @@ def _run(args, ap) -> int:
         ap.error(f'--out {out} exists and is not a directory')
     out.mkdir(parents=True, exist_ok=True)
     report: dict = {'which': args.which, 'trials': args.trials, 'duration_s': args.duration, 'terrain': args.terrain,
-                    'fixed_threshold_tick': args.fixed_threshold}
+                    'fixed_threshold_tick': args.fixed_threshold, 'approach_rate': args.approach_rate}
     if args.which in ('table4', 'fig11', 'quality', 'all'):
         t_des = (1.0,) if args.which == 'fig11' else (0.5, 1.0)
         cfgs = table4_configs(args.trials, args.duration, args.terrain, t_des, args.fixed_threshold)
@@ -305,12 +362,13 @@ def _run(args, ap) -> int:
         report['free_swing'] = rows
         print(format_free_swing(rows))
     if args.which in ('fig12', 'all'):
-        cfgs = [TrialConfig(gait='tripod', detector=d, t_des_s=1.0, terrain='rough', duration_s=args.fig12_duration,
-                            wz_rad_s=0.04, probe_period_s=0.5, fixed_threshold_tick=args.fixed_threshold)
-                for d in DETECTORS]
+        cfgs = [TrialConfig(gait='tripod', t_des_s=1.0, terrain='rough', duration_s=args.fig12_duration,
+                            wz_rad_s=0.04, probe_period_s=0.5, fixed_threshold_tick=args.fixed_threshold,
+                            **variant_fields(d))
+                for d in VARIANTS]
         res12 = run_many(cfgs, args.jobs, 'fig12 walks')
         plot_fig12(res12, out / 'fig12_temperature.png')
-        report['fig12'] = [{'detector': r['config']['detector'], 'path_length_m': r['path_length_m'], 'fell': r['fell'],
+        report['fig12'] = [{'detector': variant(r['config']), 'path_length_m': r['path_length_m'], 'fell': r['fell'],
                             'femur_c_start': r['temperature_femur_c'][0], 'femur_c_end': r['temperature_femur_c'][-1],
                             'tibia_c_end': r['temperature_tibia_c'][-1],
                             'temperature_t_s': r['temperature_t_s'], 'femur_c': r['temperature_femur_c'],

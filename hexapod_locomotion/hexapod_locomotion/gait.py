@@ -6,6 +6,7 @@ integer phase index, so "three feet down at every tick" is a one-line check.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -24,8 +25,13 @@ class GaitError(ValueError):
 class Gait:
     name: str
     groups: tuple[tuple[int, ...], ...]
+    # longest foothold displacement per cycle this gait keeps its support with [m] (caps
+    # LocomotionParams.max_stride_m; None = no cap of its own)
+    max_stride_m: float | None = None
 
     def __post_init__(self):
+        if self.max_stride_m is not None and not (math.isfinite(self.max_stride_m) and self.max_stride_m > 0):
+            raise GaitError(f'gait {self.name!r}: max_stride_m must be a finite positive number, got {self.max_stride_m!r}')
         flat = [leg for g in self.groups for leg in g]
         if not self.groups or any(not g for g in self.groups):
             raise GaitError(f'gait {self.name!r}: needs at least one non-empty group')
@@ -64,7 +70,10 @@ def gaits_from_mapping(data: Mapping) -> dict[str, Gait]:
             groups = tuple(tuple(int(x) for x in g) for g in spec['groups'])
         except (TypeError, ValueError):
             raise GaitError(f'gait {name!r}: groups must be lists of leg numbers, got {spec["groups"]!r}') from None
-        out[str(name)] = Gait(str(name), groups)
+        stride = spec.get('max_stride_m')
+        if stride is not None and (isinstance(stride, bool) or not isinstance(stride, (int, float))):
+            raise GaitError(f'gait {name!r}: max_stride_m must be a number, got {stride!r}')
+        out[str(name)] = Gait(str(name), groups, None if stride is None else float(stride))
     return out
 
 

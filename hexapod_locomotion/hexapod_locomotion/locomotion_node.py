@@ -64,7 +64,9 @@ class LocomotionNode(Node):
             self.robot, get_gait(p.gait),
             LocomotionParams(t_des_s=p.t_des_s, lift_m=p.lift_m, max_stride_m=p.max_stride_m,
                              ground_depth_m=p.ground_depth_m, landing_preload=p.landing_preload,
-                             background_reads=False),
+                             approach_rate=p.approach_rate, approach_height_m=p.approach_height_m, fin_dwell_s=p.fin_dwell_s,
+                             t_swing_up_s=p.t_swing_up_s, t_swing_forward_s=p.t_swing_forward_s,
+                             t_settle_s=p.t_settle_s, t_level_s=p.t_level_s, background_reads=False),
             DetectorConfig(kind=p.detector, epsilon_tick=p.epsilon_tick, fixed_threshold_tick=p.fixed_threshold_tick),
             t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
             on_swing_start=self._publish_swing_start)

@@ -108,8 +108,10 @@ class DetectionEvent:
     femur_torque_at_stop_nm: float
     peak_femur_torque_nm: float    # largest |femur torque| from true contact to stop + 0.1 s
     overshoot_m: float             # commanded foot below the true foot at the stop
-    floor_periods: float = float('nan')   # adaptive: epsilon / femur goal step, the fewest control
-    #                                       periods in which a rigidly blocked leg crosses Eq. 17
+    floor_periods: float = float('nan')   # (threshold - error) at the first read in contact / femur goal
+    #                                       step: the fewest control periods in which a rigidly blocked leg
+    #                                       crosses the threshold (adaptive: about epsilon / step)
+    body_rise_m: float = float('nan')     # trunk's largest rise during the group's swing-down (truth)
 
 
 def detection_quality(events: list[DetectionEvent]) -> dict:
@@ -126,6 +128,9 @@ def detection_quality(events: list[DetectionEvent]) -> dict:
     peak = np.array([e.peak_femur_torque_nm for e in valid if np.isfinite(e.peak_femur_torque_nm)])
     over = np.array([e.overshoot_m for e in valid])
     floor = np.array([e.floor_periods for e in valid if np.isfinite(e.floor_periods)])
+    beyond = np.array([(e.t_stop_s - e.t_true_contact_s) / e.t_con_s - e.floor_periods for e in valid
+                       if np.isfinite(e.floor_periods)])
+    rise = np.array([e.body_rise_m for e in events if np.isfinite(e.body_rise_m)])
 
     def stats(a):
         return {'mean': float(a.mean()), 'median': float(np.median(a)), 'p90': float(np.percentile(a, 90)),
@@ -135,7 +140,8 @@ def detection_quality(events: list[DetectionEvent]) -> dict:
             'missed_contacts': len(missed), 'no_ground': sum(1 for e in events if e.stop_reason == 2
                                                              and not np.isfinite(e.t_true_contact_s)),
             'delay_s': stats(delays), 'delay_control_periods': stats(periods),
-            'blocked_leg_floor_periods': stats(floor),
+            'blocked_leg_floor_periods': stats(floor), 'delay_beyond_floor_periods': stats(beyond),
+            'body_rise_m': stats(rise),
             'femur_torque_at_stop_nm': stats(tq), 'peak_femur_torque_nm': stats(peak),
             'command_overshoot_m': stats(over)}
 

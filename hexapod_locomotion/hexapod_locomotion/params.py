@@ -37,7 +37,26 @@ class LocomotionNodeParams:
     landing_preload: float = param(_GAIT.landing_preload, 'a leg that found ground is leveled as carrying this '
                                    'fraction of its share of the weight (compensates servo compliance; 0 = off, '
                                    'for rigid servos)', min=0.0)
-    max_stride_m: float = param(0.06, 'largest foothold displacement per cycle [m]; beyond reach is clamped',
+    approach_rate: float = param(_GAIT.approach_rate, 'touchdown goal profile: 1 = the paper\'s Eq. 15 (constant goal '
+                                 'rate); below 1 = the improved touchdown, the goal slows to this fraction of the Eq. 15 '
+                                 'rate from approach_height_m above the expected ground (less push on the body at '
+                                 'contact; a longer swing-down); too small makes walking slow', min=0.0, max=1.0,
+                                 min_exclusive=True)
+    approach_height_m: float = param(_GAIT.approach_height_m, 'with approach_rate < 1: the slow approach starts this '
+                                     'high above the expected ground [m]; too small and contacts meet the fast goal, too '
+                                     'large and the swing-down is slow all the way', min=0.0)
+    fin_dwell_s: float = param(_GAIT.fin_dwell_s, 'keep reading a leg whose goal reached theta_fin this long [s] '
+                               'before giving up on ground (0 = Algorithm 1); too long delays the next phase when '
+                               'there is no ground', min=0.0)
+    t_swing_up_s: float = param(_GAIT.t_swing_up_s, 'swing-up duration [s]; shorter is faster but jerks the body',
+                                min=0.0, min_exclusive=True)
+    t_swing_forward_s: float = param(_GAIT.t_swing_forward_s, 'swing-forward duration [s]; shorter is faster but the '
+                                     'leg may not settle before the swing-down', min=0.0, min_exclusive=True)
+    t_settle_s: float = param(_GAIT.t_settle_s, 'pause before the swing-down so it starts from rest [s]; too short '
+                              'and the model, which starts at rest, mispredicts the start', min=0.0)
+    t_level_s: float = param(_GAIT.t_level_s, 'body leveling and forward motion duration [s]; shorter is faster but '
+                             'loads the servos harder', min=0.0, min_exclusive=True)
+    max_stride_m: float = param(_GAIT.max_stride_m, 'largest foothold displacement per cycle [m] (a gait may cap it lower in gaits.yaml); beyond reach is clamped',
                                 min=0.0)
     cmd_vel_timeout_s: float = param(
         2.0, 'stop walking (finish the phase, then stand) when the last /cmd_vel is older than this [s of bus '

@@ -45,6 +45,9 @@ class TrialConfig:
     t_com_s: float | None = None
     epsilon_tick: float = 3.0
     fixed_threshold_tick: float = 21.0
+    approach_rate: float = 1.0          # touchdown goal profile (LocomotionParams): 1 = the paper's Eq. 15
+    approach_height_m: float = 0.015
+    fin_dwell_s: float = 0.0
     probe_period_s: float = 0.05        # truth sampling period (pose, energy, temperature)
     record: str | None = None           # bag directory, or None
     overlays: tuple[str, ...] = ()
@@ -90,6 +93,8 @@ class ProbeBus:
         self.femur_reads: dict[int, list[tuple]] = {leg: [] for leg in LEGS}
         from hexapod_sim.plant import PowerMeter
         self._power_meter = PowerMeter(sim)
+        self.body_z: list[tuple[float, float]] = []      # (stamp, trunk z) at every femur read (truth)
+        self.detector_reads: dict[int, list[ReadResult]] = {leg: [] for leg in LEGS}
         self._probe()
 
     # -- ServoBus
@@ -117,6 +122,7 @@ class ProbeBus:
             tau = self.sim.applied_torque_nm()[ALL_JOINTS.index(joint)]
             self.femur_reads[leg].append((stamp, bool(c.in_contact[leg - 1]), float(tau),
                                           self.sim.true_joint_angles()[3 * (leg - 1):3 * leg].copy()))
+            self.body_z.append((stamp, float(self.sim.body_pose()[0][2])))
         if self.recorder is not None:
             self.recorder.write(JOINT_STATES, MSG_TYPES[JOINT_STATES], joint_state_msg(stamp, [joint], [theta]), stamp)
         self._maybe_probe()
@@ -202,6 +208,7 @@ class ProbeBus:
                             {'header': {'stamp': stamp_dict(phase.t_start_s)}, **swing_start_fields(phase)}, phase.t_start_s)
 
     def record_detection(self, r: ReadResult) -> None:
+        self.detector_reads[r.leg].append(r)
         if self.recorder is None:
             return
         self.recorder.write(GROUND_DETECTION, MSG_TYPES[GROUND_DETECTION], {
@@ -235,6 +242,12 @@ class TrialResult:
         return asdict(self)
 
 
+def body_rise_m(body_z, t0_s: float, t1_s: float) -> float:
+    """Largest rise of the trunk (truth z at the femur reads) over its height at ``t0_s``, within [t0, t1]."""
+    z = [v for t, v in body_z if t0_s - 1e-9 <= t <= t1_s + 1e-9]
+    return float(max(z) - z[0]) if z else math.nan
+
+
 def _detection_events(robot: Robot, probe: ProbeBus, phase: SwingDownPhase,
                       detector: DetectorConfig) -> list[DetectionEvent]:
     """Simulation truth for each leg of a finished swing-down (every leg has stopped)."""
@@ -242,6 +255,7 @@ def _detection_events(robot: Robot, probe: ProbeBus, phase: SwingDownPhase,
     t_con = len(phase.legs) * probe.t_com_s
     t0 = phase.t_start_s
     goals = phase.goals(0)          # all legs stopped: the frozen goals, whatever the step
+    rise = body_rise_m(probe.body_z, t0, max(phase.state[leg].stop_time_s for leg in phase.legs))
     for leg in phase.legs:
         st = phase.state[leg]
         t_stop = st.stop_time_s
@@ -256,10 +270,17 @@ def _detection_events(robot: Robot, probe: ProbeBus, phase: SwingDownPhase,
         if at_stop is not None:       # the goal the leg was left at when it stopped vs where it truly was
             goal = [goals[joint_name(leg, r)] for r in JOINT_ROLES]
             overshoot = float(forward(robot, leg, at_stop[3])[2] - forward(robot, leg, goal)[2])
-        step = phase.femur_step_tick(leg)
-        floor = detector.epsilon_tick / step if detector.kind == 'adaptive' and step > 0 else math.nan
+        # the floor: from the detector's margin (threshold - error) at the first read in contact, the
+        # fewest control periods in which even a rigidly blocked leg, whose error grows by one goal
+        # step per period, crosses the threshold (adaptive: about epsilon / step)
+        floor = math.nan
+        step = phase.femur_step_tick(leg, max(st.stop_step, 0))
+        first = next((r for r in probe.detector_reads[leg] if math.isfinite(t_contact)
+                      and t_contact - 1e-9 <= r.stamp_s <= t_stop + 1e-9), None)
+        if first is not None and step > 0:
+            floor = max(0.0, first.threshold_tick - first.err_tick) / step
         out.append(DetectionEvent(leg, detector.kind, t0, t_stop, st.stop_reason, t_contact,
-                                  t_con, at_stop[2] if at_stop else math.nan, peak, overshoot, floor))
+                                  t_con, at_stop[2] if at_stop else math.nan, peak, overshoot, floor, rise))
     return out
 
 
@@ -299,8 +320,10 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
         swing_downs.append(phase)
         probe.record_swing_start(phase)
     det = DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
-    controller = GaitController(robot, get_gait(cfg.gait), LocomotionParams(t_des_s=cfg.t_des_s), det,
-                                t_com_s=sim.t_com_s, on_read=probe.record_detection, on_swing_start=on_swing_start)
+    controller = GaitController(robot, get_gait(cfg.gait),
+                                LocomotionParams(t_des_s=cfg.t_des_s, approach_rate=cfg.approach_rate,
+                                                 approach_height_m=cfg.approach_height_m, fin_dwell_s=cfg.fin_dwell_s),
+                                det, t_com_s=sim.t_com_s, on_read=probe.record_detection, on_swing_start=on_swing_start)
     warnings: list[str] = []
     fell = reached = False
     try:

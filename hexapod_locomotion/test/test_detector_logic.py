@@ -78,6 +78,27 @@ def test_premature_error_spike_needs_confirmation(robot):
     assert ph.state[1].premature_suspects == 1 + ph.config.confirm_reads
 
 
+@pytest.mark.parametrize('approach_rate', [1.0, 0.5])
+def test_dwell_at_theta_fin_finds_ground_just_above_it(robot, approach_rate):
+    """Ground 1 mm above the foot at theta_fin: the blocked error builds too late for Algorithm 1, which
+    stops at theta_fin (a missed contact); reading on for 20 steps at theta_fin finds the ground."""
+    ground = forward(robot, 1, [0.0, *FIN])[2] + 0.001
+    out = {}
+    for dwell in (0, 20):
+        bus = KinematicGroundBus(robot, ground_z_m=ground)
+        ph = SwingDownPhase(robot, (1, 6, 3), [0.0] * 3, [RAISED] * 3, [FIN] * 3, 0.5, 0.001, DetectorConfig(),
+                            approach_from=0.6, approach_rate=approach_rate, fin_dwell_steps=dwell)
+        run_swing_down(bus, ph)
+        out[dwell] = ph
+    assert all(s.stop_reason == STOP_THETA_FIN and s.stop_step == out[0].n_interp - 1 for s in out[0].state.values())
+    for s in out[20].state.values():
+        assert s.stop_reason == STOP_CONTACT and out[20].n_interp - 1 < s.stop_step < out[20].n_interp + 20
+    with pytest.raises(DetectorError, match='fin_dwell_steps'):
+        SwingDownPhase(robot, (1,), [0.0], [RAISED], [FIN], 0.5, 0.001, DetectorConfig(), fin_dwell_steps=-1)
+    with pytest.raises(DetectorError, match='approach_rate'):
+        SwingDownPhase(robot, (1,), [0.0], [RAISED], [FIN], 0.5, 0.001, DetectorConfig(), approach_rate=1.5)
+
+
 def test_bad_detector_input(robot):
     with pytest.raises(DetectorError, match="must be one of \\('adaptive', 'fixed'\\)"):
         DetectorConfig(kind='psychic')

@@ -50,6 +50,19 @@ def test_bad_gaits_are_named(tmp_path):
     with pytest.raises(GaitError, match=f'^{p}: not valid YAML: line 1, column 14: ') as err:
         load_gaits(p)
     assert '\n' not in str(err.value) and 'unicode string' not in str(err.value)
+    p.write_text('wave:\n  groups: [[1], [2], [3], [4], [5], [6]]\n  max_stride_m: far\n')
+    with pytest.raises(GaitError, match="gait 'wave': max_stride_m must be a number"):
+        load_gaits(p)
+    with pytest.raises(GaitError, match='finite positive'):
+        Gait('wave', ((1,), (2,), (3,), (4,), (5,), (6,)), -0.1)
+
+
+def test_a_gait_caps_the_stride():
+    from hexapod_locomotion.controller import LocomotionParams
+    p = LocomotionParams(max_stride_m=0.10)
+    assert p.stride_m(get_gait('pentapod')) == get_gait('pentapod').max_stride_m < 0.10
+    assert p.stride_m(get_gait('tripod')) == 0.10
+    assert LocomotionParams(max_stride_m=0.05).stride_m(get_gait('pentapod')) == 0.05
 
 
 def test_roll_pitch_yaw_of_known_rotations():

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .description import Robot, joint_name
-from .servo import firmware_torque_scalar, theta_to_tick
+from .servo import firmware_torque_scalar
 
 try:  # numba makes one 2 s prediction take well under a millisecond; the pure-Python path is exact too
     from numba import njit
@@ -656,16 +656,54 @@ class SwingDownPrediction:
     rollouts: tuple[Rollout, ...]  # full 1 kHz trajectories per leg
 
 
-def interpolated_goals(theta_init_tick, theta_fin_tick, t_des_s: float, t_con_s: float, n_steps: int) -> np.ndarray:
-    """Eq. 15 / Algorithm 1 lines 3 and 6: ``theta_des(k) = theta_init + (k+1) dtheta``, capped at theta_fin.
+def goal_fraction(k, n_interp: float, approach_from=1.0, approach_rate: float = 1.0):
+    """Fraction of the path theta_init -> theta_fin of the goal written at step ``k`` (scalar or array).
+
+    Eq. 15: ``(k + 1) / n_interp`` (``n_interp = t_des / t_con``), capped at 1. With an approach
+    profile (``approach_rate`` < 1, the improved touchdown beside the paper's), the goal moves at
+    the Eq. 15 rate up to the fraction ``approach_from`` (where the foot nears the expected ground)
+    and at ``approach_rate`` times that rate from there on: the free-swing lag, and with it the push
+    of a foot that has just touched, shrinks by the same factor. ``approach_rate`` 1 is Eq. 15
+    exactly (the same float operations)."""
+    u = (np.asarray(k, dtype=float) + 1.0) / n_interp
+    if approach_rate < 1.0:
+        u = np.where(u <= approach_from, u, approach_from + approach_rate * (u - approach_from))
+    return np.minimum(u, 1.0)
+
+
+def steps_to_fin(n_interp: float, approach_from=1.0, approach_rate: float = 1.0) -> int:
+    """Steps until the goal of :func:`goal_fraction` reaches theta_fin (the largest over legs)."""
+    a = np.minimum(np.asarray(approach_from, dtype=float), 1.0)
+    u_fin = a + (1.0 - a) / approach_rate if approach_rate < 1.0 else np.ones_like(a)
+    return int(math.ceil(float(np.max(u_fin)) * n_interp - 1e-9))
+
+
+def check_approach(approach_from, approach_rate: float, n_legs: int) -> np.ndarray:
+    """The approach profile's inputs validated: ``approach_from`` as an (L,) array in [0, 1]."""
+    if not (math.isfinite(approach_rate) and 0.0 < approach_rate <= 1.0):
+        raise SwingDownError(f'approach_rate must be in (0, 1], got {approach_rate!r}')
+    a = np.broadcast_to(np.asarray(approach_from, dtype=float), (n_legs,)).copy()
+    if not (np.isfinite(a).all() and (a >= 0.0).all() and (a <= 1.0).all()):
+        raise SwingDownError(f'approach_from must be fractions in [0, 1], got {a.tolist()}')
+    return a
+
+
+def interpolated_goals(theta_init_tick, theta_fin_tick, t_des_s: float, t_con_s: float, n_steps: int,
+                       approach_from=1.0, approach_rate: float = 1.0) -> np.ndarray:
+    """Eq. 15 / Algorithm 1 lines 3 and 6: ``theta_des(k) = theta_init + (k+1) dtheta``, capped at theta_fin
+    (with an approach profile: :func:`goal_fraction`; ``approach_from`` scalar or per leg, the
+    leading axis of the inputs).
 
     Returns continuous goals of shape (n_steps, ...) matching the trailing shape of the inputs.
     """
     init = np.asarray(theta_init_tick, dtype=float)
     fin = np.asarray(theta_fin_tick, dtype=float)
     n_interp = t_des_s / t_con_s
-    frac = np.minimum((np.arange(n_steps) + 1.0) / n_interp, 1.0)
-    return init + frac.reshape((-1,) + (1,) * init.ndim) * (fin - init)
+    k = np.arange(n_steps).reshape((-1,) + (1,) * init.ndim)
+    a = np.asarray(approach_from, dtype=float)
+    a = a.reshape(a.shape + (1,) * (init.ndim - a.ndim)) if a.ndim else a
+    frac = goal_fraction(k, n_interp, a, approach_rate)
+    return init + frac * (fin - init)
 
 
 def goals_per_period(goal_steps: np.ndarray, t_con_s: float, dt_s: float, n_periods: int) -> np.ndarray:
@@ -676,16 +714,20 @@ def goals_per_period(goal_steps: np.ndarray, t_con_s: float, dt_s: float, n_peri
 
 
 @njit(cache=True, nogil=True)
-def _eq15_goal(init_tick, fin_tick, k, n_interp):
-    """Integer goal of Algorithm 1's step ``k``: ``rint(theta_init + min((k+1)/n_interp, 1) (theta_fin -
-    theta_init))``, Eq. 15 in the operations of :func:`interpolated_goals` (strict float math, so the
-    model's goals are the ones the controller writes)."""
-    frac = min((k + 1.0) / n_interp, 1.0)
+def _eq15_goal(init_tick, fin_tick, k, n_interp, approach_from, approach_rate):
+    """Integer goal of Algorithm 1's step ``k``: ``rint(theta_init + frac (theta_fin - theta_init))`` with
+    ``frac`` of :func:`goal_fraction` (Eq. 15, or its approach profile), in the operations of
+    :func:`interpolated_goals` (strict float math, so the model's goals are the ones the controller writes)."""
+    u = (k + 1.0) / n_interp
+    if approach_rate < 1.0 and u > approach_from:
+        u = approach_from + approach_rate * (u - approach_from)
+    frac = min(u, 1.0)
     return np.rint(init_tick + frac * (fin_tick - init_tick))
 
 
 @njit(cache=True, nogil=True)
-def _swing_down_kernel(params, q0, q_fin, qd0, gap0, n_interp, n_reach, t_con, per_step, t_com, read_delay, center,
+def _swing_down_kernel(params, q0, q_fin, qd0, gap0, n_interp, approach_from, approach_rate, n_reach, t_con, per_step,
+                       t_com, read_delay, center,
                        rad_per_tick, epsilon, ticks, direction, reached, goal_buf, idx, out_t_read, out_des,
                        out_est, out_err, out_thr, out_q, out_qd, out_tau, out_gap):
     """CalcModel for all swinging legs in one call, allocating nothing (every array is the caller's).
@@ -693,7 +735,8 @@ def _swing_down_kernel(params, q0, q_fin, qd0, gap0, n_interp, n_reach, t_con, p
     Returns False, and computes nothing, when an initial or final angle (``q0``, ``q_fin``: (L, 2)
     rad) is not finite. Otherwise per leg slot ``l``: the initial and final angles as continuous
     ticks into ``ticks`` (2, L, 2) (the operations of :func:`hexapod_model.servo.theta_to_tick`) and
-    the sign of the femur motion into ``direction`` (L,); the Eq. 15 goals into ``goal_buf``: when
+    the sign of the femur motion into ``direction`` (L,); the Eq. 15 goals (with the approach profile
+    ``approach_from[l]``, ``approach_rate``: :func:`goal_fraction`) into ``goal_buf``: when
     ``t_con`` is ``per_step`` whole servo periods, one row per step (L, K, 2), each held for
     ``per_step`` periods; otherwise (``per_step`` = 0) the goal in effect at each servo period (step
     ``k = floor(t / t_con)``, capped at the last step; (L, n, 2)); the legs simulated together by
@@ -723,8 +766,8 @@ def _swing_down_kernel(params, q0, q_fin, qd0, gap0, n_interp, n_reach, t_con, p
     if per_step > 0:
         for l in range(n_legs):
             for k in range(n_steps):
-                goal_buf[l, k, 0] = _eq15_goal(init_t[l, 0], fin_t[l, 0], k, n_interp)
-                goal_buf[l, k, 1] = _eq15_goal(init_t[l, 1], fin_t[l, 1], k, n_interp)
+                goal_buf[l, k, 0] = _eq15_goal(init_t[l, 0], fin_t[l, 0], k, n_interp, approach_from[l], approach_rate)
+                goal_buf[l, k, 1] = _eq15_goal(init_t[l, 1], fin_t[l, 1], k, n_interp, approach_from[l], approach_rate)
         _rollout_legs(params, q0, qd0, goal_buf, per_step, out_q, out_qd, out_tau, gap0, out_gap, idx)
     else:
         for l in range(n_legs):
@@ -735,8 +778,8 @@ def _swing_down_kernel(params, q0, q_fin, qd0, gap0, n_interp, n_reach, t_con, p
                 # the step whose goal is in effect: floor(j dt / t_con) (as goals_per_period), capped
                 kk = min(int(math.floor(j * dt / t_con + 1e-9)), n_steps - 1)
                 if kk != k_prev:
-                    g2 = _eq15_goal(init_t[l, 0], fin_t[l, 0], kk, n_interp)
-                    g3 = _eq15_goal(init_t[l, 1], fin_t[l, 1], kk, n_interp)
+                    g2 = _eq15_goal(init_t[l, 0], fin_t[l, 0], kk, n_interp, approach_from[l], approach_rate)
+                    g3 = _eq15_goal(init_t[l, 1], fin_t[l, 1], kk, n_interp, approach_from[l], approach_rate)
                     k_prev = kk
                 goal_buf[l, j, 0] = g2
                 goal_buf[l, j, 1] = g3
@@ -764,7 +807,7 @@ def _swing_down_kernel(params, q0, q_fin, qd0, gap0, n_interp, n_reach, t_con, p
                     th = q[j, 0]
                 else:
                     th = (q[j + 1, 0] - q[j, 0]) / ((j + 1) * dt - xj) * (x - xj) + q[j, 0]
-            des = _eq15_goal(init_t[l, 0], fin_t[l, 0], k, n_interp)
+            des = _eq15_goal(init_t[l, 0], fin_t[l, 0], k, n_interp, approach_from[l], approach_rate)
             est = center + th / rad_per_tick
             out_des[k, l] = des
             out_est[k, l] = est
@@ -775,13 +818,15 @@ def _swing_down_kernel(params, q0, q_fin, qd0, gap0, n_interp, n_reach, t_con, p
 
 def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_s: float, t_com_s: float,
                        epsilon_tick: float = 3.0, n_steps: int | None = None, qd0_rad_s=None,
-                       models: dict | None = None, read_delay_s=None) -> SwingDownPrediction:
+                       models: dict | None = None, read_delay_s=None, approach_from=1.0,
+                       approach_rate: float = 1.0) -> SwingDownPrediction:
     """CalcModel for ``legs`` swinging down together, read sequentially in the given order.
 
     ``theta_init_rad``/``theta_fin_rad``: arrays (L, 2) of (femur, tibia) DH angles. ``n_steps``:
     control steps to predict (default: until theta_fin plus 20 % settling). ``models`` may carry
     cached :class:`LegModel` per leg. ``read_delay_s`` (L,) shifts each leg's reported sample
-    earlier (a readout delay effect).
+    earlier (a readout delay effect). ``approach_from`` (scalar or (L,)) and ``approach_rate``: the
+    approach profile of the goals (:func:`goal_fraction`; rate 1 = Eq. 15).
 
     One compiled call (:func:`_swing_down_kernel`) expands the Eq. 15 goals, simulates every leg and
     samples the reads; Python only validates the input and allocates the result (one block).
@@ -795,11 +840,12 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
     for name, v in (('t_des_s', t_des_s), ('t_com_s', t_com_s), ('epsilon_tick', epsilon_tick)):
         if not math.isfinite(v) or (name != 'epsilon_tick' and v <= 0):
             raise SwingDownError(f'{name} must be a finite positive number, got {v!r}')
+    approach = check_approach(approach_from, approach_rate, L)
     servo = robot.servo
     t_con = L * t_com_s                                         # Algorithm 1, line 1
-    n_interp = int(math.ceil(t_des_s / t_con - 1e-9))
+    n_fin = steps_to_fin(t_des_s / t_con, approach, approach_rate)
     if n_steps is None:
-        n_steps = int(math.ceil(n_interp * 1.2)) + 1
+        n_steps = int(math.ceil(n_fin * 1.2)) + 1
     qd0 = np.zeros((L, 2)) if qd0_rad_s is None else np.asarray(qd0_rad_s, dtype=float).reshape(L, 2)
     delay = np.zeros(L) if read_delay_s is None else np.asarray(read_delay_s, dtype=float).reshape(L)
     dt = servo.control_period_s
@@ -829,7 +875,8 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
     tau = block[o:o + L * n_periods * 2].reshape(L, n_periods, 2)
     goal_buf = block[o + L * n_periods * 2:].reshape(L, goal_rows, 2)
     reached = np.empty(n_steps, dtype=np.bool_)
-    if not _swing_down_kernel(params, init, fin, qd0, gap0, float(t_des_s / t_con), n_interp, t_con, per_step,
+    if not _swing_down_kernel(params, init, fin, qd0, gap0, float(t_des_s / t_con), approach, float(approach_rate),
+                              n_fin, t_con, per_step,
                               float(t_com_s), delay, float(servo.center_tick), float(servo.rad_per_tick),
                               float(epsilon_tick), ticks, direction, reached, goal_buf, np.empty(L, np.int64),
                               tables[0], tables[1], tables[2], tables[3], tables[4], q, qd, tau, gap):

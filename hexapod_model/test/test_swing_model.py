@@ -6,8 +6,8 @@ import pytest
 
 from hexapod_model.description import Effect, load_robot
 from hexapod_model.servo import theta_to_tick
-from hexapod_model.swing_model import (LegModel, SwingDownError, goals_per_period, interpolated_goals,
-                                      predict_swing_down)
+from hexapod_model.swing_model import (LegModel, SwingDownError, goal_fraction, goals_per_period,
+                                      interpolated_goals, predict_swing_down, steps_to_fin)
 
 RAISED = [0.45, 0.1]     # femur, tibia at the end of swing-forward [rad]
 BELOW = [-0.15, -0.05]   # theta_fin: below the expected ground
@@ -65,6 +65,44 @@ def test_interpolation_eq15():
     g = interpolated_goals(100.0, 40.0, t_des_s=0.03, t_con_s=0.003, n_steps=12)
     assert g[0] == pytest.approx(94.0) and g[9] == pytest.approx(40.0) and g[11] == pytest.approx(40.0)
     assert np.diff(g[:10]) == pytest.approx(np.full(9, -6.0))
+
+
+def test_approach_profile_slows_the_goal_after_approach_from():
+    # rate 1 is Eq. 15 to the bit; rate 0.5 from 0.6 on: the goal of step k is 0.6 + 0.5 ((k + 1) / 10 - 0.6)
+    k = np.arange(20)
+    assert np.array_equal(goal_fraction(k, 10.0, 0.6, 1.0), np.minimum((k + 1.0) / 10.0, 1.0))
+    frac = goal_fraction(k, 10.0, 0.6, 0.5)
+    assert frac[:6] == pytest.approx((k[:6] + 1) / 10.0)
+    assert frac[6:14] == pytest.approx(0.6 + 0.5 * ((k[6:14] + 1) / 10.0 - 0.6))
+    assert frac[13] == pytest.approx(1.0) and frac[12] < 1.0 and frac[19] == 1.0
+    assert steps_to_fin(10.0, 0.6, 0.5) == 14 and steps_to_fin(10.0, [0.6, 0.9], 0.5) == 14
+    assert steps_to_fin(10.0, 0.3, 1.0) == 10
+    g = interpolated_goals([100.0, 200.0], [40.0, 80.0], 0.03, 0.003, 14, approach_from=[0.6, 1.0], approach_rate=0.5)
+    assert g[:, 0] == pytest.approx(100.0 - 60.0 * frac[:14])
+    assert g[:, 1] == pytest.approx(200.0 - 120.0 * np.minimum((k[:14] + 1) / 10.0, 1.0))   # approach_from 1: Eq. 15
+
+
+def test_prediction_commands_the_approach_profile_and_lags_less(robot):
+    # the model must run the goals the controller writes: the kernel's goals are interpolated_goals'
+    init, fin = np.array([RAISED] * 3), np.array([BELOW] * 3)
+    a = np.array([0.5, 0.6, 0.7])
+    p = predict_swing_down(robot, [1, 6, 3], init, fin, 1.0, 0.001, approach_from=a, approach_rate=0.5)
+    steps = np.rint(interpolated_goals(theta_to_tick(init, robot.servo), theta_to_tick(fin, robot.servo), 1.0,
+                                       0.003, p.theta_des_tick.shape[0], a, 0.5))
+    assert np.array_equal(p.theta_des_tick, steps[:, :, 0])
+    paper = predict_swing_down(robot, [1, 6, 3], init, fin, 1.0, 0.001)
+    n = steps_to_fin(1.0 / 0.003, a, 0.5)
+    assert p.reached_fin.argmax() == n - 1 and n > paper.reached_fin.argmax() + 1
+    # in the slow part the lag settles to about half of the paper's (it is mostly back-EMF, so
+    # proportional to the goal rate)
+    for slot in range(3):
+        k = int(0.9 * (a[slot] + (1 - a[slot]) / 0.5) * (1.0 / 0.003))      # late in the approach
+        kp = int(0.9 / 0.003)                                                # late in the Eq. 15 swing
+        assert p.err_est_tick[k, slot] < 0.7 * paper.err_est_tick[kp, slot], slot
+    with pytest.raises(SwingDownError, match='approach_rate'):
+        predict_swing_down(robot, [1], [RAISED], [BELOW], 1.0, 0.001, approach_from=0.5, approach_rate=0.0)
+    with pytest.raises(SwingDownError, match='approach_from'):
+        predict_swing_down(robot, [1], [RAISED], [BELOW], 1.0, 0.001, approach_from=1.5, approach_rate=0.5)
 
 
 def _fig9(robot, t_des):
