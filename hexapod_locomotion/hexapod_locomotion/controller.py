@@ -51,7 +51,8 @@ class LocomotionParams:
     t_settle_s: float = 0.15         # pause after swing-forward so swing-down starts from rest
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
-    max_stride_m: float = 0.10       # longest foothold displacement per cycle (reach: about 11 cm)
+    max_stride_m: float = 0.07       # longest foothold displacement per cycle (reach: about 11 cm; 10 cm stalls
+                                     # the real-time graph on the blocks, see docs/architecture.md)
     max_turn_rad: float = 0.25       # largest yaw per cycle
     # theta_fin this far below the nominal ground. Eq. 15 moves the goal from theta_init to theta_fin
     # in t_des, so a deeper theta_fin means a faster swing-down at the same t_des: more free-swing lag
