@@ -39,16 +39,18 @@ class LocomotionParams:
     """Gait-cycle parameters. Lengths in metres, times in seconds."""
 
     t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
-    # Transfer phases. Measured on the mockup (experiment table4, 30 s trials) against 0.15 / 0.25 /
-    # 0.1 / 0.3 s and a 7 cm stride: 0.1 / 0.2 / 0.15 / 0.3 s and 10 cm walk faster with adaptive
-    # CoT below fixed. A 0.05 s settle (with a 0.15 s swing-forward) left the legs moving at the
-    # swing-down start, which the model (started at rest) does not predict: 1-23 premature stops
-    # per cell; 0.1 s still stopped one leg early in free swing at t_des 2 s. Leveling in 0.2 s
-    # raised the tripod CoT 1.6-2.5x (t_des 0.5 / 1 s; 13 of 162 contacts missed at 0.5 s).
-    t_swing_up_s: float = 0.1
-    t_swing_forward_s: float = 0.2
+    # Transfer phases (node parameters too). Shorter phases were measured (issue 16): 0.1 / 0.2 /
+    # 0.15 / 0.3 s with a 10 cm stride walked the in-process trials faster, but the stride stalled
+    # the real-time graph at the first blocks, and with a 7 cm stride the same timing made the demo
+    # slower and costlier (113.9 s and CoT 49.2 for the mockup, against 106.3 s and 38.9 with the
+    # timing below) and the composed ROS graph walked 46 % of the in-process distance. A 0.05-0.1 s
+    # settle after a 0.15 s swing-forward left the legs moving at the swing-down start, which the
+    # model (started at rest) does not predict: 1-23 premature stops per cell. Leveling in 0.2 s
+    # raised the tripod CoT 1.6-2.5x.
+    t_swing_up_s: float = 0.15
+    t_swing_forward_s: float = 0.25
     t_level_s: float = 0.3
-    t_settle_s: float = 0.15         # pause after swing-forward so swing-down starts from rest
+    t_settle_s: float = 0.1          # pause after swing-forward so swing-down starts from rest
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
     max_stride_m: float = 0.07       # longest foothold displacement per cycle (reach: about 11 cm; 10 cm stalls
