@@ -15,7 +15,7 @@ from rclpy.node import Node
 
 from .contract import PREDICT_SWING_DOWN
 from .description import LEGS, DescriptionError
-from .node_params import NodeParams, init_node_process, report
+from .node_params import NodeParams, init_node_process, report, spin_until_shutdown
 from .param_schema import ParameterError, RobotSource
 from .swing_model import LegModel, SwingDownError, predict_swing_down
 
@@ -61,7 +61,7 @@ def main(args=None):
     node = None
     try:
         node = ModelNode()
-        rclpy.spin(node)
+        spin_until_shutdown(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ParameterError as exc:

@@ -172,3 +172,19 @@ def init_node_process(args: list[str] | None = None) -> None:
 
 def _leave_the_stop_to_rclpy(signum, frame) -> None:
     """SIGINT after rclpy has shut the context down: nothing more to do."""
+
+
+def spin_until_shutdown(node, period_s: float = 0.1) -> None:
+    """Spin ``node`` until its context is shut down (Ctrl-C, SIGTERM), re-checking every ``period_s``.
+
+    With :func:`init_node_process` nothing interrupts the main thread at Ctrl-C; the stop comes
+    from rclpy shutting the context down. ``rclpy.spin`` waits without a timeout, so a wake-up that
+    races the shutdown would leave it waiting for ever; a bounded wait cannot miss it."""
+    from rclpy.executors import SingleThreadedExecutor
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        while node.context.ok():
+            executor.spin_once(timeout_sec=period_s)
+    finally:
+        executor.shutdown()

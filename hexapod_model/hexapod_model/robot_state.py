@@ -28,7 +28,7 @@ from std_msgs.msg import String
 
 from . import contract
 from .description import DescriptionError, load_robot
-from .node_params import init_node_process
+from .node_params import init_node_process, spin_until_shutdown
 from .tf_tree import TfTree
 from .urdf import urdf_xml
 
@@ -96,7 +96,7 @@ def main(args=None):
     node = None
     try:
         node = RobotStateNode()
-        rclpy.spin(node)
+        spin_until_shutdown(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except DescriptionError as exc:

@@ -44,7 +44,7 @@ from std_srvs.srv import Trigger
 
 from hexapod_model import contract, diagnostics
 from hexapod_model.description import ALL_JOINTS, DescriptionError
-from hexapod_model.node_params import NodeParams, init_node_process, report
+from hexapod_model.node_params import NodeParams, init_node_process, report, spin_until_shutdown
 from hexapod_model.param_schema import ParameterError, RobotSource
 from hexapod_model.urdf import urdf_xml
 from hexapod_model.contract import stamp_msg
@@ -384,7 +384,7 @@ def main(args=None) -> None:
     node = None
     try:
         node = SimNode()
-        rclpy.spin(node)
+        spin_until_shutdown(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RCLError:
