@@ -21,9 +21,9 @@ class TruthRecordingBackend(ServoBusBackend):
     (:class:`~hexapod_sim.truth_log.TruthLog`) and writes it at exit: what a benchmark compares the
     driver's view with (the emulator is not a ROS node, so it publishes no truth)."""
 
-    def __init__(self, sim, robot: Robot, path: str, max_catch_up_s: float | None = None):
+    def __init__(self, sim, robot: Robot, truth: TruthLog, max_catch_up_s: float | None = None):
         super().__init__(sim, robot, max_catch_up_s)
-        self.truth = TruthLog(path)
+        self.truth = truth
 
     def _catch_up(self, t: float, slices: int = 1) -> None:
         super()._catch_up(t, slices)
@@ -56,13 +56,14 @@ class SimBackend:
         if not args.max_catch_up_ms > 0:
             raise SystemExit(f'bus_emulator: --max-catch-up-ms must be > 0, got {args.max_catch_up_ms}')
         from .plant import HexapodSim, SimError      # MuJoCo is imported only when this backend is chosen
+        truth = None
         if args.truth_out is not None:
             try:
-                TruthLog(args.truth_out)           # checks the path before the physics is built
+                truth = TruthLog(args.truth_out)   # checks the path before the physics is built
             except SimError as exc:
                 raise SystemExit(f'bus_emulator: --truth-out: {exc}') from None
         sim = HexapodSim(robot, terrain=args.terrain, seed=args.terrain_seed, fixed_base=args.fixed_base)
         cap = args.max_catch_up_ms / 1000.0
-        if args.truth_out is not None:
-            return TruthRecordingBackend(sim, robot, args.truth_out, cap)
+        if truth is not None:
+            return TruthRecordingBackend(sim, robot, truth, cap)
         return ServoBusBackend(sim, robot, cap)
