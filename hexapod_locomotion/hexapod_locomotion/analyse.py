@@ -23,9 +23,9 @@ import numpy as np
 
 from hexapod_sim.bagio import BagError, BagReader, BagWarning
 from hexapod_model.cli_common import add_no_progress_option, make_parser, output_file, plot_extensions
-from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_STATES, POWER, SIM_TRUTH_POSE, SWING_DOWN,
-                                   stamp_seconds, topic_key)
-from hexapod_model.description import LEGS, DescriptionError, load_robot, parse_joint_name
+from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, POWER, SIM_TRUTH_POSE,
+                                   SWING_DOWN, stamp_seconds, topic_key)
+from hexapod_model.description import LEGS, DescriptionError, joint_name, load_robot, parse_joint_name
 from hexapod_model.swing_model import LegModel
 
 from .detector import STOP_THETA_FIN, DetectorError, phase_from_fields, replay_swing_down
@@ -72,8 +72,9 @@ def load_bag(path: str):
     if JOINT_STATES not in topics:
         raise AnalysisError(f'{path}: no /{JOINT_STATES} topic - there are no servo reads to analyse')
     swings, femur_reads, recorded = [], [], defaultdict(dict)
-    power, pose, imu = [], [], []
-    wanted = [t for t in (SWING_DOWN, JOINT_STATES, GROUND_DETECTION, POWER, SIM_TRUTH_POSE, IMU) if t in topics]
+    power, pose, imu, commands = [], [], [], []
+    wanted = [t for t in (SWING_DOWN, JOINT_STATES, JOINT_COMMANDS, GROUND_DETECTION, POWER, SIM_TRUTH_POSE, IMU)
+              if t in topics]
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', BagWarning)
         messages = list(reader.messages(topics=wanted))
@@ -89,6 +90,8 @@ def load_bag(path: str):
                     continue
                 if role == 'femur':
                     femur_reads.append((stamp_seconds(msg.header.stamp), leg, float(pos)))
+        elif topic == JOINT_COMMANDS:
+            commands.append((stamp_seconds(msg.header.stamp), frozenset(msg.name)))
         elif topic == GROUND_DETECTION:
             start = round(stamp_seconds(msg.swing_start), 6)
             if msg.stopped and msg.leg not in recorded[start]:
@@ -105,7 +108,18 @@ def load_bag(path: str):
     if not swings:
         raise AnalysisError(f'{path}: /{SWING_DOWN} has no messages - the recording contains no swing-down')
     femur_reads.sort(key=lambda r: r[0])
-    return swings, femur_reads, recorded, power, pose, imu, reader.warnings if hasattr(reader, 'warnings') else []
+    commands.sort(key=lambda c: c[0])
+    return (swings, femur_reads, recorded, power, pose, imu, commands,
+            reader.warnings if hasattr(reader, 'warnings') else [])
+
+
+def swing_down_writes(commands, legs, t0: float, t_end: float) -> list[float]:
+    """Stamps of the goal writes of the swing-down of ``legs`` that began at ``t0``: the recorded
+    ``/joint_commands`` from ``t0`` on (before ``t_end``) that name exactly the group's joints, one per
+    step of Algorithm 1 (:func:`~hexapod_locomotion.detector.replay_swing_down`). Empty for a bag
+    without ``/joint_commands``: the replay then uses the nominal schedule."""
+    names = frozenset(joint_name(leg, r) for leg in legs for r in ('coxa', 'femur', 'tibia'))
+    return [t for t, n in commands if t0 - 1e-9 <= t < t_end and n == names]
 
 
 def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool = False) -> dict:
@@ -117,7 +131,7 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
     phase cut off by its time limit.
     """
     robot = robot or load_robot()
-    swings, femur_reads, recorded, power, pose, imu, bag_warnings = load_bag(path)
+    swings, femur_reads, recorded, power, pose, imu, commands, bag_warnings = load_bag(path)
     models = {leg: LegModel(robot, leg) for leg in LEGS}
     times = np.array([r[0] for r in femur_reads])
     verdicts: list[LegVerdict] = []
@@ -137,6 +151,7 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
             continue
         lo, hi = np.searchsorted(times, t0 - 1e-9), np.searchsorted(times, t_end - 1e-9)
         reads = [(leg, th, t) for t, leg, th in femur_reads[lo:hi] if leg in legs]
+        writes = swing_down_writes(commands, legs, t0, t_end)
         kind = msg.detector
         other = 'fixed' if kind == 'adaptive' else 'adaptive'
         res, tr = {}, {}
@@ -144,7 +159,7 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
             ph = phase_from_fields(robot, msg, t0, kind=det, models=models)
             rows = defaultdict(list)
             try:
-                replay_swing_down(ph, reads, on_read=lambda r, rows=rows: rows[r.leg].append(
+                replay_swing_down(ph, reads, writes=writes, on_read=lambda r, rows=rows: rows[r.leg].append(
                     (r.t_swing_s, r.err_tick, r.threshold_tick, r.stopped, r.stop_reason)))
             except DetectorError as exc:
                 problems.append(f'swing-down {i} at t={t0:.3f} s, {det} detector: {exc}')

@@ -58,7 +58,7 @@ def _cpu_s(pid: int) -> float:
 def _processes(route: str, args, workdir: str) -> list[tuple[str, list[str]]]:
     sim_params = [f'terrain:={args.terrain}', f'seed:={args.seed}',
                   f'truth_out:={os.path.join(workdir, TRUTH_FILE)}']
-    loco_params = [f'gait:={args.gait}']
+    loco_params = [f'gait:={args.gait}', *args.param]
     p = lambda params: [a for x in params for a in ('-p', x)]  # noqa: E731
     if route == 'driver':
         link = os.path.join(workdir, 'ttyHEX')
@@ -183,6 +183,13 @@ def _truth_from_file(probe: _Probe, path: str, window, wall_stamps: bool) -> flo
     return float(sel[-1, 1] - sel[0, 1])
 
 
+def _ros_param(text: str) -> str:
+    name, sep, value = text.partition(':=')
+    if not sep or not name or not value:
+        raise argparse.ArgumentTypeError(f'expected NAME:=VALUE, got {text!r}')
+    return text
+
+
 def _last_error(log) -> str:
     log.flush()
     log.seek(0)
@@ -198,6 +205,7 @@ def figures(probe: _Probe, gait: str) -> dict:
     t_com = load_robot().bus.t_com_s
     L = len(get_gait(gait).swing_legs(0))
     gaps, delays = [], []
+    contact_stops = premature = 0
     c_t = np.array([c[0] for c in probe.contacts])
     c_in = np.array([c[1] for c in probe.contacts]) if probe.contacts else np.zeros((0, 6), bool)
     for (start, leg), rs in probe.reads.items():
@@ -206,14 +214,17 @@ def figures(probe: _Probe, gait: str) -> dict:
         stop = next((r for r in rs if r[1]), None)
         if stop is None or stop[2] != 1 or not len(c_t):
             continue
+        contact_stops += 1
         sel = (c_t >= start) & (c_t <= stop[0] + 1e-9) & c_in[:, leg - 1]
         if np.any(sel):
             delays.append(stop[0] - c_t[np.flatnonzero(sel)[0]])
+        else:                  # stopped "on ground" with the foot still in the air
+            premature += 1
     pose = probe.pose
     return {'distance_m': pose[-1][1] - pose[0][1] if len(pose) > 1 else 0.0,
             'sim_s': pose[-1][0] - pose[0][0] if len(pose) > 1 else 0.0,
             't_con_nominal_s': L * t_com, 'gaps_s': np.array(gaps), 'delays_s': np.array(delays),
-            'swing_downs': len(probe.swings)}
+            'swing_downs': len(probe.swings), 'contact_stops': contact_stops, 'premature': premature}
 
 
 def in_process(args, sim_s: float) -> dict:
@@ -241,6 +252,9 @@ def main(argv=None) -> int:
     ap.add_argument('--vx', type=finite_float, default=0.05, help='/cmd_vel forward speed [m/s]')
     ap.add_argument('--domain-id', type=int, default=86, help='ROS_DOMAIN_ID of the graph (loopback only)')
     ap.add_argument('--keep', metavar='DIR', help='keep the node logs in DIR')
+    ap.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE', type=_ros_param,
+                    help='a parameter for the node that runs the controller (robot or locomotion_node), '
+                         'e.g. -p real_time_factor:=0.0; repeatable')
     args = ap.parse_args(argv)
     from .gait import GaitError, get_gait
     try:
@@ -271,7 +285,7 @@ def main(argv=None) -> int:
           f'({60 * ref["distance_m"] / ref["sim_s"]:.3f} m/min), detection delay median '
           f'{ref["delay_median_s"] * 1e3:.0f} ms')
     hdr = ('route', 'wall s', 'sim s', 'm/min wall', 'vs in-proc', 't_con med ms', 'p95 ms', 'L*T_com ms',
-           'delay med ms', 'vs in-proc', 'CPU per process')
+           'delay med ms', 'vs in-proc', 'stops in the air', 'CPU per process')
     print(' | '.join(hdr))
     for r in results:
         per_min = 60 * r['distance_m'] / r['wall_s']
@@ -281,7 +295,8 @@ def main(argv=None) -> int:
         print(' | '.join([r['route'], f'{r["wall_s"]:.0f}', f'{r["sim_s"]:.1f}', f'{per_min:.3f}',
                           f'{per_min / ref_per_min:.0%}', f'{_pct(r["gaps_s"], 50) * 1e3:.2f}',
                           f'{_pct(r["gaps_s"], 95) * 1e3:.2f}', f'{r["t_con_nominal_s"] * 1e3:.1f}',
-                          f'{dmed * 1e3:.0f}', f'{dmed / ref["delay_median_s"]:.2f}x', cpu]))
+                          f'{dmed * 1e3:.0f}', f'{dmed / ref["delay_median_s"]:.2f}x',
+                          f'{r["premature"]} / {r["contact_stops"]}', cpu]))
         if r['ended']:
             print(f'  {r["route"]}: {r["ended"]}')
     return 0

@@ -4,7 +4,7 @@ Two detectors share one interface:
 
 * ``adaptive`` - the paper's model-based threshold, Eq. 17: ``e_thld(k) = err_est(k) + epsilon``,
   with ``err_est`` from the swing-down model (:func:`hexapod_model.swing_model.predict_swing_down`)
-  evaluated at the actual sample time of each read;
+  evaluated at each read's time after the write of its step (:meth:`SwingDownPhase.model_time_s`);
 * ``fixed`` - the baseline of the earlier work: a constant ``e_thld`` (21 ticks).
 
 :class:`SwingDownPhase` is Algorithm 1 as a state machine: ``goals(k)`` gives the interpolated
@@ -161,6 +161,7 @@ class SwingDownPhase:
                                                  approach_from=self.approach_from, approach_rate=self.approach_rate)
         self._start_foot_z = {leg: forward(robot, leg, [self.state[leg].coxa_rad, *init[i]])[2]
                               for i, leg in enumerate(self.legs)}
+        self._write_s: dict[int, float] = {}       # step -> time its goals were written (bus time base)
 
     # ---------------------------------------------------------------- Algorithm 1
     @property
@@ -197,6 +198,31 @@ class SwingDownPhase:
         n = self.n_interp if leg is None else self._n_fin[self.legs.index(leg)]
         return k + 1 >= n
 
+    def wrote(self, k: int, t_s: float) -> None:
+        """The goals of step ``k`` were written at ``t_s`` (what ``sync_write`` returned)."""
+        if not math.isfinite(t_s):
+            raise DetectorError(f'step {k}: write time is not finite ({t_s!r})')
+        self._write_s[k] = float(t_s)
+
+    def model_time_s(self, k: int, stamp_s: float) -> float:
+        """Where on the model's time axis a read of step ``k`` sampled at ``stamp_s`` lies.
+
+        The model (CalcModel) applies goal ``k`` at exactly k t_con. A real computer writes it
+        late now and then (the controller computed, the bus was busy), and the goal sequence is
+        indexed by step, not by time: with ``err_est`` taken at the read's time since the phase
+        began, every late step moved the prediction on while the goal stood still, so the measured
+        error ran ahead of the threshold and free legs stopped in the air (the real-time robot
+        stopped its swing-downs 70-130 ms in, 0.44 s before the ground). A read is therefore
+        placed at k t_con plus its time since its own step's write (:meth:`wrote`). A late step
+        gave the leg extra time to follow the previous goal, so its real error is, if anything,
+        below the prediction: late steps can delay a detection but not fake one. Without a recorded
+        write the nominal instant t_start + k t_con stands in; on a bus that keeps the schedule
+        (the simulation, lock-step) both are the read's time since the phase began."""
+        w = self._write_s.get(k)
+        if w is None:
+            return stamp_s - self.t_start_s
+        return k * self.t_con_s + (stamp_s - w)
+
     def on_read(self, k: int, leg: int, theta_real_rad: float, stamp_s: float) -> ReadResult:
         """Lines 9-14 for one femur read of ``leg`` at step ``k``, sampled at ``stamp_s``."""
         s = self.state[leg]
@@ -205,12 +231,13 @@ class SwingDownPhase:
         servo = self.robot.servo
         slot = self.legs.index(leg)
         t_swing = stamp_s - self.t_start_s
+        t_model = self.model_time_s(k, stamp_s)
         des = float(np.rint(s.goal_tick[0]))
         real = float(theta_to_tick(theta_real_rad, servo))
         err = s.direction * (des - real)                                   # Eq. 16
         if self.prediction is not None:
             ro = self.prediction.rollouts[slot]
-            est = float(theta_to_tick(np.interp(t_swing, np.arange(len(ro.q_rad)) * ro.dt_s, ro.q_rad[:, 0]), servo))
+            est = float(theta_to_tick(np.interp(t_model, np.arange(len(ro.q_rad)) * ro.dt_s, ro.q_rad[:, 0]), servo))
             err_est = s.direction * (des - est)
             thld = err_est + self.config.epsilon_tick                      # Eq. 17
         else:
@@ -264,7 +291,7 @@ def run_swing_down(bus: ServoBus, phase: SwingDownPhase, on_read=None, max_steps
         if k >= limit:
             raise DetectorError(f'swing-down did not finish within {limit} steps')
         bus.wait_until(t0 + k * phase.t_con_s)
-        bus.sync_write(phase.goals(k))                                  # line 7
+        phase.wrote(k, bus.sync_write(phase.goals(k)))                  # line 7
         for leg in phase.legs:                                          # lines 8-15
             theta, stamp = bus.read_position(joint_name(leg, 'femur'))
             res = phase.on_read(k, leg, theta, stamp)
@@ -274,8 +301,12 @@ def run_swing_down(bus: ServoBus, phase: SwingDownPhase, on_read=None, max_steps
     return phase
 
 
-def replay_swing_down(phase: SwingDownPhase, reads, on_read=None) -> SwingDownPhase:
+def replay_swing_down(phase: SwingDownPhase, reads, on_read=None, writes=()) -> SwingDownPhase:
     """Re-run Algorithm 1 offline on recorded femur reads ``(leg, theta_rad, stamp_s)`` in bus order.
+
+    ``writes``: the recorded stamps of the phase's goal writes, one per step in order (from
+    ``/joint_commands``), so the model is read where the live controller read it
+    (:meth:`SwingDownPhase.model_time_s`); steps beyond them use the nominal schedule.
 
     The reads of step ``k`` are the k-th run of one read per leg in ``phase.legs`` order (every leg
     is read in every step, stopped ones included, see :func:`run_swing_down`). Decisions are only
@@ -292,6 +323,8 @@ def replay_swing_down(phase: SwingDownPhase, reads, on_read=None) -> SwingDownPh
                                 f'at step {k}, got leg {leg} at t={stamp:.4f} s')
         if slot == 0:
             phase.goals(k)
+            if k < len(writes):
+                phase.wrote(k, writes[k])
         res = phase.on_read(k, leg, theta, stamp)
         if on_read is not None:
             on_read(res)

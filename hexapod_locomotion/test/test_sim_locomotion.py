@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hexapod_locomotion.controller import GaitController, LocomotionParams, VelocityCommand
-from hexapod_locomotion.detector import STOP_CONTACT, STOP_THETA_FIN, DetectorConfig
+from hexapod_locomotion.detector import STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, SwingDownPhase
 from hexapod_locomotion.gait import get_gait
 from hexapod_locomotion.trial_runner import ProbeBus, TrialConfig, _detection_events, run_trial
 from hexapod_model.description import load_robot
@@ -110,6 +110,88 @@ def test_no_premature_stop_in_free_swing(robot, t_des, approach_rate, fin_dwell_
         rep = c.step_phase(sim, VelocityCommand(0.05, 0.0, 0.0))
         assert [o.stop_reason for o in rep.outcomes] == [STOP_THETA_FIN] * 3
         assert all(o.premature_suspects == 0 for o in rep.outcomes)
+
+
+class _LateController:
+    """A ServoBus around the sim for a controller that is late now and then, as a computer in real time
+    is: the bus idles ``late_s`` before the first write of a swing-down (the model prediction is
+    computed after the phase's start time was taken) and before every ``every``-th write after it."""
+
+    def __init__(self, sim, late_s=0.005, every=4):
+        self.sim, self.t_com_s, self.late_s, self.every, self.writes = sim, sim.t_com_s, late_s, every, 0
+
+    def now(self):
+        return self.sim.now()
+
+    def sync_write(self, goals):
+        if self.writes % self.every == 0:
+            self.sim.wait_until(self.sim.now() + self.late_s)
+        self.writes += 1
+        return self.sim.sync_write(goals)
+
+    def wait_until(self, t):
+        self.sim.wait_until(t)
+
+    def read_position(self, joint):
+        return self.sim.read_position(joint)
+
+
+class _PhaseOnStartTimes(SwingDownPhase):
+    """Algorithm 1 as it was before the model was read relative to each step's write: at the read's
+    time since the phase began, whatever the writes did."""
+
+    def wrote(self, k, t_s):
+        pass
+
+
+@pytest.mark.parametrize('anchored', [True, False])
+def test_late_steps_do_not_stop_a_free_swing(robot, anchored, monkeypatch):
+    """On a stand (no ground), a controller whose writes come late (5 ms before the first and every
+    fourth step) still runs every swing-down to theta_fin: the model is read at each read's time
+    after its own step's write. Read at the time since the phase began instead, the prediction runs
+    ahead of the late goals and the free legs stop in the air - what the real-time robot did."""
+    import hexapod_locomotion.controller as controller
+    if not anchored:
+        monkeypatch.setattr(controller, 'SwingDownPhase', _PhaseOnStartTimes)
+    sim = HexapodSim(robot, terrain='flat', fixed_base=True)
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(kind='adaptive'),
+                       t_com_s=sim.t_com_s)
+    c.startup(sim)
+    bus = _LateController(sim)
+    reasons = [o.stop_reason for _ in range(2) for o in c.step_phase(bus, VelocityCommand(0.05, 0.0, 0.0)).outcomes]
+    if anchored:
+        assert reasons == [STOP_THETA_FIN] * 6
+    else:                      # the old reading: the test above would catch it
+        assert STOP_CONTACT in reasons
+
+
+def test_replay_with_the_recorded_writes_makes_the_live_decisions(robot):
+    """``analyse`` replays a swing-down from its recorded reads and writes (/joint_commands): with a
+    late controller, the replay stops each leg at the same step as the live run."""
+    from hexapod_locomotion.detector import replay_swing_down, run_swing_down
+    sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(), DetectorConfig(kind='adaptive'),
+                       t_com_s=sim.t_com_s)
+    c.startup(sim)
+    legs = (1, 6, 3)
+    init = [[sim.read_position(f'leg{leg}_{r}')[0] for r in ('femur', 'tibia')] for leg in legs]
+    fin = [[init[i][0] - 0.6, init[i][1] + 0.1] for i in range(3)]
+    coxa = [c.leg_angles(leg)[0] for leg in legs]
+
+    def phase():
+        return SwingDownPhase(robot, legs, coxa, init, fin, 0.5, sim.t_com_s, DetectorConfig(kind='adaptive'),
+                              t_start_s=t0)
+    t0 = sim.now()
+    bus = _LateController(sim, late_s=0.004, every=3)
+    reads, writes = [], []
+    write, read = bus.sync_write, bus.read_position
+    bus.sync_write = lambda g: writes.append(write(g)) or writes[-1]
+    bus.read_position = lambda j: reads.append((int(j[3]), *read(j))) or reads[-1][1:]
+    live = run_swing_down(bus, phase())
+    assert any(s.stop_reason == STOP_CONTACT for s in live.state.values())
+    again = replay_swing_down(phase(), reads, writes=writes)
+    assert {leg: (s.stop_step, s.stop_reason) for leg, s in again.state.items()} == \
+        {leg: (s.stop_step, s.stop_reason) for leg, s in live.state.items()}
 
 
 class _SupportProbe:

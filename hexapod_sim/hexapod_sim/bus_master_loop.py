@@ -168,6 +168,17 @@ class SimBusLoop:
         self._read(joint, out)
         return self._finish(out)
 
+    def idle(self, until_s: float) -> None:
+        """The bus idles (no transaction) until ``until_s``: a controller that owns the bus is computing.
+        The physics runs on, and the benchmarks' truth (:attr:`truth_log`) keeps its rows."""
+        log = self.truth_log
+        if log is None:
+            self.sim.wait_until(until_s)
+            return
+        while self.sim.now() < until_s - 1e-12:
+            self.sim.wait_until(min(until_s, self.sim.now() + log.period_s))
+            log.sample(self.sim)
+
     def _read(self, joint: str, out: list) -> None:
         theta, t = self.sim.read_position(joint)
         out.append(JointSample(joint, theta, t))

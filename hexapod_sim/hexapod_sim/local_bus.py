@@ -113,7 +113,7 @@ class LocalSimBus:
                 self.on_lag(behind)
         elif behind >= self.sim.dt:
             with self.lock:
-                self.sim.wait_until(target)
+                self.loop.idle(target)
 
     # -- ServoBus
     def now(self) -> float:
