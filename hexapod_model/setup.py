@@ -10,7 +10,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', ['config/model_node.yaml']),   # --ros-args --params-file
+        ('share/' + package_name + '/config', ['config/model_node.yaml', 'config/robot_state.yaml']),   # --ros-args --params-file
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -70,8 +70,15 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_locomotion', 'teleop_keyboard', ['--rate', 'nan']),
     ('hexapod_locomotion', 'robot', ['--gait', 'bogus']),      # a node: parameters are -p NAME:=VALUE
     ('hexapod_driver', 'driver_node', ['--device', '/dev/ttyUSB0']),
+    # ROS arguments rcl cannot parse: the node's one line, not rcl's traceback
+    ('hexapod_locomotion', 'robot', ['--ros-args', '-p', '-p']),
+    ('hexapod_locomotion', 'locomotion_node', ['--ros-args', '-p', 'gait']),
+    ('hexapod_model', 'model_node', ['--ros-args', '-r']),
+    ('hexapod_sim', 'sim_node', ['--ros-args', '-p', '-p']),
+    ('hexapod_driver', 'driver_node', ['--ros-args', '-p', '-p']),
+    ('hexapod_sim', 'replay', ['BAG', '--ros-args', '-p', '-p']),
 ]
-ROS_NODES = {'robot', 'driver_node'}    # --help lists ROS parameters: 'name (default X): ...'
+ROS_NODES = {'robot', 'driver_node', 'locomotion_node', 'model_node', 'sim_node'}    # --help lists ROS parameters: 'name (default X): ...'
 NO_DEFAULTS = {'analyse'}               # every option is an output asked for (--json, --plot) or a switch
 
 

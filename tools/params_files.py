@@ -16,9 +16,9 @@ REPO = Path(__file__).resolve().parent.parent
 def nodes():
     from hexapod_driver.config import NODE as DRIVER
     from hexapod_locomotion.params import NODE as LOCOMOTION
-    from hexapod_model.param_schema import MODEL_NODE
+    from hexapod_model.param_schema import MODEL_NODE, ROBOT_STATE_NODE
     from hexapod_sim.params import NODE as SIM
-    return [DRIVER, SIM, MODEL_NODE, LOCOMOTION]
+    return [DRIVER, SIM, MODEL_NODE, ROBOT_STATE_NODE, LOCOMOTION]
 
 
 def config_path(node) -> Path:

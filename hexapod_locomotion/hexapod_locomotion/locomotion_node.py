@@ -15,25 +15,24 @@ from __future__ import annotations
 
 import gc
 import math
-import sys
 import threading
 import traceback
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from hexapod_model.bus import BusError
 from hexapod_model.contract import CMD_VEL, GROUND_DETECTION, SWING_DOWN, stamp_parts
 from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
-from hexapod_model.node_params import NodeParams, init_node_process, report
-from hexapod_model.param_schema import ParameterError, RobotSource
+from hexapod_model.node_params import NodeParams, node_help, run_node
+from hexapod_model.param_schema import RobotSource
 
 from .controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
 from .detector import DetectorConfig, DetectorError, swing_start_fields
 from .gait import GaitError, get_gait
-from .params import LocomotionNodeParams
+from .params import NODE, LocomotionNodeParams
 from .ros_bus import RosBus
 
 class LocomotionNode(Node):
@@ -185,34 +184,22 @@ def spin_while_walking(executor, node: LocomotionNode) -> None:
         raise SystemExit(1)
 
 
-def main(args=None):
-    init_node_process(args)
-    node = ex = None
+def _spin(node: LocomotionNode) -> None:
+    # One thread is enough: no callback of this node waits (the controller runs in its own
+    # thread), and rclpy's MultiThreadedExecutor costs about as much CPU per message again as the
+    # rest of the node (wait set rebuilt per message, a thread-pool hand-off per callback): over
+    # DDS in lock-step that was 40 % of the node's CPU per simulated millisecond.
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
     try:
-        node = LocomotionNode()
-        # One thread is enough: no callback of this node waits (the controller runs in its own
-        # thread), and rclpy's MultiThreadedExecutor costs about as much CPU per message again as the
-        # rest of the node (wait set rebuilt per message, a thread-pool hand-off per callback): over
-        # DDS in lock-step that was 40 % of the node's CPU per simulated millisecond.
-        ex = SingleThreadedExecutor()
-        ex.add_node(node)
         spin_while_walking(ex, node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RCLError:
-        if rclpy.ok():        # a real middleware error, not the context going away on SIGTERM
-            raise
-    except ParameterError as exc:
-        raise SystemExit(report('locomotion_node', exc))
-    except (DescriptionError, GaitError, DetectorError, LocomotionError) as exc:
-        print(f'locomotion_node: {exc}', file=sys.stderr)
-        raise SystemExit(2)
-    finally:
-        if ex is not None:        # its pending tasks end with it, before the context goes (no Task.__del__ noise)
-            ex.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    finally:                  # its pending tasks end with it, before the context goes (no Task.__del__ noise)
+        ex.shutdown()
+
+
+def main(args=None):
+    run_node('locomotion_node', LocomotionNode, node_help('locomotion_node', __doc__, NODE.schemas), args,
+             errors=(DescriptionError, GaitError, DetectorError, LocomotionError), spin=_spin)
 
 
 if __name__ == '__main__':

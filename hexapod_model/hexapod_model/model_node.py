@@ -7,16 +7,12 @@ The node keeps one compiled :class:`LegModel` per leg, so a request costs about 
 """
 from __future__ import annotations
 
-import sys
-
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from .contract import PREDICT_SWING_DOWN
 from .description import LEGS, DescriptionError
-from .node_params import NodeParams, init_node_process, report, spin_until_shutdown
-from .param_schema import ParameterError, RobotSource
+from .node_params import NodeParams, node_help, run_node
+from .param_schema import MODEL_NODE, RobotSource
 from .swing_model import LegModel, SwingDownError, predict_swing_down
 
 
@@ -57,22 +53,8 @@ class ModelNode(Node):
 
 
 def main(args=None):
-    init_node_process(args)
-    node = None
-    try:
-        node = ModelNode()
-        spin_until_shutdown(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ParameterError as exc:
-        raise SystemExit(report('model_node', exc))
-    except DescriptionError as exc:
-        print(f'model_node: {exc}', file=sys.stderr)
-        raise SystemExit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node('model_node', ModelNode, node_help('model_node', __doc__, MODEL_NODE.schemas), args,
+             errors=(DescriptionError,))
 
 
 if __name__ == '__main__':

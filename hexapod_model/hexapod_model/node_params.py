@@ -163,11 +163,30 @@ def init_node_process(args: list[str] | None = None) -> None:
     was installed before it. Python's default raises ``KeyboardInterrupt`` wherever the main thread
     happens to be - also inside a garbage-collected rclpy ``Task.__del__``, which Python reports as
     an ignored exception with a traceback. A handler that does nothing leaves the stop to rclpy."""
+    import os
     import signal
 
     import rclpy
+    from rclpy._rclpy_pybind11 import RCLError
+    from rclpy.utilities import remove_ros_args
+
+    from .cli_common import prog_name
+    try:                          # parsed once first: rcl's init would also log its own [ERROR] line
+        remove_ros_args(args if args is not None else sys.argv)
+    except RCLError as exc:       # e.g. '-p' without NAME:=VALUE
+        exe = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else 'node'
+        print(f'{prog_name(exe)}: error: bad --ros-args: {rcl_reason(exc)}', file=sys.stderr, flush=True)
+        raise SystemExit(2) from None
     signal.signal(signal.SIGINT, _leave_the_stop_to_rclpy)
     rclpy.init(args=args)
+
+
+def rcl_reason(exc: Exception) -> str:
+    """rcl's reason for refusing the ROS arguments, on one line without its source locations."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    for prefix in ('failed to initialize rcl: ', 'Failed to parse ROS arguments: '):
+        text = text.replace(prefix, '')
+    return text.split(', at ')[0]
 
 
 def _leave_the_stop_to_rclpy(signum, frame) -> None:
@@ -188,3 +207,53 @@ def spin_until_shutdown(node, period_s: float = 0.1) -> None:
             executor.spin_once(timeout_sec=period_s)
     finally:
         executor.shutdown()
+
+
+def node_help(exe: str, doc: str, schemas, defaults: Mapping[str, Any] | None = None) -> Callable[[], str]:
+    """``help_text`` for :func:`run_node`: usage, the module's description, every parameter."""
+    def text() -> str:
+        from .cli_common import prog_name
+        from .param_schema import help_lines
+        return '\n'.join([f'usage: {prog_name(exe)} [-h] [--ros-args -p NAME:=VALUE ...]', '', doc.strip(), '',
+                          'Parameters (-p NAME:=VALUE):', *help_lines(schemas, defaults)])
+    return text
+
+
+def run_node(exe: str, make_node: Callable[[], Any], help_text: Callable[[], str], args: list[str] | None = None,
+             errors: tuple = (), error_exit: int = 2, close: Callable[[Any], None] | None = None,
+             spin: Callable[[Any], None] = spin_until_shutdown) -> None:
+    """``main`` of a node executable that serves until Ctrl-C or SIGTERM.
+
+    ``--help`` prints ``help_text()`` and starts nothing; arguments rclpy would ignore or cannot
+    parse are refused in one line (:func:`node_command_line`, :func:`init_node_process`). A refused
+    parameter exits with :data:`EXIT_BAD_PARAMETER`, one of ``errors`` (the node's own start-up
+    errors: a bad description, terrain, bag path) with ``error_exit``, each in one line. At the
+    end ``close(node)`` (the node's own cleanup), the node is destroyed and rclpy shut down.
+    ``spin(node)`` serves it (default :func:`spin_until_shutdown`)."""
+    import rclpy
+    from rclpy._rclpy_pybind11 import RCLError
+    from rclpy.executors import ExternalShutdownException
+    rc = node_command_line(None if args is None else list(args)[1:], exe, help_text)
+    if rc is not None:
+        raise SystemExit(rc)
+    init_node_process(args)
+    node = None
+    try:
+        node = make_node()
+        spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RCLError:
+        if rclpy.ok():          # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
+            raise
+    except ParameterError as exc:
+        raise SystemExit(report(exe, exc))
+    except errors as exc:
+        print(f'{exe}: {exc}', file=sys.stderr, flush=True)
+        raise SystemExit(error_exit)
+    finally:
+        if node is not None:
+            if close is not None:
+                close(node)
+            node.destroy_node()
+        rclpy.try_shutdown()

@@ -249,4 +249,10 @@ def params_yaml(node: NodeSpec) -> str:
     return '\n'.join(lines) + '\n'
 
 
+@dataclass(frozen=True)
+class RobotStateParams:
+    tf_rate_hz: float = param(50.0, 'rate of /tf from the latest /joint_states [Hz]', min=0.0, min_exclusive=True)
+
+
 MODEL_NODE = NodeSpec('hexapod_model', 'model_node', 'model_node', (RobotSource,))
+ROBOT_STATE_NODE = NodeSpec('hexapod_model', 'robot_state', 'robot_state', (RobotSource, RobotStateParams))

@@ -15,20 +15,15 @@ PyPI wheels this workspace builds with have no tf2_msgs: there the node says so 
 """
 from __future__ import annotations
 
-import math
-import sys
-
-import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from . import contract
-from .description import DescriptionError, load_robot
-from .node_params import init_node_process, spin_until_shutdown
+from .description import DescriptionError
+from .node_params import NodeParams, node_help, run_node
+from .param_schema import ROBOT_STATE_NODE, RobotSource, RobotStateParams
 from .tf_tree import TfTree
 from .urdf import urdf_xml
 
@@ -55,17 +50,9 @@ def tf_message(entries, stamp):
 class RobotStateNode(Node):
     def __init__(self, **node_kwargs):
         super().__init__('robot_state', **node_kwargs)
-        self.declare_parameter('robot_description', '', ParameterDescriptor(
-            description='robot YAML path; empty = the packaged description', read_only=True))
-        self.declare_parameter('robot_overlays', [''], ParameterDescriptor(
-            description='overlay YAML files merged over the description', read_only=True))
-        self.declare_parameter('tf_rate_hz', 50.0, ParameterDescriptor(
-            description='rate of /tf from the latest /joint_states [Hz]', read_only=True))
-        overlays = [o for o in self.get_parameter('robot_overlays').value if o]
-        robot = load_robot(self.get_parameter('robot_description').value or None, overlays)
-        rate = float(self.get_parameter('tf_rate_hz').value)
-        if not (math.isfinite(rate) and rate > 0):
-            raise DescriptionError(f'parameter tf_rate_hz must be > 0, got {rate}')
+        params = NodeParams(self)
+        robot = params.declare(RobotSource).load()
+        rate = params.declare(RobotStateParams).tf_rate_hz
         self.tree = TfTree(robot)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         if TFMessage is None:          # said before the description goes out: a listener that has it has this too
@@ -92,20 +79,8 @@ class RobotStateNode(Node):
 
 
 def main(args=None):
-    init_node_process(args)
-    node = None
-    try:
-        node = RobotStateNode()
-        spin_until_shutdown(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except DescriptionError as exc:
-        print(f'robot_state: {exc}', file=sys.stderr)
-        raise SystemExit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node('robot_state', RobotStateNode,
+             node_help('robot_state', __doc__, ROBOT_STATE_NODE.schemas), args, errors=(DescriptionError,))
 
 
 if __name__ == '__main__':

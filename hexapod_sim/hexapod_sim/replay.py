@@ -262,8 +262,15 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(args=None) -> int:
-    argv = remove_ros_args(args if args is not None else sys.argv)[1:]
+    from rclpy._rclpy_pybind11 import RCLError
+
+    from hexapod_model.node_params import rcl_reason
     parser = _parser()
+    try:
+        argv = remove_ros_args(args if args is not None else sys.argv)[1:]
+    except RCLError as exc:
+        print(f'{parser.prog}: error: bad --ros-args: {rcl_reason(exc)}', file=sys.stderr)
+        return 2
     opts = parser.parse_args(argv)
     try:
         reader = BagReader(opts.bag)

@@ -30,11 +30,8 @@ from __future__ import annotations
 import sys
 import threading
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
-from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
@@ -44,8 +41,8 @@ from std_srvs.srv import Trigger
 
 from hexapod_model import contract, diagnostics
 from hexapod_model.description import ALL_JOINTS, DescriptionError
-from hexapod_model.node_params import NodeParams, init_node_process, report, spin_until_shutdown
-from hexapod_model.param_schema import ParameterError, RobotSource
+from hexapod_model.node_params import EXIT_BAD_PARAMETER, NodeParams, node_help, run_node
+from hexapod_model.param_schema import RobotSource
 from hexapod_model.urdf import urdf_xml
 from hexapod_model.contract import stamp_msg
 from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus,
@@ -53,7 +50,7 @@ from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, Servo
 from hexapod_msgs.srv import SetReadSchedule
 
 from .live import LiveView, LiveViewError
-from .params import SimParams
+from .params import NODE, SimParams
 from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from .bagio import BagError
 from .recorder import Recorder, resolve_bag_dir
@@ -380,23 +377,8 @@ def _error_text(bits: int, enabled: bool) -> str:
 
 
 def main(args=None) -> None:
-    init_node_process(args)
-    node = None
-    try:
-        node = SimNode()
-        spin_until_shutdown(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RCLError:
-        if rclpy.ok():          # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
-            raise
-    except (ParameterError, DescriptionError, SimError, BagError) as exc:
-        raise SystemExit(report('sim_node', exc))      # one line, exit 1: nothing was started
-    finally:
-        if node is not None:
-            node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node('sim_node', SimNode, node_help('sim_node', __doc__, NODE.schemas), args,
+             errors=(DescriptionError, SimError, BagError), error_exit=EXIT_BAD_PARAMETER, close=SimNode.close)
 
 
 if __name__ == '__main__':
