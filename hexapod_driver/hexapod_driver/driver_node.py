@@ -19,6 +19,7 @@ import os
 import signal
 import sys
 import threading
+import time
 import traceback
 
 import rclpy
@@ -68,7 +69,10 @@ class DriverNode(Node):
         if hook == '1':
             signal.signal(signal.SIGUSR1, lambda *_: self._forced_raise.set())
         self.exit_code: int | None = None
-        self.core = DynamixelBus(robot, cfg, clock=lambda: self.get_clock().now().nanoseconds * 1e-9)
+        # The bus runs on ROS time: the system clock, read directly (rclpy's Clock.now() costs some
+        # 15 us, several times per transaction), or /clock with use_sim_time.
+        ros_time = lambda: self.get_clock().now().nanoseconds * 1e-9     # noqa: E731
+        self.core = DynamixelBus(robot, cfg, clock=ros_time if self.get_parameter('use_sim_time').value else time.time)
         try:
             self.core.start()
         except BaseException:

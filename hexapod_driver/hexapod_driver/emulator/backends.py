@@ -138,7 +138,7 @@ class ServoBusBackend:
     def idle(self, t: float) -> None:
         """Keep the simulated bus in step with the emulator's clock while nobody talks to it (in
         slices, so that a request arriving meanwhile is not kept waiting)."""
-        self._catch_up(t, slices=5)
+        self._catch_up(t, slices=1)
 
     def torque(self, t: float, slot: int, enabled: bool) -> None:
         setter = getattr(self.bus, 'set_torque_enabled', None)

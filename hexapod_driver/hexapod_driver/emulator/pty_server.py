@@ -249,7 +249,7 @@ class BusEmulator:
                 continue
             idle = getattr(self.backend, 'idle', None)
             try:
-                ready, _, _ = select.select([fd], [], [], 0.005 if idle else 0.05)
+                ready, _, _ = select.select([fd], [], [], 0.0005 if idle else 0.05)
             except (OSError, ValueError):
                 continue
             if not ready:
@@ -313,18 +313,22 @@ class BusEmulator:
             self.backend.torque(self.now(), s.slot, False)
         return bits
 
-    def _refresh_present(self, s: EmulatedServo, t: float) -> None:
+    def _refresh_present(self, s: EmulatedServo, t: float, status: bool = True) -> None:
+        """The present_* registers at ``t``. ``status``: also load and temperature, which the backend
+        computes for every servo at once (a sim's whole servo state): only when a read covers them,
+        so a position read, the driver's most frequent transaction, is answered sooner."""
         tick, speed = self.backend.sample(t, s.slot)
         s._put(p.REGISTERS['present_position'], min(self.robot.servo.max_tick, max(0, int(round(tick)))))
         units = speed / (self.robot.servo.ticks_per_range * 360.0 / self.robot.servo.range_deg) * 60.0 \
             / p.MOVING_SPEED_UNIT_RPM
         s._put(p.REGISTERS['present_speed'], p.encode_speed(units))
-        temp, load = self.backend.status(s.slot)
-        if temp is not None:
-            s.temperature_c = temp
-        if load is None:
-            load = 1.0 if s.overload else 0.0
-        s._put(p.REGISTERS['present_load'], p.encode_load(max(-1.0, min(1.0, load)) if s.torque_on else 0.0))
+        if status:
+            temp, load = self.backend.status(s.slot)
+            if temp is not None:
+                s.temperature_c = temp
+            if load is None:
+                load = 1.0 if s.overload else 0.0
+            s._put(p.REGISTERS['present_load'], p.encode_load(max(-1.0, min(1.0, load)) if s.torque_on else 0.0))
         s._put(p.REGISTERS['present_voltage'], min(255, round(s.voltage_v / p.VOLTAGE_UNIT_V)))
         s._put(p.REGISTERS['present_temperature'], min(255, max(0, round(s.temperature_c))))
         s._put(p.REGISTERS['moving'], int(s.torque_on and abs(s.get('goal_position') - tick) >= 1))
@@ -414,7 +418,7 @@ class BusEmulator:
             if n == 0 or a + n > p.TABLE_SIZE:
                 return self._status(s, p.ERR_RANGE, b'', entry, reply_level=p.RETURN_READ_ONLY)
             if a + n > 36 and a < 47:
-                self._refresh_present(s, t)
+                self._refresh_present(s, t, status=a + n > 40 and a < 44)
             return self._status(s, 0, bytes(s.mem[a:a + n]), entry, reply_level=p.RETURN_READ_ONLY)
         if code in (p.WRITE, p.REG_WRITE):
             if len(prm) < 2:
