@@ -14,12 +14,14 @@ Each route runs ``--seconds`` of wall time from the first swing-down with every 
 rates; nothing is recorded. The truth (body position, foot contacts per millisecond of physics)
 comes from a file the sim writes when it stops (``sim_node -p truth_out:=...``, ``bus_emulator
 --truth-out``), not from topics: publishing it at 1 kHz loaded the process under test enough to
-slow the composed controller from 3 to 11 ms per control step. From the truth and what this
-process receives (``/ground_detection``, ``/swing_down``): distance walked
-per minute of wall time and of simulated time, the swing-down read cadence t_con (stamp gaps
-between consecutive reads of one femur within one swing-down, as the controller consumed them,
-against L x T_com), the detection delay after the first true contact, and the CPU each process
-used. The in-process reference is ``run_trial`` for the same simulated time (what ``./hexapod demo``
+slow the composed controller from 3 to 11 ms per control step. From the truth and what a probe
+receives (``/ground_detection``, ``/swing_down``; the probe also publishes ``/cmd_vel`` and is a
+process of its own at nice +10, so that its ~1 kHz callbacks yield the CPU to the graph under
+test): distance walked per minute of wall time and of simulated time, the swing-down read
+cadence t_con (stamp gaps between consecutive reads of one femur within one swing-down, as the
+controller consumed them, against L x T_com), the detection delay after the first true contact,
+the swing-downs stopped "on ground" with the foot still in the air, and the CPU each process used.
+The in-process reference is ``run_trial`` for the same simulated time (what ``./hexapod demo``
 runs). DDS stays on loopback in its own ROS_DOMAIN_ID.
 """
 from __future__ import annotations
@@ -97,39 +99,89 @@ class _Probe:
                 (stamp_seconds(m.header.stamp), bool(m.stopped), int(m.stop_reason)))
 
 
-def run_route(route: str, args, workdir: str) -> dict:
+PROBE_NICE = 10       # the probe is measuring equipment: it yields the CPU to the graph under test
+
+
+def probe_main(out: str, domain_id: int, vx: float) -> int:
+    """The probe process: publishes /cmd_vel, waits for the first swing-down, writes ``out``.started
+    (the window's wall-clock start), collects until SIGINT/SIGTERM, then writes ``out`` (JSON).
+
+    It runs apart from the benchmark's main process, at nice +10, so that on a 2-core machine the
+    ~1 kHz /ground_detection callbacks it needs do not take the CPU from the graph it measures
+    (the graph's processes run at the user's niceness)."""
+    import json
+
     import rclpy
     from geometry_msgs.msg import Twist
     from rclpy.executors import SingleThreadedExecutor
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(args.domain_id),
-               PYTHONUNBUFFERED='1')
-    logs = [open(os.path.join(workdir, f'{route}_{i}.log'), 'w+') for i in range(2)]
-    procs = []
-    for i, (name, cmd) in enumerate(_processes(route, args, workdir)):
-        procs.append((name, subprocess.Popen(cmd, env=env, stdout=logs[i], stderr=subprocess.STDOUT)))
-        if route == 'driver' and i == 0:                 # the robot opens the emulator's port at start
-            t_end = time.monotonic() + 60
-            while not os.path.exists(os.path.join(workdir, 'ttyHEX')) and time.monotonic() < t_end:
-                time.sleep(0.1)
+    from rclpy.signals import SignalHandlerOptions
+    os.nice(PROBE_NICE)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
     ctx = rclpy.context.Context()
-    rclpy.init(context=ctx, domain_id=args.domain_id)
+    rclpy.init(context=ctx, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node('bench_graph', context=ctx)
     probe = _Probe(node)
     pub = node.create_publisher(Twist, '/cmd_vel', 10)
     tw = Twist()
-    tw.linear.x = args.vx
+    tw.linear.x = vx
     node.create_timer(0.1, lambda: pub.publish(tw))
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     threading.Thread(target=ex.spin, daemon=True).start()
     try:
-        if not probe.first_swing.wait(120):
-            raise RuntimeError(f'{route}: no swing-down within 120 s; logs in {workdir}')
-        cpu0 = {name: _cpu_s(p.pid) for name, p in procs}
+        while not probe.first_swing.wait(0.1):
+            if stop.is_set():
+                return 1
         probe.measuring = True
         window = [time.time(), math.nan]
+        with open(out + '.started', 'w') as f:
+            f.write(repr(window[0]))
+        stop.wait()
+        probe.measuring = False
+        window[1] = time.time()
+        with open(out + '.part', 'w') as f:
+            json.dump({'window': window, 'swings': probe.swings,
+                       'reads': [[start, leg, rs] for (start, leg), rs in probe.reads.items()]}, f)
+        os.replace(out + '.part', out)
+        return 0
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+def _wait_for(path: str, proc: subprocess.Popen, timeout_s: float) -> bool:
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end and proc.poll() is None:
+        if os.path.exists(path):
+            return True
+        time.sleep(0.1)
+    return os.path.exists(path)
+
+
+def run_route(route: str, args, workdir: str) -> dict:
+    import json
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(args.domain_id),
+               PYTHONUNBUFFERED='1')
+    logs = [open(os.path.join(workdir, f'{route}_{i}.log'), 'w+') for i in range(3)]
+    procs = []
+    probe_out = os.path.join(workdir, f'{route}_probe.json')
+    probe_proc = None
+    ended = None
+    try:
+        for i, (name, cmd) in enumerate(_processes(route, args, workdir)):
+            procs.append((name, subprocess.Popen(cmd, env=env, stdout=logs[i], stderr=subprocess.STDOUT)))
+            if route == 'driver' and i == 0:                 # the robot opens the emulator's port at start
+                _wait_for(os.path.join(workdir, 'ttyHEX'), procs[0][1], 60)
+        probe_proc = subprocess.Popen([sys.executable, '-m', 'hexapod_locomotion.bench_graph', '--probe-out', probe_out,
+                                       '--domain-id', str(args.domain_id), '--vx', repr(args.vx)],
+                                      env=env, stdout=logs[2], stderr=subprocess.STDOUT)
+        if not _wait_for(probe_out + '.started', probe_proc, 120):
+            raise RuntimeError(f'{route}: no swing-down within 120 s; logs in {workdir}')
+        cpu0 = {name: _cpu_s(p.pid) for name, p in procs}
         t0 = time.monotonic()
-        ended = None
         cpu = {}
         while time.monotonic() - t0 < args.seconds and ended is None:
             for name, p in procs:
@@ -139,11 +191,13 @@ def run_route(route: str, args, workdir: str) -> dict:
                     ended = f'{name} ended with rc {p.returncode} after {time.monotonic() - t0:.0f} s: ' + \
                         _last_error(logs[[n for n, _ in procs].index(name)])
             time.sleep(0.5)
-        probe.measuring = False
-        window[1] = time.time()
+        probe_proc.send_signal(signal.SIGINT)
+        probe_proc.wait(30)
         wall = time.monotonic() - t0
         cpu = {name: v / wall for name, v in cpu.items()}
     finally:
+        if probe_proc is not None and probe_proc.poll() is None:
+            probe_proc.kill()
         for _, p in reversed(procs):        # the controller before the bus it drives (torque off)
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
@@ -151,11 +205,15 @@ def run_route(route: str, args, workdir: str) -> dict:
                 p.wait(30)
             except subprocess.TimeoutExpired:
                 p.kill()
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+    if not os.path.exists(probe_out):
+        raise RuntimeError(f'{route}: the probe wrote nothing; logs in {workdir}')
+    with open(probe_out) as f:
+        data = json.load(f)
+    probe = _Probe.__new__(_Probe)
+    probe.swings = data['swings']
+    probe.reads = {(start, leg): [tuple(r) for r in rs] for start, leg, rs in data['reads']}
     # the driver stamps its reads with the wall clock, the sim with simulated time
-    sim_s = _truth_from_file(probe, os.path.join(workdir, TRUTH_FILE), window, wall_stamps=route == 'driver')
+    sim_s = _truth_from_file(probe, os.path.join(workdir, TRUTH_FILE), data['window'], wall_stamps=route == 'driver')
     out = figures(probe, args.gait)
     out['sim_s'] = sim_s
     out.update(route=route, wall_s=wall, cpu=cpu, ended=ended)
@@ -241,6 +299,14 @@ def _pct(a, q):
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ['--probe-out']:           # the probe process that run_route starts
+        pa = argparse.ArgumentParser(prog='bench_graph probe')
+        pa.add_argument('--probe-out', required=True)
+        pa.add_argument('--domain-id', type=int, required=True)
+        pa.add_argument('--vx', type=float, required=True)
+        a = pa.parse_args(argv)
+        return probe_main(a.probe_out, a.domain_id, a.vx)
     from hexapod_model.cli_common import fail, finite_float, make_parser, positive_float
     ap = make_parser('bench_graph', __doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument('--route', choices=ROUTES + ('all',), default='all', help='which graph to run')

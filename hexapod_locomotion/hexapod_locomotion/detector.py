@@ -279,19 +279,25 @@ class SwingDownPhase:
 
 
 def run_swing_down(bus: ServoBus, phase: SwingDownPhase, on_read=None, max_steps: int | None = None) -> SwingDownPhase:
-    """Execute Algorithm 1 on a bus: write goals every t_con, read each femur in order.
+    """Execute Algorithm 1 on a bus: write goals every t_con, read each femur in order. A step that
+    comes late (a busy computer) delays the rest of the phase rather than shortening later steps.
 
     Every leg of the group is read in every step (stopped ones too), so the read instants stay on
     the schedule the model predicted (k t_con + l T_com).
     """
-    t0 = phase.t_start_s
     limit = max_steps if max_steps is not None else phase.n_interp + phase.fin_dwell_steps + 5
     k = 0
+    t_next = phase.t_start_s
     while not phase.done:
         if k >= limit:
             raise DetectorError(f'swing-down did not finish within {limit} steps')
-        bus.wait_until(t0 + k * phase.t_con_s)
-        phase.wrote(k, bus.sync_write(phase.goals(k)))                  # line 7
+        bus.wait_until(t_next)
+        t_write = bus.sync_write(phase.goals(k))                        # line 7
+        phase.wrote(k, t_write)
+        # Each goal stands for t_con, as the model applies it. After a late step the schedule moves
+        # on from that step's write instead of catching up: two goals written back to back would
+        # drive the leg ahead of what the model predicts for them and could fake a contact.
+        t_next = t_write + phase.t_con_s
         for leg in phase.legs:                                          # lines 8-15
             theta, stamp = bus.read_position(joint_name(leg, 'femur'))
             res = phase.on_read(k, leg, theta, stamp)
