@@ -29,6 +29,7 @@ from hexapod_model.swing_model import (LegModel, SwingDownError, SwingDownPredic
                                        interpolated_goals, predict_swing_down, steps_to_fin)
 
 STOP_NONE, STOP_CONTACT, STOP_THETA_FIN = 0, 1, 2     # as in hexapod_msgs/LegGroundDetection
+STAMP_RESOLUTION_S = 1e-9                            # ROS stamps are whole nanoseconds
 
 
 DETECTOR_KINDS = ('adaptive', 'fixed')              # Eq. 17, and the fixed threshold of the earlier work
@@ -291,7 +292,7 @@ def run_swing_down(bus: ServoBus, phase: SwingDownPhase, on_read=None, max_steps
     while not phase.done:
         if k >= limit:
             raise DetectorError(f'swing-down did not finish within {limit} steps')
-        bus.wait_until(t_next)
+        bus.wait_until(t_next - STAMP_RESOLUTION_S)   # bus times are sums of stamps: due within 1 ns
         t_write = bus.sync_write(phase.goals(k))                        # line 7
         phase.wrote(k, t_write)
         # Each goal stands for t_con, as the model applies it. After a late step the schedule moves
