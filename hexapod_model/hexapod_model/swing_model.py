@@ -14,7 +14,10 @@ recomputed every control period (1 ms) from the integer present tick and held in
 Time stepping: ``substeps`` semi-implicit Euler steps per control period (default 1: within 0.05
 tick of a 50-substep reference over the Fig. 9 swings, see the tests), damping implicit,
 friction as a velocity-level impulse (so a joint at rest sticks exactly until the drive torque
-exceeds the break-away torque). The kernel is compiled with numba when available.
+exceeds the break-away torque). A velocity that reverses within a step passed through rest there,
+so the impulse of that step is bounded by the break-away torque too, wherever in the step the
+zero fell (bounded by the Coulomb level, a reversal stuck only when it fell near the step's end).
+The kernel is compiled with numba when available.
 
 ``predict_swing_down`` is the paper's ``CalcModel`` for L simultaneously swinging legs: it builds
 the interpolated goal sequence of Eq. 15 (one new goal every ``t_con = L * T_com``), simulates the
@@ -145,42 +148,53 @@ def _backlash_substep(p, h, tau2, tau3, q2, q3, v2, v3, m2s, m3s, w2m, w3m):
     nv3 = u3
     nm2 = um2
     nm3 = um3
-    for _it in range(6):
-        # link-side generalized torques from the impulses
+    for _pass in range(2):
+        for _it in range(6):
+            # link-side generalized torques from the impulses
+            t2 = (f2 if r2 else ch2 + cl2)
+            t3 = (f3 if r3 else ch3 + cl3)
+            nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+            nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+            if r2:
+                f2 = min(max(f2 - nv2 / (h * inv11), -lim2), lim2)
+            else:
+                nm2 = um2 + h * (f2 - ch2 - cl2) / am2
+                f2 = min(max(f2 - nm2 * am2 / h, -lim2), lim2)
+            t2 = (f2 if r2 else ch2 + cl2)
+            nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+            nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+            if r3:
+                f3 = min(max(f3 - nv3 / (h * inv22), -lim3), lim3)
+            else:
+                nm3 = um3 + h * (f3 - ch3 - cl3) / am3
+                f3 = min(max(f3 - nm3 * am3 / h, -lim3), lim3)
+            t3 = (f3 if r3 else ch3 + cl3)
+            nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+            nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+            if not r2:
+                ch2, cl2 = _play_contact(ch2, cl2, f2, um2, am2, u2, inv11, inv12, t3, lo2, hi2, h)
+                t2 = ch2 + cl2
+                nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+                nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+            if not r3:
+                ch3, cl3 = _play_contact(ch3, cl3, f3, um3, am3, u3, inv22, inv12, t2, lo3, hi3, h)
+                t3 = ch3 + cl3
+                nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
+                nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
         t2 = (f2 if r2 else ch2 + cl2)
         t3 = (f3 if r3 else ch3 + cl3)
         nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
         nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
-        if r2:
-            f2 = min(max(f2 - nv2 / (h * inv11), -lim2), lim2)
-        else:
-            nm2 = um2 + h * (f2 - ch2 - cl2) / am2
-            f2 = min(max(f2 - nm2 * am2 / h, -lim2), lim2)
-        t2 = (f2 if r2 else ch2 + cl2)
-        nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
-        nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
-        if r3:
-            f3 = min(max(f3 - nv3 / (h * inv22), -lim3), lim3)
-        else:
-            nm3 = um3 + h * (f3 - ch3 - cl3) / am3
-            f3 = min(max(f3 - nm3 * am3 / h, -lim3), lim3)
-        t3 = (f3 if r3 else ch3 + cl3)
-        nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
-        nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
-        if not r2:
-            ch2, cl2 = _play_contact(ch2, cl2, f2, um2, am2, u2, inv11, inv12, t3, lo2, hi2, h)
-            t2 = ch2 + cl2
-            nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
-            nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
-        if not r3:
-            ch3, cl3 = _play_contact(ch3, cl3, f3, um3, am3, u3, inv22, inv12, t2, lo3, hi3, h)
-            t3 = ch3 + cl3
-            nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
-            nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
-    t2 = (f2 if r2 else ch2 + cl2)
-    t3 = (f3 if r3 else ch3 + cl3)
-    nv2 = u2 + h * (inv11 * t2 + inv12 * t3)
-    nv3 = u3 + h * (inv12 * t2 + inv22 * t3)
+        # a velocity (the motor's, for a joint with play) that reverses within the step passed
+        # through rest: the break-away level holds it there (a second pass with it)
+        x2 = (nv2 * v2 if r2 else (um2 + h * (f2 - ch2 - cl2) / am2) * w2m) < 0.0 and lim2 < p[P_FS2]
+        x3 = (nv3 * v3 if r3 else (um3 + h * (f3 - ch3 - cl3) / am3) * w3m) < 0.0 and lim3 < p[P_FS3]
+        if not (x2 or x3):
+            break
+        if x2:
+            lim2 = p[P_FS2]
+        if x3:
+            lim3 = p[P_FS3]
     if r2:
         if abs(nv2) < V_STICK:
             nv2 = 0.0
@@ -289,17 +303,30 @@ def _rigid_substep(c, tau2, tau3, q2, q3, v2, v3, c2, s2, c3, s3):
     k3 = 1.0 / (h * inv22)
     f2 = 0.0
     f3 = 0.0
-    for _it in range(3):  # Gauss-Seidel on the two friction impulses
-        u2 = w2 + h * (inv11 * f2 + inv12 * f3)
-        n2 = min(max(f2 - u2 * k2, -lim2), lim2)
-        u3 = w3 + h * (inv12 * n2 + inv22 * f3)
-        n3 = min(max(f3 - u3 * k3, -lim3), lim3)
-        if n2 == f2 and n3 == f3:   # a sweep that changes nothing repeats forever: stop (exact)
+    for _pass in range(2):
+        for _it in range(3):  # Gauss-Seidel on the two friction impulses
+            u2 = w2 + h * (inv11 * f2 + inv12 * f3)
+            n2 = min(max(f2 - u2 * k2, -lim2), lim2)
+            u3 = w3 + h * (inv12 * n2 + inv22 * f3)
+            n3 = min(max(f3 - u3 * k3, -lim3), lim3)
+            if n2 == f2 and n3 == f3:   # a sweep that changes nothing repeats forever: stop (exact)
+                break
+            f2 = n2
+            f3 = n3
+        n2 = w2 + h * (inv11 * f2 + inv12 * f3)
+        n3 = w3 + h * (inv12 * f2 + inv22 * f3)
+        # A velocity that reverses within the step passed through rest: the break-away level holds it
+        # there (a second pass with it), wherever in the step the zero fell.
+        x2 = n2 * v2 < 0.0 and lim2 < fs2
+        x3 = n3 * v3 < 0.0 and lim3 < fs3
+        if not (x2 or x3):
             break
-        f2 = n2
-        f3 = n3
-    v2 = w2 + h * (inv11 * f2 + inv12 * f3)
-    v3 = w3 + h * (inv12 * f2 + inv22 * f3)
+        if x2:
+            lim2 = fs2
+        if x3:
+            lim3 = fs3
+    v2 = n2
+    v3 = n3
     if abs(v2) < V_STICK:
         v2 = 0.0
     if abs(v3) < V_STICK:

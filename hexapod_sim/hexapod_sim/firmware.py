@@ -14,7 +14,12 @@ What it does per physics step, in order (the simulator's timing convention):
    torque for ``goal - present`` in the table built from
    :func:`hexapod_model.servo.firmware_torque_nm`, write it to the actuator (held until the next
    tick), buffer torque and speed for the battery/thermal model, and switch the friction loss of
-   joints with static friction (break-away level when at rest, Coulomb level when moving);
+   joints with static friction: the break-away level for a joint at rest, the Coulomb level for
+   one that slips. At rest means slower than ``v_stick``, or moving the other way than at the
+   previous tick (its velocity passed through zero in between: a reversal meets static friction
+   wherever in the step the zero falls, as in the swing-down model), or held at the previous tick
+   and slowing down (MuJoCo's soft friction constraint brings a held joint to rest over a few
+   steps; it breaks away only when its speed grows, i.e. the drive exceeds the break-away level);
 2. record the output angles in the history ring (readout-delay effect), when enabled;
 3. record the trunk orientation and angular velocity, ``mj_step``, record the trunk's linear
    acceleration that step computed (all for the state at the start of the step: the IMU).
@@ -115,8 +120,9 @@ def run(target, m_ptr, d_ptr, st, spm, max_tick, v_stick, imu_adr,
     ``jint`` (6, n): qpos address, backlash qpos address (-1 none), dof address, actuator index,
     torque-table row offset (row * width; the zero row = torque off), goal tick + max_tick.
     ``jflt`` (2, n): raw-tick scale (direction / rad_per_tick) and base (centre + offset).
-    ``stick_int`` (2, k): joint index and dof of joints with static friction; ``stick_flt`` (2, k):
-    their break-away and Coulomb friction [N m].
+    ``stick_int`` (2, k): joint index and dof of joints with static friction; ``stick_flt`` (4, k):
+    their break-away and Coulomb friction [N m], and the loop's state of them: velocity at the
+    previous tick and whether they were held there (1.0) or slipping (0.0).
     ``imu_adr``: qpos address of the trunk quaternion, qvel address of its angular velocity (body
     frame) and of its linear velocity (world frame), -1 for a fixed base. Per step the row of
     ``sens_buf`` gets quaternion (4), linear acceleration in the world frame (3, ``qacc`` of the
@@ -146,10 +152,16 @@ def run(target, m_ptr, d_ptr, st, spm, max_tick, v_stick, imu_adr,
                 win_tau[win_n, i] = tau
                 win_omega[win_n, i] = qvel[jint[J_DOF, i]]
             for k in range(stick_int.shape[1]):
-                if abs(qvel[jint[J_DOF, stick_int[0, k]]]) < v_stick:
+                v = qvel[jint[J_DOF, stick_int[0, k]]]
+                v0 = stick_flt[2, k]
+                held = (abs(v) < v_stick or v * v0 < 0.0
+                        or (stick_flt[3, k] > 0.0 and abs(v) < abs(v0)))
+                if held:
                     dof_frictionloss[stick_int[1, k]] = stick_flt[0, k]
                 else:
                     dof_frictionloss[stick_int[1, k]] = stick_flt[1, k]
+                stick_flt[2, k] = v
+                stick_flt[3, k] = 1.0 if held else 0.0
             win_n += 1
             next_fw = step + spm
         if n_hist > 0:

@@ -21,7 +21,8 @@ Timing (the project convention, all times in seconds of simulated time):
 
 Effects of the robot description are emulated here or in the MJCF (:mod:`hexapod_sim.mjcf`):
 static friction (per-tick switch of the joint's friction loss between break-away and Coulomb
-level), torque saturation (per-servo torque limit), compliance dead-band (margin), readout delay
+level; a velocity reversal between two ticks counts as rest, :mod:`hexapod_sim.firmware`),
+torque saturation (per-servo torque limit), compliance dead-band (margin), readout delay
 (positions come from a history buffer), plus the MJCF-level coulomb friction, viscous damping,
 payload and backlash. Their values never leave this class except as physics.
 
@@ -52,7 +53,7 @@ from .mjcf import TIMESTEP_S, Scene, scene as build_scene
 from .terrain import Terrain
 
 POWER_WINDOW = 50             # firmware ticks per battery/thermal evaluation block (50 ms)
-V_STICK_RAD_S = 1e-3          # static friction: a joint slower than this counts as at rest
+V_STICK_RAD_S = 1e-3          # static friction: a joint slower than this (or reversing) counts as at rest
 DEFAULT_AMBIENT_C = 22.0      # [P] Sec. 8.4 room temperature
 DEFAULT_START_TEMPERATURE_C = 37.0   # [P] Sec. 8.4 servo temperature of the standing robot
 IMU_BUFFER = 4096             # IMU samples kept for pop_imu_samples()
@@ -224,7 +225,8 @@ class HexapodSim:
         self._jint[firmware.J_ACT] = self._act
         self._jflt = np.array([self._tick_scale, self._tick_base])
         self._stick_int = np.array([self._stick_j, self._stick_dadr], dtype=np.int64).reshape(2, -1)
-        self._stick_flt = np.array([self._fric_static, self._fric_coulomb], dtype=float).reshape(2, -1)
+        self._stick_flt = np.array([self._fric_static, self._fric_coulomb, np.zeros_like(self._fric_static),
+                                    np.ones_like(self._fric_static)], dtype=float).reshape(4, -1)
         m_, d_ = self.model, self.data
         self._loop_args = (m_._address, d_._address, self._st, self._spm, float(s.max_tick), V_STICK_RAD_S,
                            self._imu_adr, d_.qpos, d_.qvel, d_.qacc, d_.ctrl, m_.dof_frictionloss,
@@ -289,6 +291,8 @@ class HexapodSim:
         self.bus_stats = {'reads': 0, 'writes': 0}
         if self._stick_idx.size:
             m.dof_frictionloss[self._stick_dadr] = self._fric_static
+            self._stick_flt[2] = 0.0
+            self._stick_flt[3] = 1.0
         self._hist[:] = self._output_q()
         d.ctrl[:] = 0.0
 

@@ -7,7 +7,8 @@ every leg (its three joints) and the whole robot (every analysed joint); a paylo
 1. *Screen* every hypothesis cheaply: one rollout per (effect, joint) at a probe magnitude
    gives the effect's signature ``D`` (change of every prediction); a least-squares scale
    ``alpha`` of ``D`` against the current residual on the fitting reads predicts the gain on
-   the held-out reads. Strongly nonlinear effects are probed at three magnitudes.
+   the held-out reads. Strongly nonlinear effects are probed at three magnitudes, static
+   friction once per band between two firmware torque levels (:meth:`Namer._probes`).
 2. *Fit* the most promising hypotheses exactly (:meth:`Namer.fit`), with the full nonlinear
    rollout, so friction, backlash, dead-band and saturation are fitted as what they are. The
    residual is piecewise smooth in the parameter (integer ticks in the firmware) and, where a
@@ -22,7 +23,9 @@ every leg (its three joints) and the whole robot (every analysed joint); a paylo
    touching the ground, is no effect), lowers the held-out squared error by ``min_gain_ticks2`` in
    all (a handful of reads is no confirmation), and its parameter is not stuck at an end of its plausible
    range. The accepted hypothesis with the largest held-out gain wins; a smaller
-   scope that achieves nearly the same gain (``parsimony``) is preferred. Repeat with the effect
+   scope that achieves nearly the same gain (``parsimony``) is preferred, unless the joints only
+   the larger scope reaches confirm the effect on their own held-out reads by the same test
+   (a joint with few reads adds little gain however clearly it shows the effect). Repeat with the effect
    added to the model, until nothing passes (``max_effects``).
 4. With several effects, every parameter is refitted once with the others in place.
 
@@ -232,6 +235,8 @@ class Hypothesis:
     n_hold: int = 0
     affected: tuple[str, ...] = ()
     evals: int = 0
+    # per affected joint: held-out (squared error before, after, number of reads)
+    hold_by_joint: dict = field(default_factory=dict)
 
     @property
     def effect(self) -> Effect:
@@ -279,6 +284,7 @@ class Namer:
         self.rep = replay
         self.split = split
         self.s = settings or FitSettings()
+        self.base = base
         self.pred = Predictor(replay, base, workers=workers)
         self.meas = {j: replay.reads[j].tick for j in replay.joints}
         self.progress = progress
@@ -302,6 +308,27 @@ class Namer:
             sse += float(d @ d)
             n += int(np.count_nonzero(m))
         return sse, n
+
+    def _probes(self, c: Candidate) -> tuple[float, ...]:
+        """Magnitudes at which the screen probes candidate ``c``.
+
+        Strongly nonlinear effects are probed at half, one and two times their typical magnitude;
+        the others at the typical one. Static friction decides stick or slip by comparing the
+        break-away torque with the firmware's torque, which takes one value per integer error
+        (gain x (error - margin)): on a joint without gravity load (a coxa) every break-away torque
+        between two of those levels gives the same motion, and three probes can all miss the band
+        that holds the truth (0.153 N m on a coxa lies between the 3- and 4-tick levels, 0.141 and
+        0.188 N m; the probes 0.1, 0.2, 0.4 N m matched nothing there). So static friction is probed
+        once per band, at its middle, over the plausible range.
+        """
+        if c.effect == 'static_friction':
+            s = self.base.servo
+            g, m = s.gain_nm_per_tick, s.compliance_margin_ticks
+            k = np.arange(math.ceil(c.lo / g + m - 0.5), math.floor(c.hi / g + m - 0.5) + 1)
+            return tuple(float(v) for v in g * (k - m + 0.5))
+        if c.effect in NONLINEAR:
+            return (0.5 * c.typical, c.typical, 2.0 * c.typical)
+        return (c.typical,)
 
     def _hypotheses(self) -> list[Hypothesis]:
         joints = self.rep.joints
@@ -346,7 +373,7 @@ class Namer:
         sig: dict[tuple, dict[str, np.ndarray]] = {}
         for name in self.s.candidates:
             c = BY_NAME[name]
-            mags = (0.5 * c.typical, c.typical, 2.0 * c.typical) if name in NONLINEAR else (c.typical,)
+            mags = self._probes(c)
             if c.leg_only:
                 units = [(leg_joints(leg)[0], tuple(leg_joints(leg)))
                          for leg in sorted({parse_joint_name(j)[0] for j in joints})]
@@ -365,8 +392,7 @@ class Namer:
             c = h.candidate
             members = [leg_joints(parse_joint_name(j)[0])[0] for j in h.joints] if c.leg_only else list(h.joints)
             members = list(dict.fromkeys(members))
-            n_mags = 3 if c.effect in NONLINEAR else 1
-            for m in range(n_mags):
+            for m in range(len(self._probes(c))):
                 D: dict[str, np.ndarray] = {}
                 for mj in members:
                     for a, d in sig.get((c.effect, mj, m), {}).items():
@@ -472,6 +498,9 @@ class Namer:
         h.fit_sse_after = cache[v2][0]
         p = self.pred.predict(tuple(effects) + (h.effect,), aff)
         h.hold_sse_after, _ = self._sse(p, aff, 'hold')
+        for j in aff:
+            b, n = self._sse(base_pred, (j,), 'hold')
+            h.hold_by_joint[j] = (b, self._sse(p, (j,), 'hold')[0], n)
         return h
 
     def passes(self, h: Hypothesis) -> bool:
@@ -482,12 +511,29 @@ class Namer:
         for end in (c.lo, c.hi):
             if abs(h.value - end) <= 0.02 * abs(end) + 1e-12:
                 return False
-        before, after = h.hold_rmse_before, h.hold_rmse_after
+        return (self._confirms(h.hold_sse_before, h.hold_sse_after, h.n_hold)
+                and h.fit_sse_after < h.fit_sse_before)
+
+    def _confirms(self, sse_before: float, sse_after: float, n: int) -> bool:
+        """The held-out acceptance test on ``n`` reads: ratio, drop, explained share and total gain."""
+        if n == 0:
+            return False
+        before, after = math.sqrt(sse_before / n), math.sqrt(sse_after / n)
         excess = before ** 2 - ROUNDING_VAR
         explained = (before ** 2 - after ** 2) / excess if excess > 0 else 0.0
         return (after > 0 and before / after >= self.s.min_ratio and before - after >= self.s.min_drop_ticks
-                and explained >= self.s.min_explained and h.hold_gain >= self.s.min_gain_ticks2
-                and h.fit_sse_after < h.fit_sse_before)
+                and explained >= self.s.min_explained and sse_before - sse_after >= self.s.min_gain_ticks2)
+
+    def _extra_joints_confirm(self, big: Hypothesis, small: Hypothesis) -> bool:
+        """Whether the joints only the larger scope ``big`` reaches (those whose predictions ``small``
+        leaves unchanged) confirm the effect on their own held-out reads, by the acceptance test.
+        Parsimony weighs gains in squared ticks, so a joint read rarely (a walking coxa: 18 reads a
+        swing beside a femur's 300) hardly counts there, however clearly its reads show the effect."""
+        extra = [j for j in big.affected if j not in small.affected]
+        b = sum(big.hold_by_joint[j][0] for j in extra)
+        a = sum(big.hold_by_joint[j][1] for j in extra)
+        n = sum(big.hold_by_joint[j][2] for j in extra)
+        return self._confirms(b, a, n)
 
     # ------------------------------------------------------------------ the search
     def run(self) -> tuple[list[Effect], list[Hypothesis]]:
@@ -515,7 +561,8 @@ class Namer:
             best = max(ok, key=lambda h: h.hold_gain)
             for h in sorted(ok, key=lambda h: len(h.joints)):
                 if (h.candidate.effect == best.candidate.effect and set(h.joints) < set(best.joints)
-                        and h.hold_gain >= self.s.parsimony * best.hold_gain):
+                        and h.hold_gain >= self.s.parsimony * best.hold_gain
+                        and not self._extra_joints_confirm(best, h)):
                     best = h
                     break
             effects.append(best.effect)
