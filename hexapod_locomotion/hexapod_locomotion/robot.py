@@ -21,6 +21,7 @@ import sys
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.exceptions import NotInitializedException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from hexapod_model.bus import BusError
@@ -91,9 +92,9 @@ def main(args=None) -> None:
         spin_while_walking(ex, loco)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RCLError:
+    except (RCLError, NotInitializedException):
         if rclpy.ok():        # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
-            raise
+            raise             # or while a node was still being created
     except ParameterError as exc:
         raise SystemExit(report('robot', exc))
     except (DescriptionError, GaitError, DetectorError, LocomotionError, SimError) as exc:

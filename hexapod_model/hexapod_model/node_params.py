@@ -232,6 +232,7 @@ def run_node(exe: str, make_node: Callable[[], Any], help_text: Callable[[], str
     ``spin(node)`` serves it (default :func:`spin_until_shutdown`)."""
     import rclpy
     from rclpy._rclpy_pybind11 import RCLError
+    from rclpy.exceptions import NotInitializedException
     from rclpy.executors import ExternalShutdownException
     rc = node_command_line(None if args is None else list(args)[1:], exe, help_text)
     if rc is not None:
@@ -243,9 +244,9 @@ def run_node(exe: str, make_node: Callable[[], Any], help_text: Callable[[], str
         spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RCLError:
+    except (RCLError, NotInitializedException):
         if rclpy.ok():          # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
-            raise
+            raise               # or while the node was still being created
     except ParameterError as exc:
         raise SystemExit(report(exe, exc))
     except errors as exc:
