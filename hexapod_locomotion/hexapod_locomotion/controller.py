@@ -110,9 +110,15 @@ class LocomotionParams:
         swing = self.t_swing_up_s + self.t_swing_forward_s
         return max(self.t_level_s, swing) if self.overlap_transfer else swing + self.t_level_s
 
+    def swing_down_s(self) -> float:
+        """Expected swing-down duration on flat ground: Eq. 15 moves the goal from lift_m above the
+        ground to ground_depth_m below it in t_des_s, and the leg stops at the ground."""
+        return self.t_des_s * self.lift_m / (self.lift_m + self.ground_depth_m) if self.lift_m > 0 else self.t_des_s
+
     def cycle_s(self, gait: Gait) -> float:
-        """Duration of one gait cycle (every group swings once) without waiting for ground."""
-        return gait.n_phases * (self.transfer_s() + self.t_settle_s + self.t_des_s)
+        """Expected duration of one gait cycle (every group swings once) on flat ground: the velocity
+        command becomes a displacement per cycle with it, so the robot walks at the commanded speed."""
+        return gait.n_phases * (self.transfer_s() + self.t_settle_s + self.swing_down_s())
 
     def saturating_velocity(self, gait: Gait) -> tuple[float, float]:
         """(|v| [m/s], |wz| [rad/s]) beyond which step_phase clamps the stride / turn per cycle."""

@@ -140,8 +140,8 @@ def test_overlapped_transfer_levels_while_the_next_group_swings(robot):
         p = LocomotionParams(t_des_s=0.5, landing_preload=0.0, overlap_transfer=overlap)
         c = GaitController(robot, get_gait('tripod'), p, on_phase=reports.append)
         c.startup(bus)
-        for _ in range(4):
-            c.step_phase(bus, VelocityCommand(0.05, 0.0, 0.0))
+        for _ in range(4):     # a full stride per cycle in both (their cycles differ, so would 0.05 m/s)
+            c.step_phase(bus, VelocityCommand(0.2, 0.0, 0.0))
         c.finish(bus)
         assert all(o.stop_reason == STOP_CONTACT for r in reports for o in r.outcomes)
         runs[overlap] = (p, reports, np.array([c.foot(leg) for leg in range(1, 7)]))
