@@ -39,22 +39,23 @@ class LocomotionParams:
     """Gait-cycle parameters. Lengths in metres, times in seconds."""
 
     t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
-    # Transfer phases (node parameters too). Shorter phases were measured (issue 16): 0.1 / 0.2 /
-    # 0.15 / 0.3 s with a 10 cm stride walked the in-process trials faster, but the stride stalled
-    # the real-time graph at the first blocks, and with a 7 cm stride the same timing made the demo
-    # slower and costlier (113.9 s and CoT 49.2 for the mockup, against 106.3 s and 38.9 with the
-    # timing below) and the composed ROS graph walked 46 % of the in-process distance. A 0.05-0.1 s
-    # settle after a 0.15 s swing-forward left the legs moving at the swing-down start, which the
-    # model (started at rest) does not predict: 1-23 premature stops per cell. Leveling in 0.2 s
-    # raised the tripod CoT 1.6-2.5x.
-    t_swing_up_s: float = 0.15
-    t_swing_forward_s: float = 0.25
+    # Transfer phases (node parameters too). With the overlapped transfer (overlap_transfer) the
+    # leveling runs beside the next swing-up + swing-forward, so a phase is max(0.3, 0.1 + 0.2) s +
+    # settle + swing-down; issue 16, table4 trials on the mockup: with the 9 cm stride tripod and
+    # tetrapod walk at or above the paper's speeds (in sequence, 0.15 / 0.25 / 0.1 / 0.3 s and 7 cm:
+    # 63-77 %). A 0.05-0.1 s settle after a 0.15 s swing-forward left the legs moving at the
+    # swing-down start, which the model (started at rest) does not predict: 1-23 premature stops per
+    # cell. Leveling in 0.2 s raised the tripod CoT 1.6-2.5x.
+    t_swing_up_s: float = 0.1
+    t_swing_forward_s: float = 0.2
     t_level_s: float = 0.3
     t_settle_s: float = 0.1          # pause after swing-forward so swing-down starts from rest
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
-    max_stride_m: float = 0.07       # longest foothold displacement per cycle (reach: about 11 cm; 10 cm stalls
-                                     # the real-time graph on the blocks, see docs/architecture.md)
+    # longest foothold displacement per cycle (reach: about 11 cm). A 10 cm stride stalled the
+    # real-time ROS graph at the first blocks of the mockup (docs/architecture.md); 9 cm is what
+    # tetrapod needs for the paper's speed at t_des = 1 s.
+    max_stride_m: float = 0.09
     max_turn_rad: float = 0.25       # largest yaw per cycle
     # theta_fin this far below the nominal ground. Eq. 15 moves the goal from theta_init to theta_fin
     # in t_des, so a deeper theta_fin means a faster swing-down at the same t_des: more free-swing lag
@@ -79,6 +80,14 @@ class LocomotionParams:
     # contact) before it stops at theta_fin: a contact late in a slow approach grows its error by a
     # small step per period and can reach theta_fin before it crosses Eq. 17. 0 = Algorithm 1.
     fin_dwell_s: float = 0.0
+    # Gait-cycle structure (issue 16). False = the sequence of Fig. 4 as drawn: swing-up, swing-forward,
+    # settle, swing-down, then body leveling with every foot down. True = the leveling after a
+    # swing-down runs while the next group swings up and forward: the legs that support the next swing
+    # level the body and move it forward, the next group lifts its feet from their footholds and
+    # carries them forward; the transfer then takes max(t_level_s, t_swing_up_s + t_swing_forward_s)
+    # instead of their sum. The swing-down (Algorithm 1) and the leveled pose are unchanged, and the
+    # leveling still starts only after every landing leg has stopped (Fig. 4).
+    overlap_transfer: bool = True
 
     def __post_init__(self):
         positive = ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_level_s', 'write_period_s')
@@ -95,9 +104,21 @@ class LocomotionParams:
         """Longest foothold displacement per cycle for ``gait``: max_stride_m, capped by the gait's own."""
         return self.max_stride_m if gait.max_stride_m is None else min(self.max_stride_m, gait.max_stride_m)
 
+    def transfer_s(self) -> float:
+        """Duration of one phase outside the settle and the swing-down: leveling plus the next swing-up and
+        swing-forward, in sequence or overlapped (``overlap_transfer``)."""
+        swing = self.t_swing_up_s + self.t_swing_forward_s
+        return max(self.t_level_s, swing) if self.overlap_transfer else swing + self.t_level_s
+
+    def swing_down_s(self) -> float:
+        """Expected swing-down duration on flat ground: Eq. 15 moves the goal from lift_m above the
+        ground to ground_depth_m below it in t_des_s, and the leg stops at the ground."""
+        return self.t_des_s * self.lift_m / (self.lift_m + self.ground_depth_m) if self.lift_m > 0 else self.t_des_s
+
     def cycle_s(self, gait: Gait) -> float:
-        """Duration of one gait cycle (every group swings once) without waiting for ground."""
-        return gait.n_phases * (self.t_swing_up_s + self.t_swing_forward_s + self.t_des_s + self.t_level_s)
+        """Expected duration of one gait cycle (every group swings once) on flat ground: the velocity
+        command becomes a displacement per cycle with it, so the robot walks at the commanded speed."""
+        return gait.n_phases * (self.transfer_s() + self.t_settle_s + self.swing_down_s())
 
     def saturating_velocity(self, gait: Gait) -> tuple[float, float]:
         """(|v| [m/s], |wz| [rad/s]) beyond which step_phase clamps the stride / turn per cycle."""
@@ -165,6 +186,7 @@ class GaitController:
         self.body_height_m = -float(self.neutral[0, 2])
         self.goals = self._stance_goals()
         self.phase_index = 0
+        self._pending_level: dict[str, float] | None = None  # leveling left for the next transfer
         self._rr = 0                                        # round-robin read pointer
 
     def warm_up(self) -> None:
@@ -209,6 +231,19 @@ class GaitController:
             bus.sync_write({j: self.goals[j] for j in target})
             self.idle_until(bus, t0 + i * duration_s / n)
 
+    def move_keyframes(self, bus: ServoBus, keys: dict[str, list[tuple[float, float]]], duration_s: float) -> None:
+        """Piecewise-linear joint-space motion: joint -> [(t, angle), ...] with t in (0, duration_s]
+        increasing, from the current goals at t = 0."""
+        tables = {j: (np.r_[0.0, [k[0] for k in kk]], np.r_[self.goals[j], [k[1] for k in kk]]) for j, kk in keys.items()}
+        t0 = bus.now()
+        n = max(1, int(round(duration_s / self.params.write_period_s)))
+        for i in range(1, n + 1):
+            t = i * duration_s / n
+            for j, (ts, vs) in tables.items():
+                self.goals[j] = float(np.interp(t, ts, vs))
+            bus.sync_write({j: self.goals[j] for j in keys})
+            self.idle_until(bus, t0 + t)
+
     # ------------------------------------------------------------------ the cycle
     def startup(self, bus: ServoBus, duration_s: float = 0.5) -> None:
         """Move every joint to the home stance."""
@@ -228,25 +263,9 @@ class GaitController:
             d *= stride / np.linalg.norm(d)
         yaw = float(np.clip(cmd.wz * cycle_s, -p.max_turn_rad, p.max_turn_rad))
 
-        # the expected ground of each swinging leg (body frame z): its foothold or the nominal ground
-        ground_z = {leg: max(float(self.foot(leg)[2]), -self.body_height_m) for leg in legs}
-
-        # 1. swing-up: lift the feet straight up
-        up = {}
-        for leg in legs:
-            f = self.foot(leg) + np.array([0, 0, p.lift_m])
-            up.update(self._targets(leg, f, warnings))
-        self.move_joints(bus, up, p.t_swing_up_s)
-
-        # 2. swing-forward: to the neutral foothold advanced by half the stride (and turned)
-        fwd = {}
-        c, s = math.cos(yaw / 2), math.sin(yaw / 2)
-        for leg in legs:
-            n = self.neutral[leg - 1]
-            xy = np.array([c * n[0] - s * n[1], s * n[0] + c * n[1]]) + d / 2
-            z = max(self.foot(leg)[2], -self.body_height_m + p.lift_m)
-            fwd.update(self._targets(leg, np.array([xy[0], xy[1], z]), warnings))
-        self.move_joints(bus, fwd, p.t_swing_forward_s)
+        # 1.-2. swing-up and swing-forward (with the pending leveling, if the transfer is overlapped):
+        # the feet go to the neutral foothold advanced by half the stride (and turned)
+        ground_z = self._transfer(bus, legs, d, yaw, warnings)
 
         # 3. swing-down with ground detection (Algorithm 1), from the measured rest state
         self.idle_until(bus, bus.now() + p.t_settle_s)
@@ -284,15 +303,66 @@ class GaitController:
                                        st.peak_err_tick, st.premature_suspects, phase.femur_step_tick(leg),
                                        phase.femur_step_tick(leg, max(st.stop_step, 0))))
 
-        # 4. body leveling + explicit forward motion + turn
+        # 4. body leveling + explicit forward motion + turn (overlapped: with the next swing-up)
         landed = [o.leg for o in outcomes if o.stop_reason == STOP_CONTACT]
-        roll_pitch = self._level(bus, d * (p.explicit_forward * L / 6.0), missed, warnings, landed)
+        target, roll_pitch = self._level_target(d * (p.explicit_forward * L / 6.0), missed, warnings, landed)
+        if target is not None:
+            if p.overlap_transfer:
+                self._pending_level = target
+            else:
+                self.move_joints(bus, target, p.t_level_s)
         report = PhaseReport(self.phase_index, legs, t_start, t_sd, t_sd_end, bus.now(), outcomes, roll_pitch,
                              warnings)
         self.phase_index += 1
         if self.on_phase is not None:
             self.on_phase(report)
         return report
+
+    def _transfer(self, bus: ServoBus, legs, d, yaw: float, warnings: list[str]) -> dict[int, float]:
+        """Swing-up and swing-forward of ``legs``; with a pending leveling (``overlap_transfer``) the
+        other legs level the body meanwhile. Returns each swinging leg's expected ground (body frame z
+        after the transfer): the higher of its foothold and the nominal ground."""
+        p = self.params
+        level = self._pending_level
+        self._pending_level = None
+        start = {leg: self.foot(leg) for leg in legs}
+        # the footholds in the body frame after the leveling (the frame the swing targets are in)
+        end = start if level is None else {
+            leg: forward(self.robot, leg, np.array([level[joint_name(leg, r)] for r in JOINT_ROLES])) for leg in legs}
+        ground_z = {leg: max(float(end[leg][2]), -self.body_height_m) for leg in legs}
+        lift = np.array([0.0, 0.0, p.lift_m])
+        c, s = math.cos(yaw / 2), math.sin(yaw / 2)
+        fwd = {}
+        for leg in legs:
+            n = self.neutral[leg - 1]
+            xy = np.array([c * n[0] - s * n[1], s * n[0] + c * n[1]]) + d / 2
+            fwd.update(self._targets(leg, np.array([xy[0], xy[1], ground_z[leg] + p.lift_m]), warnings))
+        if level is None:
+            # Fig. 4 in sequence: lift the feet straight up, then carry them forward
+            up = {}
+            for leg in legs:
+                up.update(self._targets(leg, start[leg] + lift, warnings))
+            self.move_joints(bus, up, p.t_swing_up_s)
+            self.move_joints(bus, fwd, p.t_swing_forward_s)
+            return ground_z
+        # overlapped: the body moves under the swinging feet, so the foot lifts straight up over its
+        # foothold as the body frame is at the end of the swing-up (the body's motion is linear in time)
+        total = p.transfer_s()
+        a = p.t_swing_up_s / total
+        up = {}
+        for leg in legs:
+            up.update(self._targets(leg, (1 - a) * start[leg] + a * end[leg] + lift, warnings))
+        keys = {j: [(total, v)] for j, v in level.items() if j not in fwd}
+        for j in fwd:
+            keys[j] = [(p.t_swing_up_s, up[j]), (total, fwd[j])]
+        self.move_keyframes(bus, keys, total)
+        return ground_z
+
+    def finish(self, bus: ServoBus) -> None:
+        """Carry out a leveling left pending by an overlapped transfer (before standing still)."""
+        if self._pending_level is not None:
+            target, self._pending_level = self._pending_level, None
+            self.move_joints(bus, target, self.params.t_level_s)
 
     def approach_fraction(self, z_start_m: float, z_fin_m: float, ground_z_m: float) -> float:
         """Fraction of the swing-down path (theta_init -> theta_fin) at which the foot is
@@ -355,7 +425,7 @@ class GaitController:
         servo = self.robot.servo
         return -(jac.T @ f) / (servo.gain_nm_per_tick / servo.rad_per_tick)
 
-    def _level(self, bus: ServoBus, shift_xy, missed: set[int], warnings: list[str], landed=()):
+    def _level_target(self, shift_xy, missed: set[int], warnings: list[str], landed=()):
         """Eq. 8-10 on the support feet, then the yaw that best maps the neutral stance onto the feet
         (so the body follows turning legs) and the explicit forward shift.
 
@@ -375,7 +445,7 @@ class GaitController:
             pose, _ = level_body(feet[[leg - 1 for leg in support]], self.body_height_m)
         except LevelingError as exc:
             warnings.append(f'body leveling skipped: {exc}')
-            return (0.0, 0.0)
+            return None, (0.0, 0.0)
         new_feet = pose.to_body(feet)
         roll_pitch = pose.roll_pitch_rad()
         idx = [leg - 1 for leg in support]
@@ -398,7 +468,6 @@ class GaitController:
                 warnings.append(f'leveling: {exc}; shortening the body motion')
         else:
             warnings.append('leveling: no reachable leveled pose; holding the current pose')
-            return roll_pitch
-        self.move_joints(bus, target, self.params.t_level_s)
-        return roll_pitch
+            return None, roll_pitch
+        return target, roll_pitch
 

@@ -65,7 +65,8 @@ class LocomotionNode(Node):
                              ground_depth_m=p.ground_depth_m, landing_preload=p.landing_preload,
                              approach_rate=p.approach_rate, approach_height_m=p.approach_height_m, fin_dwell_s=p.fin_dwell_s,
                              t_swing_up_s=p.t_swing_up_s, t_swing_forward_s=p.t_swing_forward_s,
-                             t_settle_s=p.t_settle_s, t_level_s=p.t_level_s, background_reads=False),
+                             t_settle_s=p.t_settle_s, t_level_s=p.t_level_s, overlap_transfer=p.overlap_transfer,
+                             background_reads=False),
             DetectorConfig(kind=p.detector, epsilon_tick=p.epsilon_tick, fixed_threshold_tick=p.fixed_threshold_tick),
             t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
             on_swing_start=self._publish_swing_start)
@@ -136,6 +137,7 @@ class LocomotionNode(Node):
             while not self.bus.stopped.is_set():
                 cmd = self._current_cmd()
                 if cmd is None:
+                    self.controller.finish(self.bus)      # a leveling left for the next swing: stand level
                     self.bus.wait_until(self.bus.now() + 0.05)
                     continue
                 self.controller.step_phase(self.bus, cmd)

@@ -56,6 +56,10 @@ class LocomotionNodeParams:
                               'and the model, which starts at rest, mispredicts the start', min=0.0)
     t_level_s: float = param(_GAIT.t_level_s, 'body leveling and forward motion duration [s]; shorter is faster but '
                              'loads the servos harder', min=0.0, min_exclusive=True)
+    overlap_transfer: bool = param(_GAIT.overlap_transfer, 'gait-cycle structure: true = the body leveling after a '
+                                   'swing-down runs while the next group swings up and forward (the phase takes '
+                                   'max(t_level_s, t_swing_up_s + t_swing_forward_s) besides settle and swing-down); '
+                                   'false = every step in sequence, as drawn in the paper\'s Fig. 4 (slower)')
     max_stride_m: float = param(_GAIT.max_stride_m, 'largest foothold displacement per cycle [m] (a gait may cap it lower in gaits.yaml); beyond reach is clamped',
                                 min=0.0)
     cmd_vel_timeout_s: float = param(

@@ -126,3 +126,34 @@ def test_gait_cycle_on_kinematic_ground(robot):
     rep = c.step_phase(bus)
     assert all(o.stop_reason == STOP_THETA_FIN for o in rep.outcomes)
     assert any('no ground found' in w for w in rep.warnings)
+
+
+def test_overlapped_transfer_levels_while_the_next_group_swings(robot):
+    """Issue 16: with overlap_transfer the leveling after a swing-down runs beside the next group's
+    swing-up and swing-forward. Every phase after the first is shorter by t_level_s + t_swing_up_s +
+    t_swing_forward_s - max(t_level_s, t_swing_up_s + t_swing_forward_s); the swing-downs and the
+    leveled pose are those of the sequential cycle; finish() carries out the last leveling."""
+    runs = {}
+    for overlap in (False, True):
+        bus = KinematicGroundBus(robot, ground_z_m=-0.11)
+        reports = []
+        p = LocomotionParams(t_des_s=0.5, landing_preload=0.0, overlap_transfer=overlap)
+        c = GaitController(robot, get_gait('tripod'), p, on_phase=reports.append)
+        c.startup(bus)
+        for _ in range(4):     # a full stride per cycle in both (their cycles differ, so would 0.05 m/s)
+            c.step_phase(bus, VelocityCommand(0.2, 0.0, 0.0))
+        c.finish(bus)
+        assert all(o.stop_reason == STOP_CONTACT for r in reports for o in r.outcomes)
+        runs[overlap] = (p, reports, np.array([c.foot(leg) for leg in range(1, 7)]))
+    p, seq, feet_seq = runs[False]
+    _, ovl, feet_ovl = runs[True]
+    for r in seq[1:]:
+        assert r.t_swing_down_start_s - r.t_start_s == pytest.approx(0.1 + 0.2 + p.t_settle_s, abs=0.01)
+        assert r.t_end_s - r.t_swing_down_end_s == pytest.approx(p.t_level_s, abs=0.01)
+    for r in ovl[1:]:
+        assert r.t_swing_down_start_s - r.t_start_s == pytest.approx(max(p.t_level_s, 0.1 + 0.2) + p.t_settle_s,
+                                                                     abs=0.01)
+        assert r.t_end_s - r.t_swing_down_end_s < 0.005          # the leveling is left to the next transfer
+    for a, b in zip(seq, ovl):
+        assert [o.stop_time_s for o in a.outcomes] == pytest.approx([o.stop_time_s for o in b.outcomes], abs=0.01)
+    np.testing.assert_allclose(feet_ovl, feet_seq, atol=2e-3)    # finish() stands in the leveled pose
