@@ -25,8 +25,8 @@ class TruthRecordingBackend(ServoBusBackend):
         super().__init__(sim, robot, max_catch_up_s)
         self.truth = truth
 
-    def _catch_up(self, t: float, slices: int = 1) -> None:
-        super()._catch_up(t, slices)
+    def _catch_up(self, t: float) -> None:
+        super()._catch_up(t)
         self.truth.sample(self.bus)
 
     def close(self) -> None:

@@ -127,8 +127,8 @@ class ServoBusBackend:
         self._mount = [robot.bus.by_joint(j) for j in self._joints]
         self._last: dict[int, tuple[float, float]] = {}
 
-    def _catch_up(self, t: float, slices: int = 1) -> None:
-        self.bus.wait_until(min(self.t0 + t, self.bus.now() + slices * self.max_catch_up_s))
+    def _catch_up(self, t: float) -> None:
+        self.bus.wait_until(min(self.t0 + t, self.bus.now() + self.max_catch_up_s))
 
     def goals(self, t: float, goals: Mapping[int, int]) -> None:
         self._catch_up(t)
@@ -136,9 +136,10 @@ class ServoBusBackend:
                              for s, tick in goals.items()})
 
     def idle(self, t: float) -> None:
-        """Keep the simulated bus in step with the emulator's clock while nobody talks to it (in
-        slices, so that a request arriving meanwhile is not kept waiting)."""
-        self._catch_up(t, slices=1)
+        """Keep the simulated bus in step with the emulator's clock while nobody talks to it, one
+        ``max_catch_up_s`` slice per idle poll (every 0.5 ms), so a request arriving meanwhile is not
+        kept waiting."""
+        self._catch_up(t)
 
     def torque(self, t: float, slot: int, enabled: bool) -> None:
         setter = getattr(self.bus, 'set_torque_enabled', None)
