@@ -583,23 +583,12 @@ class HexapodSim:
             touch[k] = True
         return FootContacts(self.now(), touch, force)
 
-    def feet_touching(self) -> np.ndarray:
-        """(6,) bool: which feet touch the terrain now; :meth:`foot_contacts`' ``in_contact`` at a third
-        of its cost (collision detection only: no constraint solve, no forces), for per-millisecond
-        truth. Leaves the state alone."""
-        m, d = self.model, self.data
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_collision(m, d)
-        return self._feet_in_contacts()
-
     def feet_touching_last_step(self) -> np.ndarray:
         """(6,) bool: the feet in contact in the physics step that just ran: the contacts MuJoCo
-        found at its start, i.e. :meth:`feet_touching` one step (1 ms) earlier, at no cost (no
-        collision pass): what a benchmark's per-millisecond truth takes while the robot runs in real
-        time, where a collision pass per sample lengthened the emulated servos' replies."""
-        return self._feet_in_contacts()
-
-    def _feet_in_contacts(self) -> np.ndarray:
+        found at its start, i.e. :meth:`foot_contacts`' ``in_contact`` one step (1 ms) earlier, at
+        no cost (no collision pass, no forces): what a benchmark's per-millisecond truth takes while
+        the robot runs in real time, where a collision pass per sample lengthened the emulated
+        servos' replies. Leaves the state alone."""
         d = self.data
         touch = np.zeros(len(LEGS), dtype=bool)
         n = d.ncon
