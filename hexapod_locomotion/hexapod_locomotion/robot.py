@@ -20,14 +20,11 @@ from __future__ import annotations
 import sys
 
 import rclpy
-from rclpy._rclpy_pybind11 import RCLError
-from rclpy.exceptions import NotInitializedException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 
 from hexapod_model.bus import BusError
 from hexapod_model.description import DescriptionError
-from hexapod_model.node_params import NodeParams, init_node_process, node_command_line, report
-from hexapod_model.param_schema import ParameterError
+from hexapod_model.node_params import NodeParams, init_node_process, node_command_line, stopping_cleanly
 
 from .controller import LocomotionError
 from .detector import DetectorError
@@ -79,27 +76,18 @@ def main(args=None) -> None:
     init_node_process(args)
     nodes, cleanups, loco = [], [], None
     try:
-        hardware = _hardware(rclpy.get_default_context())
-        master, bus, cleanup = _bus_master(hardware)
-        nodes.append(master)
-        cleanups.append(cleanup)
-        nodes.append(ModelNode())
-        loco = LocomotionNode(bus=bus)
-        nodes.append(loco)
-        ex = MultiThreadedExecutor(num_threads=2)
-        for n in nodes:
-            ex.add_node(n)
-        spin_while_walking(ex, loco)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (RCLError, NotInitializedException):
-        if rclpy.ok():        # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
-            raise             # or while a node was still being created
-    except ParameterError as exc:
-        raise SystemExit(report('robot', exc))
-    except (DescriptionError, GaitError, DetectorError, LocomotionError, SimError) as exc:
-        print(f'robot: {exc}', file=sys.stderr)
-        raise SystemExit(2)
+        with stopping_cleanly('robot', (DescriptionError, GaitError, DetectorError, LocomotionError, SimError)):
+            hardware = _hardware(rclpy.get_default_context())
+            master, bus, cleanup = _bus_master(hardware)
+            nodes.append(master)
+            cleanups.append(cleanup)
+            nodes.append(ModelNode())
+            loco = LocomotionNode(bus=bus)
+            nodes.append(loco)
+            ex = MultiThreadedExecutor(num_threads=2)
+            for n in nodes:
+                ex.add_node(n)
+            spin_while_walking(ex, loco)
     except (BusError, ValueError) as exc:          # the driver's start-up: nothing left enabled
         print(f'robot: start-up failed: {exc}', file=sys.stderr)
         raise SystemExit(1)

@@ -14,6 +14,7 @@ refused by rclpy ("Trying to set a read-only parameter"), never accepted and ign
 """
 from __future__ import annotations
 
+import contextlib
 import sys
 from typing import Any, Callable, Mapping
 
@@ -219,39 +220,50 @@ def node_help(exe: str, doc: str, schemas, defaults: Mapping[str, Any] | None = 
     return text
 
 
+@contextlib.contextmanager
+def stopping_cleanly(exe: str, errors: tuple = (), error_exit: int = 2):
+    """Around a node process's start and spin: Ctrl-C and SIGTERM end it quietly (also when they
+    close the context while a node is being created or is publishing); a refused parameter exits
+    with :data:`EXIT_BAD_PARAMETER` and one of ``errors`` (the process's own start-up errors: a bad
+    description, terrain, bag path) with ``error_exit``, each in one line."""
+    import rclpy
+    from rclpy._rclpy_pybind11 import RCLError
+    from rclpy.exceptions import NotInitializedException
+    from rclpy.executors import ExternalShutdownException
+    try:
+        yield
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (RCLError, NotInitializedException):
+        if rclpy.ok():          # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
+            raise               # or while a node was still being created
+    except ParameterError as exc:
+        raise SystemExit(report(exe, exc))
+    except errors as exc:
+        print(f'{exe}: {exc}', file=sys.stderr, flush=True)
+        raise SystemExit(error_exit)
+
+
 def run_node(exe: str, make_node: Callable[[], Any], help_text: Callable[[], str], args: list[str] | None = None,
              errors: tuple = (), error_exit: int = 2, close: Callable[[Any], None] | None = None,
              spin: Callable[[Any], None] = spin_until_shutdown) -> None:
     """``main`` of a node executable that serves until Ctrl-C or SIGTERM.
 
     ``--help`` prints ``help_text()`` and starts nothing; arguments rclpy would ignore or cannot
-    parse are refused in one line (:func:`node_command_line`, :func:`init_node_process`). A refused
-    parameter exits with :data:`EXIT_BAD_PARAMETER`, one of ``errors`` (the node's own start-up
-    errors: a bad description, terrain, bag path) with ``error_exit``, each in one line. At the
-    end ``close(node)`` (the node's own cleanup), the node is destroyed and rclpy shut down.
-    ``spin(node)`` serves it (default :func:`spin_until_shutdown`)."""
+    parse are refused in one line (:func:`node_command_line`, :func:`init_node_process`); stops and
+    errors as :func:`stopping_cleanly`. At the end ``close(node)`` (the node's own cleanup), the
+    node is destroyed and rclpy shut down. ``spin(node)`` serves it (default
+    :func:`spin_until_shutdown`)."""
     import rclpy
-    from rclpy._rclpy_pybind11 import RCLError
-    from rclpy.exceptions import NotInitializedException
-    from rclpy.executors import ExternalShutdownException
     rc = node_command_line(None if args is None else list(args)[1:], exe, help_text)
     if rc is not None:
         raise SystemExit(rc)
     init_node_process(args)
     node = None
     try:
-        node = make_node()
-        spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (RCLError, NotInitializedException):
-        if rclpy.ok():          # a real middleware error, not Ctrl-C/SIGTERM closing the context mid-publish
-            raise               # or while the node was still being created
-    except ParameterError as exc:
-        raise SystemExit(report(exe, exc))
-    except errors as exc:
-        print(f'{exe}: {exc}', file=sys.stderr, flush=True)
-        raise SystemExit(error_exit)
+        with stopping_cleanly(exe, errors, error_exit):
+            node = make_node()
+            spin(node)
     finally:
         if node is not None:
             if close is not None:
