@@ -36,6 +36,7 @@ import sys
 import tempfile
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -209,9 +210,9 @@ def run_route(route: str, args, workdir: str) -> dict:
         raise RuntimeError(f'{route}: the probe wrote nothing; logs in {workdir}')
     with open(probe_out) as f:
         data = json.load(f)
-    probe = _Probe.__new__(_Probe)
-    probe.swings = data['swings']
-    probe.reads = {(start, leg): [tuple(r) for r in rs] for start, leg, rs in data['reads']}
+    # what the probe process saw; _truth_from_file adds pose and contacts
+    probe = SimpleNamespace(swings=data['swings'],
+                            reads={(start, leg): [tuple(r) for r in rs] for start, leg, rs in data['reads']})
     # the driver stamps its reads with the wall clock, the sim with simulated time
     sim_s = _truth_from_file(probe, os.path.join(workdir, TRUTH_FILE), data['window'], wall_stamps=route == 'driver')
     out = figures(probe, args.gait)
