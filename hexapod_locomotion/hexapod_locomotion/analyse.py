@@ -11,6 +11,7 @@ power, body pose and IMU. Plots go to a PNG.
 """
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import sys
@@ -115,11 +116,13 @@ def load_bag(path: str):
 
 def swing_down_writes(commands, legs, t0: float, t_end: float) -> list[float]:
     """Stamps of the goal writes of the swing-down of ``legs`` that began at ``t0``: the recorded
-    ``/joint_commands`` from ``t0`` on (before ``t_end``) that name exactly the group's joints, one per
-    step of Algorithm 1 (:func:`~hexapod_locomotion.detector.replay_swing_down`). Empty for a bag
-    without ``/joint_commands``: the replay then uses the nominal schedule."""
+    ``/joint_commands`` (sorted by stamp) from ``t0`` on (before ``t_end``) that name exactly the
+    group's joints, one per step of Algorithm 1 (:func:`~hexapod_locomotion.detector.replay_swing_down`).
+    Empty for a bag without ``/joint_commands``: the replay then uses the nominal schedule."""
     names = frozenset(joint_name(leg, r) for leg in legs for r in ('coxa', 'femur', 'tibia'))
-    return [t for t, n in commands if t0 - 1e-9 <= t < t_end and n == names]
+    lo = bisect.bisect_left(commands, t0 - 1e-9, key=lambda c: c[0])       # commands are sorted by stamp
+    hi = bisect.bisect_left(commands, t_end, lo=lo, key=lambda c: c[0])
+    return [t for t, n in commands[lo:hi] if n == names]
 
 
 def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool = False) -> dict:
