@@ -62,11 +62,19 @@ except ImportError:  # pragma: no cover - numba is a pinned dependency
 # The servo law of the kernels is hexapod_model.servo's own scalar twin of firmware_torque_nm, compiled.
 _firmware_torque = njit(cache=True, inline='always')(firmware_torque_scalar)
 
+# fast-math without 'reassoc': with it LLVM reorders sums differently when it compiles a kernel in
+# this process than in the object code it caches, so a freshly compiled kernel and the same kernel
+# loaded from the numba cache differed in the last bits, and the same trial gave different JSON in a
+# process pool (compiled) and on Ray (cached). Without it both agree bit for bit
+# (test_a_freshly_compiled_kernel_and_the_cached_one_agree_bit_for_bit) at the same speed
+# (bench_model median 0.229 ms with every flag, 0.223 ms without 'reassoc', side by side).
+_FASTMATH = {'nnan', 'ninf', 'nsz', 'arcp', 'afn', 'contract'}
+
 V_STICK = 1e-7  # rad/s: below this a joint counts as at rest (break-away friction applies)
 _NO_GAP = np.zeros(2)
 
 
-@njit(cache=True, fastmath=True, nogil=True)
+@njit(cache=True, fastmath=_FASTMATH, nogil=True)
 def _play_contact(ch, cl, f, um, am, u, inv_self, inv_cross, t_other, lo, hi, h):
     """One projected Gauss-Seidel pass over the two contact sides of one joint's backlash play
     (see :func:`_backlash_substep`): the upper-side torque ``ch >= 0``, then the lower-side ``cl <=
@@ -82,7 +90,7 @@ def _play_contact(ch, cl, f, um, am, u, inv_self, inv_cross, t_other, lo, hi, h)
     return ch, min(cl + (nm - nv - lo) / keff, 0.0)
 
 
-@njit(cache=True, fastmath=True, nogil=True)
+@njit(cache=True, fastmath=_FASTMATH, nogil=True)
 def _backlash_substep(p, h, tau2, tau3, q2, q3, v2, v3, m2s, m3s, w2m, w3m):
     """One substep of the leg with gear backlash on one or both joints (see :func:`_rollout_kernel`).
 
@@ -223,7 +231,7 @@ def _backlash_substep(p, h, tau2, tau3, q2, q3, v2, v3, m2s, m3s, w2m, w3m):
     return q2, q3, nv2, nv3, m2s, m3s, nm2, nm3
 
 
-@njit(cache=True, fastmath=True, nogil=True, inline='always')
+@njit(cache=True, fastmath=_FASTMATH, nogil=True, inline='always')
 def _rotate(c, s, d):
     """(cos, sin) of an angle advanced by ``d`` from its (cos, sin): a rotation, with the Taylor
     series of cos/sin of ``d`` (exact to round-off for |d| < 0.01 rad; math.cos/sin beyond)."""
@@ -237,7 +245,7 @@ def _rotate(c, s, d):
     return c * cd - s * sd, s * cd + c * sd
 
 
-@njit(cache=True, fastmath=True, nogil=True, inline='always')
+@njit(cache=True, fastmath=_FASTMATH, nogil=True, inline='always')
 def _rotate_small(c, s, d):
     """:func:`_rotate` for |d| < 0.01 only (its Taylor branch, no branch: callers check |d| and redo
     larger increments with :func:`_rotate`)."""
@@ -247,7 +255,7 @@ def _rotate_small(c, s, d):
     return c * cd - s * sd, s * cd + c * sd
 
 
-@njit(cache=True, fastmath=True, nogil=True, inline='always')
+@njit(cache=True, fastmath=_FASTMATH, nogil=True, inline='always')
 def _servo_torques(p, goal2, goal3, q2, q3):
     """Both servos' firmware torques for the link angles: the present tick as the servo reports it
     (nearest integer, clipped) and the law of :func:`hexapod_model.servo.firmware_torque_scalar`."""
@@ -259,7 +267,7 @@ def _servo_torques(p, goal2, goal3, q2, q3):
             _firmware_torque(goal3 - pt3, p[P_KP], p[P_TMAX3], p[P_MARG3]))
 
 
-@njit(cache=True, fastmath=True, nogil=True, inline='always')
+@njit(cache=True, fastmath=_FASTMATH, nogil=True, inline='always')
 def _rigid_constants(p):
     """Per-leg constants of :func:`_rigid_substep` (mass matrix, gravity, damping, friction, step)."""
     m1, lc1, i1 = p[P_M1], p[P_LC1], p[P_I1]
@@ -271,7 +279,7 @@ def _rigid_constants(p):
             k22 + h * p[P_B3], 1.0 / (h * (k22 + h * p[P_B3])), h, p[P_B2], p[P_FC2], p[P_FC3], p[P_FS2], p[P_FS3])
 
 
-@njit(cache=True, fastmath=True, nogil=True, inline='always')
+@njit(cache=True, fastmath=_FASTMATH, nogil=True, inline='always')
 def _rigid_substep(c, tau2, tau3, q2, q3, v2, v3, c2, s2, c3, s3):
     """One semi-implicit Euler substep of a leg without backlash (Eq. 14, damping implicit, Coulomb
     / break-away friction as velocity-level impulses by Gauss-Seidel). ``c``: :func:`_rigid_constants`;
@@ -338,7 +346,7 @@ def _rigid_substep(c, tau2, tau3, q2, q3, v2, v3, c2, s2, c3, s3):
     return q2 + d2, q3 + d3, v2, v3, c2n, s2n, c3n, s3n, d2, d3
 
 
-@njit(cache=True, fastmath=True, nogil=True)
+@njit(cache=True, fastmath=_FASTMATH, nogil=True)
 def _rollout_rigid3(pa, pb, pc, q0a, q0b, q0c, v0a, v0b, v0c, ga, gb, gc, per, qa, qb, qc, va, vb, vc, ta, tb, tc):
     """Three legs without backlash stepped side by side (see :func:`_rollout_legs`).
 
@@ -396,7 +404,7 @@ def _rollout_rigid3(pa, pb, pc, q0a, q0b, q0c, v0a, v0b, v0c, ga, gb, gc, per, q
         qc[k + 1, 0], qc[k + 1, 1], vc[k + 1, 0], vc[k + 1, 1] = qc2, qc3, vc2, vc3
 
 
-@njit(cache=True, fastmath=True, nogil=True)
+@njit(cache=True, fastmath=_FASTMATH, nogil=True)
 def _rollout_backlash(p, q0, qd0, goals, per, out_q, out_qd, out_tau, gap0, out_gap):
     """One leg with gear backlash on one or both joints: :func:`_backlash_substep` per substep."""
     n_sub = int(p[P_SUBSTEPS])

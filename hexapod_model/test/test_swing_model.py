@@ -200,3 +200,37 @@ def test_fused_kernel_equals_one_rollout_per_leg(robot, legs):
         assert np.max(np.abs(p.theta_est_tick[:, slot] - est)) < 1e-9
         assert np.array_equal(p.theta_des_tick[:, slot], steps[:, slot, 0])
     assert np.allclose(p.t_read_s, np.arange(n_steps)[:, None] * t_con + np.arange(L)[None, :] * 0.001, atol=0, rtol=0)
+
+
+_BITS_SCRIPT = """
+import hashlib, numpy as np
+from hexapod_model.description import Effect, load_robot
+from hexapod_model.swing_model import predict_swing_down
+robot = load_robot()
+worn = robot.with_effects([Effect('backlash', ('leg1_femur', 'leg1_tibia'), {'width_rad': 0.02}),
+                           Effect('static_friction', ('leg6_femur',), {'tau_s_nm': 0.2})])
+h = hashlib.sha256()
+for r in (robot, worn):
+    for legs in ([1, 6, 3], [2, 5], [4]):
+        for t_des, approach in ((0.5, 1.0), (2.0, 1.0), (1.0, 0.7)):
+            p = predict_swing_down(r, legs, np.array([[0.45, 0.1]] * len(legs)),
+                                   np.array([[-0.15, -0.05]] * len(legs)), t_des, r.bus.t_com_s,
+                                   approach_from=approach, approach_rate=0.5)
+            for a in (p.theta_est_tick, p.err_est_tick, p.threshold_tick):
+                h.update(np.ascontiguousarray(a).tobytes())
+print(h.hexdigest())
+"""
+
+
+def test_a_freshly_compiled_kernel_and_the_cached_one_agree_bit_for_bit(tmp_path):
+    """The same prediction from a kernel numba compiles in this process and from the one it loads
+    from its cache: with fast-math 'reassoc' the two summed in different orders and the same
+    trial gave different JSON in a process pool and on Ray."""
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'numba'))
+    digests = [subprocess.run([sys.executable, '-c', _BITS_SCRIPT], env=env, capture_output=True, text=True,
+                              check=True).stdout.strip() for _ in range(2)]
+    assert any((tmp_path / 'numba').rglob('*.nbi'))          # the second run loaded the first one's cache
+    assert len(digests[0]) == 64 and digests[0] == digests[1]
