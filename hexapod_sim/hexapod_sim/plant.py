@@ -463,6 +463,16 @@ class HexapodSim:
 
     def read_position(self, joint: str) -> tuple[float, float]:
         """Read one servo: (theta [rad] of the reported integer tick, sample time [s]). Costs ``t_com_s``."""
+        theta, stamp = self.sample_position(joint)
+        self.bus_stats['reads'] += 1
+        self._advance_to_step(int(self._st[0]) + self._com_steps)
+        return theta, stamp
+
+    def sample_position(self, joint: str) -> tuple[float, float]:
+        """What a read of ``joint`` reports now, without the bus time a read costs: (theta [rad] of the
+        reported integer tick, sample time [s]). For a bus whose time is kept by someone else (the
+        bus emulator keeps the physics on the wall clock; the pseudo-terminal's own round trip is
+        the read's cost there)."""
         i = self._index.get(joint)
         if i is None:
             self._joint_index(joint)                         # raises the named error
@@ -476,8 +486,6 @@ class HexapodSim:
                 q += float(self._qpos[play])
         # quantize_tick for one value (round half to even, clip), in Python floats
         tick = min(max(round(q * scale + base), 0), self._max_tick)
-        self.bus_stats['reads'] += 1
-        self._advance_to_step(s + self._com_steps)
         return (tick - base) / scale, s * self.dt
 
     def wait_until(self, t: float) -> None:

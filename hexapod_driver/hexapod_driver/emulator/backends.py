@@ -102,8 +102,10 @@ class ServoBusBackend:
 
     Emulator time ``t`` maps to bus time ``t0 + t`` (``t0`` = the bus's ``now()`` when the adapter
     was made). A goal write is ``wait_until`` + ``sync_write``; a sample is ``wait_until`` +
-    ``read_position``, which costs the bus its ``t_com_s`` (so a fast reader pushes a simulated
-    bus ahead of wall time). With ``max_catch_up_s`` set (the sim plug-in sets it), a request
+    ``sample_position`` where the bus has it (HexapodSim: the position a read reports, without
+    the ``t_com_s`` an in-process read costs, so the physics keeps to the emulator's clock however
+    often the driver reads: the pseudo-terminal's round trip is the read's cost here), else
+    ``read_position``. With ``max_catch_up_s`` set (the sim plug-in sets it), a request
     never waits for more than that much physics: a real servo answers within microseconds, so when
     the host is too busy for the physics to keep up with the wall clock, the reply comes from
     slightly older physics (which catches up while the bus idles, or ``max_catch_up_s`` per
@@ -126,6 +128,7 @@ class ServoBusBackend:
         self._joints = list(ALL_JOINTS)
         self._mount = [robot.bus.by_joint(j) for j in self._joints]
         self._last: dict[int, tuple[float, float]] = {}
+        self._sample = getattr(bus, 'sample_position', bus.read_position)
 
     def _catch_up(self, t: float) -> None:
         self.bus.wait_until(min(self.t0 + t, self.bus.now() + self.max_catch_up_s))
@@ -156,7 +159,7 @@ class ServoBusBackend:
 
     def sample(self, t: float, slot: int) -> tuple[float, float]:
         self._catch_up(t)
-        theta, ts = self.bus.read_position(self._joints[slot])
+        theta, ts = self._sample(self._joints[slot])
         tick = float(servo_tick(theta, self.robot.servo, self._mount[slot]))
         speed = 0.0
         prev = self._last.get(slot)
