@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import signal
 import sys
 import threading
@@ -76,8 +77,10 @@ def main(argv=None) -> int:
         ap.error(f'--timing-out {args.timing_out}: must name a .npy file')
     robot = load_robot(args.robot)
     backend = None if args.backend == 'ideal' else plugins[args.backend].create(robot, args)
+    # the transaction log is read by --verbose (as it goes) and --timing-out (at exit); kept short
+    # otherwise, as 100,000 entries are 100,000 objects for the garbage collector to traverse
     emu = BusEmulator(robot, backend, link_path=args.link, wire_time=args.wire_time, absent_ids=tuple(args.absent),
-                      seed=args.seed)
+                      seed=args.seed, log_size=100_000 if args.timing_out else 1_000)
     if args.drop_probability:
         emu.faults.drop_replies(count=None, probability=args.drop_probability)
     if args.corrupt_probability:
@@ -92,6 +95,11 @@ def main(argv=None) -> int:
             s.set_register('baud_rate', args.servo_baud)
         if args.status_return_level is not None:
             s.set_register('status_return_level', args.status_return_level)
+    # What start-up made (the robot model, a backend's physics and compiled code) is moved out of the
+    # garbage collector's reach, as the locomotion node does: a full collection over it held the
+    # interpreter 64-107 ms now and then, the replies of that time missed the driver's timeout, and
+    # its retries stalled a swing-down between a goal write and the reads (a real servo never pauses).
+    gc.freeze()
     emu.start()
     ids = sorted(s.servo_id for s in emu.servos)
     print(f'AX-12A bus emulator: {len(ids)} servos (ids {ids}) on {emu.port}', flush=True)

@@ -26,7 +26,7 @@ from .faults import Faults
 AX12A_NO_LOAD_SPEED_RPM = 59.0     # e-manual: no-load speed at 12 V; the ideal servo's top speed
 
 
-@dataclass
+@dataclass(slots=True)
 class LogEntry:
     """One instruction as the emulator saw it (for tests and the CLI's verbose mode)."""
 
