@@ -196,6 +196,8 @@ class GaitController:
         angles = [self.leg_angles(leg)[1:] for leg in legs]
         predict_swing_down(self.robot, legs, angles, angles, self.params.t_des_s, self.t_com_s, n_steps=2,
                            models=self.models)
+        # the rollout a stall of the host is replayed with (SwingDownPhase._hold)
+        self.models[legs[0]].rollout(angles[0], [0.0, 0.0], np.full((3, 2), float(self.robot.servo.center_tick)))
 
     # ------------------------------------------------------------------ helpers
     def _stance_goals(self) -> dict[str, float]:

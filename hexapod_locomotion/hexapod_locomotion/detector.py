@@ -25,8 +25,8 @@ from hexapod_model.bus import ServoBus
 from hexapod_model.description import Robot, joint_name
 from hexapod_model.kinematics import forward
 from hexapod_model.servo import theta_to_tick, tick_to_theta
-from hexapod_model.swing_model import (LegModel, SwingDownError, SwingDownPrediction, check_approach, goal_fraction,
-                                       interpolated_goals, predict_swing_down, steps_to_fin)
+from hexapod_model.swing_model import (LegModel, Rollout, SwingDownError, SwingDownPrediction, check_approach,
+                                       goal_fraction, interpolated_goals, predict_swing_down, steps_to_fin)
 
 STOP_NONE, STOP_CONTACT, STOP_THETA_FIN = 0, 1, 2     # as in hexapod_msgs/LegGroundDetection
 STAMP_RESOLUTION_S = 1e-9                            # ROS stamps are whole nanoseconds
@@ -163,6 +163,13 @@ class SwingDownPhase:
         self._start_foot_z = {leg: forward(robot, leg, [self.state[leg].coxa_rad, *init[i]])[2]
                               for i, leg in enumerate(self.legs)}
         self._write_s: dict[int, float] = {}       # step -> time its goals were written (bus time base)
+        # The model's timeline: goal k applies at _t_goal[k] on the rollouts' time axis (k t_con
+        # until a stall is replayed into them, see _hold)
+        self._models = dict(models or {})
+        self._rollouts = list(self.prediction.rollouts) if self.prediction is not None else []
+        n_goals = self.n_interp + 1 + self.fin_dwell_steps
+        self._t_goal = np.arange(n_goals + 1) * self.t_con_s
+        self.retimed_steps: list[int] = []          # steps whose hold was replayed into the model
 
     # ---------------------------------------------------------------- Algorithm 1
     @property
@@ -204,6 +211,12 @@ class SwingDownPhase:
         if not math.isfinite(t_s):
             raise DetectorError(f'step {k}: write time is not finite ({t_s!r})')
         self._write_s[k] = float(t_s)
+        prev = self._write_s.get(k - 1)
+        if prev is not None:
+            held, assumed = t_s - prev, self._goal_time(k) - self._goal_time(k - 1)
+            # goal k - 1 was held longer than the model has it (by more than one t_con): replay the hold
+            if held > assumed + self.t_con_s or (k - 1 in self.retimed_steps and abs(held - assumed) > self.t_con_s):
+                self._hold(k - 1, held)
 
     def model_time_s(self, k: int, stamp_s: float) -> float:
         """Where on the model's time axis a read of step ``k`` sampled at ``stamp_s`` lies.
@@ -214,15 +227,65 @@ class SwingDownPhase:
         began, every late step moved the prediction on while the goal stood still, so the measured
         error ran ahead of the threshold and free legs stopped in the air (the real-time robot
         stopped its swing-downs 70-130 ms in, 0.44 s before the ground). A read is therefore
-        placed at k t_con plus its time since its own step's write (:meth:`wrote`). A late step
-        gave the leg extra time to follow the previous goal, so its real error is, if anything,
-        below the prediction: late steps can delay a detection but not fake one. Without a recorded
-        write the nominal instant t_start + k t_con stands in; on a bus that keeps the schedule
-        (the simulation, lock-step) both are the read's time since the phase began."""
+        placed at the model's instant of its own step's write plus its time since that write
+        (:meth:`wrote`). A step a little late gave the leg extra time to follow the previous goal,
+        so its real error is, if anything, below the prediction: late steps can delay a detection
+        but not fake one. A stall (the host paused, a read was retried) holds a goal for much
+        longer than t_con: the leg comes to rest at it and afterwards lags again from zero, which
+        a prediction of a leg that never stopped does not show; such a hold is replayed into the
+        model (:meth:`_hold`). Without a recorded write the nominal instant t_start + k t_con
+        stands in; on a bus that keeps the schedule (the simulation, lock-step) both are the read's
+        time since the phase began."""
         w = self._write_s.get(k)
         if w is None:
             return stamp_s - self.t_start_s
-        return k * self.t_con_s + (stamp_s - w)
+        since = stamp_s - w
+        if since > self._goal_time(k + 1) - self._goal_time(k) + self.t_con_s:
+            # a stall between this step's write and its reads: goal k held at least until this
+            # read and the rest of this step's reads (the next write, if later, corrects it)
+            self._hold(k, since + self.t_con_s)
+        return self._goal_time(k) + since
+
+    def _goal_time(self, k: int) -> float:
+        """When goal ``k`` applies on the model's time axis (k t_con unless a hold was replayed)."""
+        last = len(self._t_goal) - 1
+        return float(self._t_goal[min(k, last)]) + max(0, k - last) * self.t_con_s
+
+    def _hold(self, k: int, hold_s: float) -> None:
+        """Re-simulate the model from its state when goal ``k`` was applied, with goal ``k`` held for
+        ``hold_s`` and the later goals one t_con apart after it (what the bus did, not the schedule).
+        Only for the adaptive detector and a t_con that is a whole number of servo periods."""
+        if not self._rollouts or k >= len(self._t_goal) - 1:
+            return
+        dt = self._rollouts[0].dt_s
+        per = self.t_con_s / dt
+        if abs(per - round(per)) > 1e-9:
+            return
+        per = int(round(per))
+        n_hold = max(per, int(round(hold_s / dt)))
+        p0 = int(round(self._t_goal[k] / dt))
+        if p0 >= len(self._rollouts[0].q_rad):
+            return
+        n_goals = len(self._t_goal) - 1
+        rest = n_goals - 1 - k                             # goals after k
+        L = len(self.legs)
+        for slot, leg in enumerate(self.legs):
+            ro = self._rollouts[slot]
+            table = np.rint(self._goal_table[np.minimum(np.arange(k, n_goals), self.n_interp - 1), slot])
+            goals = np.concatenate([np.repeat(table[:1], n_hold, axis=0), np.repeat(table[1:], per, axis=0),
+                                    np.repeat(table[-1:], L * per + 2, axis=0)])
+            model = self._models.get(leg)
+            if model is None:
+                model = self._models[leg] = LegModel(self.robot, leg)
+            gap0 = ro.gap_rad[p0] if ro.gap_rad is not None else None
+            new = model.rollout(ro.q_rad[p0], ro.qd_rad_s[p0], goals, gap0_rad=gap0)
+            self._rollouts[slot] = Rollout(dt, np.concatenate([ro.q_rad[:p0], new.q_rad]),
+                                           np.concatenate([ro.qd_rad_s[:p0], new.qd_rad_s]),
+                                           np.concatenate([ro.tau_nm[:p0], new.tau_nm]),
+                                           None if ro.gap_rad is None else np.concatenate([ro.gap_rad[:p0], new.gap_rad]))
+        self._t_goal[k + 1:] = self._t_goal[k] + n_hold * dt + np.arange(rest + 1) * self.t_con_s
+        if not self.retimed_steps or self.retimed_steps[-1] != k:
+            self.retimed_steps.append(k)
 
     def on_read(self, k: int, leg: int, theta_real_rad: float, stamp_s: float) -> ReadResult:
         """Lines 9-14 for one femur read of ``leg`` at step ``k``, sampled at ``stamp_s``."""
@@ -237,7 +300,7 @@ class SwingDownPhase:
         real = float(theta_to_tick(theta_real_rad, servo))
         err = s.direction * (des - real)                                   # Eq. 16
         if self.prediction is not None:
-            ro = self.prediction.rollouts[slot]
+            ro = self._rollouts[slot]
             est = float(theta_to_tick(np.interp(t_model, np.arange(len(ro.q_rad)) * ro.dt_s, ro.q_rad[:, 0]), servo))
             err_est = s.direction * (des - est)
             thld = err_est + self.config.epsilon_tick                      # Eq. 17

@@ -136,6 +136,71 @@ class _LateController:
         return self.sim.read_position(joint)
 
 
+class _StallBeforeRead(_LateController):
+    """A controller that pauses ``stall_s`` between a write and the next read after every
+    ``every``-th write (the host paused, a read was retried): the driver route did, when a garbage
+    collection held the bus emulator for 65-70 ms."""
+
+    def __init__(self, sim, stall_s=0.07, every=40):
+        super().__init__(sim, late_s=0.0, every=1)
+        self.stall_s, self.stall_every, self.pending = stall_s, every, False
+
+    def sync_write(self, goals):
+        self.pending = self.writes % self.stall_every == self.stall_every - 1
+        return super().sync_write(goals)
+
+    def read_position(self, joint):
+        if self.pending:
+            self.sim.wait_until(self.sim.now() + self.stall_s)
+            self.pending = False
+        return self.sim.read_position(joint)
+
+
+def _stalling_bus(sim, where, stall_s):
+    if where == 'before a read':
+        return _StallBeforeRead(sim, stall_s=stall_s)
+    return _LateController(sim, late_s=stall_s, every=40)       # before a write
+
+
+@pytest.mark.parametrize('where', ['before a read', 'before a write'])
+@pytest.mark.parametrize('stall_s', [0.03, 0.07, 0.15])
+def test_a_stall_of_the_host_does_not_stop_a_free_swing(robot, where, stall_s):
+    """On a stand, a pause of 30-150 ms every 40 writes (between a write and its reads, or before a
+    write) still lets every swing-down run to theta_fin: the hold is replayed into the model, whose
+    leg then comes to rest at the held goal and lags again from zero, as the real one does. Without
+    the replay, 30 ms and more stopped the free legs (10-20 ms did not)."""
+    sim = HexapodSim(robot, terrain='flat', fixed_base=True)
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(kind='adaptive'),
+                       t_com_s=sim.t_com_s)
+    c.startup(sim)
+    bus = _stalling_bus(sim, where, stall_s)
+    retimed = []
+    c.on_swing_start = lambda phase: retimed.append(phase.retimed_steps)
+    reasons = [o.stop_reason for _ in range(2) for o in c.step_phase(bus, VelocityCommand(0.05, 0.0, 0.0)).outcomes]
+    assert sum(len(r) for r in retimed) >= 2                    # stalls happened inside the swing-downs
+    assert reasons == [STOP_THETA_FIN] * 6
+
+
+@pytest.mark.parametrize('where', ['before a read', 'before a write'])
+def test_a_stall_of_the_host_still_finds_the_block(robot, where):
+    """Onto a block under leg 1, with a 70 ms pause every 40 writes: leg 1 still stops on contact,
+    not before its foot touched the block and within 15 control periods of it."""
+    sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
+    swing, touch = [], []
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(kind='adaptive'),
+                       t_com_s=sim.t_com_s, on_swing_start=swing.append,
+                       on_read=lambda r: touch.append((r.stamp_s, bool(sim.foot_contacts().in_contact[0])))
+                       if r.leg == 1 else None)
+    c.startup(sim)
+    bus = _stalling_bus(sim, where, 0.07)
+    out = {o.leg: o for o in c.step_phase(bus, VelocityCommand(0.05, 0.0, 0.0)).outcomes}
+    assert swing[0].retimed_steps                              # a stall fell into this swing-down
+    assert out[1].stop_reason == STOP_CONTACT
+    stop = swing[0].state[1].stop_time_s
+    first = next(t for t, touching in touch if touching)
+    assert first <= stop <= first + 15 * 3 * sim.t_com_s
+
+
 class _PhaseOnStartTimes(SwingDownPhase):
     """Algorithm 1 as it was before the model was read relative to each step's write: at the read's
     time since the phase began, whatever the writes did."""
