@@ -413,6 +413,7 @@ def test_imu_interpolates_between_physics_steps(robot):
     qa = np.array([s.quat_wxyz for s in a])
     qb = np.array([s.quat_wxyz for s in b])
     np.testing.assert_allclose(np.linalg.norm(qa, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(qb, axis=1), 1.0, atol=1e-12)
     za = np.array([s.lin_acc_mps2[2] for s in a])
     zb = np.array([s.lin_acc_mps2[2] for s in b])
     assert np.median(np.abs(za - zb)) < 0.5            # the same signal (different step sizes)

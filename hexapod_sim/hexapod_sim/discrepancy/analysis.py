@@ -143,7 +143,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             legs_all = sorted({parse_joint_name(j)[0] for j in rec.joints})
             segments = {leg: list(windows) for leg in legs_all}
             mode_used = 'windows'
-            notes.append(f'analysed only the given time windows: '
+            notes.append('analysed only the given time windows: '
                          + ', '.join(f'{a:g}-{b:g} s' for a, b in windows))
         step('replaying the recorded goals')
         replay = Replay(robot, rec, joints=joints, segments=segments)
