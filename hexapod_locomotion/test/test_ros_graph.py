@@ -122,7 +122,10 @@ def test_realtime_graph_with_default_parameters_accepts_the_sim_reads():
     assert len(probe.swings) >= 3, outs[1][-3000:]
     sim_t = [p[0] for p in probe.pose]
     stamps = [stamp_seconds(r.header.stamp) for r in probe.reads]
-    assert stamps and min(sim_t) - 1 <= min(stamps) and max(stamps) <= max(sim_t) + 1   # on the sim's clock
+    # on the sim's clock: the probe may see the sim's poses only after DDS discovery, seconds into the
+    # run, so the newest read is compared with the newest pose (both taken when the walk was judged)
+    assert stamps and sim_t and min(stamps) >= 0 and abs(max(stamps) - max(sim_t)) < 1, (min(stamps), max(stamps),
+                                                                                         min(sim_t), max(sim_t))
     assert any(r.stopped and r.stop_reason == 1 for r in probe.reads), outs[1][-3000:]
     assert [p.returncode for p in procs] == [0, 0], outs
     assert 'Traceback' not in ''.join(outs), outs

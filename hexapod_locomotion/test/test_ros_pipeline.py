@@ -58,7 +58,10 @@ def test_locomotion_node_walks_the_sim_node(nodes):
     th = threading.Thread(target=ex.spin, daemon=True)
     th.start()
     deadline = time.monotonic() + 480      # a failure bound only: lock-step over DDS runs at the speed the machine allows
-    while time.monotonic() < deadline and len(seen['swing']) < 7:
+    # the probe may match the sim's publishers seconds after the run began (DDS discovery on a busy
+    # machine), so the walk is judged on the poses it did receive: 7 swing-downs and 6 cm of them
+    while time.monotonic() < deadline and not (len(seen['swing']) >= 7 and len(seen['x']) > 1
+                                               and seen['x'][-1] - seen['x'][0] > 0.06):
         for p in nodes:
             assert p.poll() is None, p.communicate()[0][-3000:]
         time.sleep(0.5)
@@ -81,7 +84,7 @@ def test_locomotion_node_walks_the_sim_node(nodes):
     gaps = np.concatenate([np.diff(sorted(v)) for v in stamps.values() if len(v) > 2])
     assert abs(np.median(gaps) - 0.003) < 2e-4, np.percentile(gaps, [10, 50, 90])
     assert np.mean(np.abs(gaps - 0.003) < 2e-4) > 0.95, np.percentile(gaps, [10, 50, 90])
-    # and the robot walks forward (0.05 m/s requested; 7 phases are about 5 s of simulated time)
-    assert seen['x'] and seen['x'][-1] - seen['x'][0] > 0.05, (seen['x'][0], seen['x'][-1])
+    # and the robot walks forward (0.05 m/s requested)
+    assert len(seen['x']) > 1 and seen['x'][-1] - seen['x'][0] > 0.05, seen['x'][:1] + seen['x'][-1:]
     assert [p.returncode for p in nodes] == [0, 0], outs
     assert 'Traceback' not in outs[0] + outs[1]
