@@ -43,7 +43,7 @@ import numpy as np
 from hexapod_model.contract import stamp_seconds
 
 ROUTES = ('composed', 'dds', 'driver')
-TRUTH_FILE = 'truth.npz'
+TRUTH_FILE = '{route}_truth.npz'    # one per route: --route all runs every route in one folder
 
 
 def _exe(pkg: str, name: str) -> str:
@@ -59,15 +59,15 @@ def _cpu_s(pid: int) -> float:
 
 
 def _processes(route: str, args, workdir: str) -> list[tuple[str, list[str]]]:
-    sim_params = [f'terrain:={args.terrain}', f'seed:={args.seed}',
-                  f'truth_out:={os.path.join(workdir, TRUTH_FILE)}']
+    truth = os.path.join(workdir, TRUTH_FILE.format(route=route))
+    sim_params = [f'terrain:={args.terrain}', f'seed:={args.seed}', f'truth_out:={truth}']
     loco_params = [f'gait:={args.gait}', *args.param]
     p = lambda params: [a for x in params for a in ('-p', x)]  # noqa: E731
     if route == 'driver':
         link = os.path.join(workdir, 'ttyHEX')
         return [('bus_emulator (sim)', [_exe('hexapod_driver', 'bus_emulator'), '--backend', 'sim',
                                         '--terrain', args.terrain, '--terrain-seed', str(args.seed), '--link', link,
-                                        '--truth-out', os.path.join(workdir, TRUTH_FILE)]),
+                                        '--truth-out', truth]),
                 ('robot (driver+model+locomotion)', [_exe('hexapod_locomotion', 'robot'), '--ros-args',
                                                      *p(['hardware:=driver', f'device:={link}'] + loco_params)])]
     if route == 'composed':
@@ -169,6 +169,10 @@ def run_route(route: str, args, workdir: str) -> dict:
     logs = [open(os.path.join(workdir, f'{route}_{i}.log'), 'w+') for i in range(3)]
     procs = []
     probe_out = os.path.join(workdir, f'{route}_probe.json')
+    truth_file = os.path.join(workdir, TRUTH_FILE.format(route=route))
+    for stale in (probe_out, probe_out + '.started', truth_file):     # a kept folder of an earlier run
+        if os.path.exists(stale):
+            os.remove(stale)
     probe_proc = None
     ended = None
     try:
@@ -214,7 +218,7 @@ def run_route(route: str, args, workdir: str) -> dict:
     probe = SimpleNamespace(swings=data['swings'],
                             reads={(start, leg): [tuple(r) for r in rs] for start, leg, rs in data['reads']})
     # the driver stamps its reads with the wall clock, the sim with simulated time
-    sim_s = _truth_from_file(probe, os.path.join(workdir, TRUTH_FILE), data['window'], wall_stamps=route == 'driver')
+    sim_s = _truth_from_file(probe, truth_file, data['window'], wall_stamps=route == 'driver')
     out = figures(probe, args.gait)
     out['sim_s'] = sim_s
     out.update(route=route, wall_s=wall, cpu=cpu, ended=ended)
