@@ -51,6 +51,10 @@ def parse_value(param: str, text: str):
         return () if text.lower() == 'none' else tuple(p for p in text.split(',') if p)
     if 'None' in kind and text.lower() == 'none':
         return None
+    if kind.startswith('bool'):
+        if text.lower() not in ('true', 'false', '1', '0'):
+            raise SweepError(f'{param}: expected true or false, got {text!r}')
+        return text.lower() in ('true', '1')
     if kind.startswith('float') or kind.startswith('int'):
         try:
             v = float(text)
@@ -71,8 +75,9 @@ def check_config(cfg: TrialConfig) -> None:
     from hexapod_model.description import load_robot
     from hexapod_sim.terrain import TERRAINS
 
-    from .controller import LocomotionError, LocomotionParams
+    from .controller import LocomotionError
     from .detector import DetectorConfig
+    from .trial_runner import locomotion_params
     from .gait import get_gait
     if cfg.terrain not in TERRAINS:
         raise SweepError(f'terrain: unknown terrain {cfg.terrain!r}; known: {sorted(TERRAINS)}')
@@ -84,7 +89,7 @@ def check_config(cfg: TrialConfig) -> None:
     try:
         load_robot(overlays=cfg.overlays)
         get_gait(cfg.gait)
-        LocomotionParams(t_des_s=cfg.t_des_s)
+        locomotion_params(cfg)
         DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
     except (ValueError, LocomotionError) as exc:
         raise SweepError(str(exc).splitlines()[0]) from None

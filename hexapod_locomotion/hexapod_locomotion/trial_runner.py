@@ -48,12 +48,29 @@ class TrialConfig:
     approach_rate: float = 1.0          # touchdown goal profile (LocomotionParams): 1 = the paper's Eq. 15
     approach_height_m: float = 0.015
     fin_dwell_s: float = 0.0
+    overlap_transfer: bool = True       # the gait cycle (LocomotionParams): False = Fig. 4 in sequence
+    # transfer-phase timing and stride (LocomotionParams, node parameters of the same names); None = its default
+    t_swing_up_s: float | None = None
+    t_swing_forward_s: float | None = None
+    t_settle_s: float | None = None
+    t_level_s: float | None = None
+    max_stride_m: float | None = None
     probe_period_s: float = 0.05        # truth sampling period (pose, energy, temperature)
     record: str | None = None           # bag directory, or None
     overlays: tuple[str, ...] = ()
     start_x_m: float = 0.0              # where the robot stands at the start (along the course)
     video: str | None = None            # animated GIF of the walk (offscreen CPU rendering), or None
     video_fps: float = 10.0
+
+
+TIMING_FIELDS = ('t_swing_up_s', 't_swing_forward_s', 't_settle_s', 't_level_s', 'max_stride_m')
+
+
+def locomotion_params(cfg: TrialConfig) -> LocomotionParams:
+    """The controller's parameters of a trial (LocomotionParams checks them: LocomotionError names a bad one)."""
+    timing = {k: getattr(cfg, k) for k in TIMING_FIELDS if getattr(cfg, k) is not None}
+    return LocomotionParams(t_des_s=cfg.t_des_s, approach_rate=cfg.approach_rate, approach_height_m=cfg.approach_height_m,
+                            fin_dwell_s=cfg.fin_dwell_s, overlap_transfer=cfg.overlap_transfer, **timing)
 
 
 def joint_state_msg(t_s: float, names, positions) -> dict:
@@ -321,8 +338,7 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
         probe.record_swing_start(phase)
     det = DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
     controller = GaitController(robot, get_gait(cfg.gait),
-                                LocomotionParams(t_des_s=cfg.t_des_s, approach_rate=cfg.approach_rate,
-                                                 approach_height_m=cfg.approach_height_m, fin_dwell_s=cfg.fin_dwell_s),
+                                locomotion_params(cfg),
                                 det, t_com_s=sim.t_com_s, on_read=probe.record_detection, on_swing_start=on_swing_start)
     warnings: list[str] = []
     fell = reached = False

@@ -74,6 +74,9 @@ def test_two_value_sweep_writes_one_json_and_one_plot(tmp_path, capsys):
     (['gait', 'tripod', 'hexa'], "unknown gait 'hexa'"),
     (['overlays', 'missing.yaml'], "no such overlay file 'missing.yaml'"),
     (['epsilon_tick', '3', '3'], 'a value is given twice'),
+    (['overlap_transfer', 'true', 'maybe'], "overlap_transfer: expected true or false, got 'maybe'"),
+    (['t_swing_up_s', '0.1', '0'], 't_swing_up_s must be finite and > 0'),
+    (['max_stride_m', '0.07', '-1'], 'max_stride_m must be finite and >= 0'),
 ])
 def test_bad_sweep_arguments_are_one_line(argv, message, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -82,3 +85,29 @@ def test_bad_sweep_arguments_are_one_line(argv, message, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0] and 'Traceback' not in err[0]
     assert not (tmp_path / 'o').exists()                     # nothing left behind
+
+
+def test_the_gait_cycle_timing_reaches_the_controller():
+    """TrialConfig's transfer-phase fields (None = the controller's default) are the LocomotionParams
+    a trial walks with, and a sweep parses a boolean field as a boolean."""
+    from hexapod_locomotion.controller import LocomotionParams
+    from hexapod_locomotion.trial_runner import locomotion_params
+    default = LocomotionParams()
+    assert locomotion_params(TrialConfig()) == default
+    p = locomotion_params(TrialConfig(t_swing_up_s=0.15, t_level_s=0.25, max_stride_m=0.07, overlap_transfer=False))
+    assert (p.t_swing_up_s, p.t_level_s, p.max_stride_m, p.overlap_transfer) == (0.15, 0.25, 0.07, False)
+    assert p.t_swing_forward_s == default.t_swing_forward_s
+    assert sweep.parse_value('overlap_transfer', 'false') is False
+    assert sweep.parse_value('overlap_transfer', 'True') is True
+    assert sweep.parse_value('t_settle_s', 'none') is None
+
+
+def test_the_discrepancy_bench_walks_are_calibration_walks():
+    """The bench records its walks with the installed calibration-walk parameter file, the one a
+    robot's walk is recorded with: the cycle of Fig. 4 in sequence, unhurried transfer phases."""
+    from hexapod_locomotion.discrepancy_bench import calibration_walk
+    from hexapod_locomotion.trial_runner import locomotion_params
+    values = calibration_walk()
+    assert values['overlap_transfer'] is False and values['t_swing_up_s'] >= 0.15
+    p = locomotion_params(TrialConfig(**values))
+    assert p.transfer_s() > locomotion_params(TrialConfig()).transfer_s()

@@ -90,3 +90,41 @@ def test_walk_is_judged_on_alternate_swings_and_cannot_show_is_computed(rec, rob
         c = BY_NAME[name]
         change = min(prediction_change(pred, a.split, p0, c.make((joint,), c.typical)))
         assert (change < a.min_drop_ticks) == (joint in a.blind.get(name, ())), (name, joint, change)
+
+
+def test_a_walk_of_the_fast_overlapped_cycle_is_named_as_such():
+    """The report says when a walk's gait cycle moves the body under the swinging legs (other legs
+    leveling during a swing) or lifts legs faster than the replay is measured for, and points to the
+    calibration walk; a walk in sequence with unhurried swing-ups gets no such note."""
+    from types import SimpleNamespace
+
+    from hexapod_sim.discrepancy.analysis import walk_cycle_notes
+    from hexapod_sim.discrepancy.segments import LegPhases, Swing, body_motion_share
+
+    def walk(up_s, overlapped):
+        phases, segs = {}, {}
+        for leg in (1, 2):
+            t0 = 0.0 if leg == 1 else 2.0
+            sw = Swing(t0, t0 + up_s, t0 + up_s + 0.25, t0 + 1.0)
+            # the other leg levels the body: right after this leg's swing-down (in sequence) or
+            # while this leg swings up and forward (overlapped)
+            other0 = 2.0 - t0
+            lev = (other0, other0 + 0.3) if overlapped else (other0 + 1.0, other0 + 1.3)
+            phases[leg] = LegPhases((sw,), (lev,))
+            segs[leg] = [(t0 + 0.08, t0 + 0.9)]
+        return phases, segs
+
+    dt = 0.001
+    for up_s, overlapped, expect in ((0.15, False, ()), (0.15, True, ('body moved',)),
+                                     (0.1, False, ('swing-ups of 100 ms',)),
+                                     (0.1, True, ('body moved', 'swing-ups of 100 ms'))):
+        phases, segs = walk(up_s, overlapped)
+        share = body_motion_share(phases, segs)
+        assert (share > 0.2) == overlapped and (share == 0.0) == (not overlapped), share
+        replay = SimpleNamespace(dt=dt, segments={leg: [(round(a / dt), round(b / dt)) for a, b in v]
+                                                  for leg, v in segs.items()})
+        notes = walk_cycle_notes(phases, replay)
+        for word in expect:
+            assert any(word in n for n in notes), (up_s, overlapped, notes)
+        assert bool(notes) == bool(expect), notes
+        assert not expect or 'calibration_walk.yaml' in notes[-1]

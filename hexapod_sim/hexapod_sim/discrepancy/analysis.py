@@ -17,7 +17,8 @@ from .effects import scope_name
 from .fit import FitSettings, Hypothesis, Namer, make_split, unobservable
 from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from .recording import Recording, RecordingError
-from .segments import PHASES, gait_phases, looks_like_walk, obstructed_swings, swing_segments
+from .segments import (PHASES, body_motion_share, gait_phases, looks_like_walk, median_swing_up_s, obstructed_swings,
+                       swing_segments)
 from .simulate import Replay
 
 MODES = ('auto', 'stand', 'walk')
@@ -25,6 +26,32 @@ MODES = ('auto', 'stand', 'walk')
 # out of fit and judgement (on clean sim walks the nominal replay is at the rounding floor from there,
 # docs/discrepancy.md).
 WALK_SETTLE_S = 0.1
+
+
+# What the walk analysis was measured on (docs/discrepancy.md, "Which walks"): a calibration walk,
+# hexapod_locomotion/config/calibration_walk.yaml. Beyond these the nominal replay of a clean walk
+# leaves more than tick rounding, and the report says why.
+CALIBRATION_BODY_MOTION_SHARE = 0.1    # of the analysed swing time with the body moved by other legs
+CALIBRATION_SWING_UP_S = 0.15          # swing-up duration [s]; a 0.1 s one left 0.6-0.9 ticks after lift-off
+
+
+def walk_cycle_notes(phases: dict, replay: Replay) -> list[str]:
+    """Notes on a walk whose gait cycle the free-leg replay is not measured for."""
+    out = []
+    share = body_motion_share(phases, {leg: [(a * replay.dt, b * replay.dt) for a, b in v]
+                                       for leg, v in replay.segments.items()})
+    up = median_swing_up_s(phases)
+    if share > CALIBRATION_BODY_MOTION_SHARE:
+        out.append(f'the body moved under the swinging legs for {100 * share:.0f} % of the analysed swing time '
+                   '(other legs leveling: the overlapped gait cycle); the free-leg model holds the body still, so '
+                   'part of the mismatch may be body motion, not missing physics')
+    if up < CALIBRATION_SWING_UP_S - 0.01:
+        out.append(f'swing-ups of {1000 * up:.0f} ms: the leg is still springing back from its load past the '
+                   f'{1000 * WALK_SETTLE_S:.0f} ms the replay leaves out after lift-off')
+    if out:
+        out.append('for a walk this tool can judge to tick rounding, record a calibration walk: locomotion '
+                   'parameters from hexapod_locomotion/config/calibration_walk.yaml (docs/discrepancy.md)')
+    return out
 
 
 @dataclass(frozen=True)
@@ -185,6 +212,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                 notes.append(f'walk recording: stance legs carry the body, so only swing phases were analysed '
                              f'({n_spans} swings, {total:.1f} s of leg time, from lift-off to just before the '
                              f'swing-down stops, each started from the recorded position and speed)')
+                notes.extend(walk_cycle_notes(phases, replay))
                 skip_start_s = WALK_SETTLE_S
                 mode_used = 'walk'
                 settings = replace(settings, min_drop_ticks=max(settings.min_drop_ticks, settings.walk_min_drop_ticks))

@@ -173,6 +173,37 @@ def swing_segments(rec: Recording, legs, lift_off_s: float = 0.08, before_stop_s
     return out
 
 
+def _overlap_s(spans, others) -> float:
+    return sum(max(0.0, min(b, d) - max(a, c)) for a, b in spans for c, d in others)
+
+
+def body_motion_share(phases: dict, segments: dict) -> float:
+    """Share of the analysed swing time during which other legs' goals move (leveling: the stance legs
+    move the body, which the free-leg model holds still); 0 for the cycle of Fig. 4 in sequence, about
+    half for the overlapped cycle, where the leveling runs beside the next swing-up and swing-forward."""
+    total = sum(b - a for spans in segments.values() for a, b in spans)
+    if total <= 0:
+        return 0.0
+    moving = 0.0
+    for leg, spans in segments.items():
+        others = sorted(span for other, ph in phases.items() if other != leg for span in ph.leveling)
+        # the union of the other legs' leveling spans, so overlapping ones count once
+        union = []
+        for a, b in others:
+            if union and a <= union[-1][1]:
+                union[-1][1] = max(union[-1][1], b)
+            else:
+                union.append([a, b])
+        moving += _overlap_s(spans, union)
+    return moving / total
+
+
+def median_swing_up_s(phases: dict) -> float:
+    """Median swing-up duration of the recorded swings [s] (nan without swings)."""
+    d = [sw.t_forward - sw.t_up for ph in phases.values() for sw in ph.swings]
+    return float(np.median(d)) if d else float('nan')
+
+
 def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.5, min_reads: int = 10) -> bool:
     """True if femurs are pushed up outside their swing phases: the stance legs carry the body.
 
