@@ -73,12 +73,16 @@ class Case:
     effects: tuple[Effect, ...]
     speed_scale: float = 1.0
     walk: tuple[str, str] | None = None     # (gait, terrain): a walk instead of the stand routine
+    cycle: str = 'calibration'              # a walk's gait cycle: one of WALK_CYCLES
 
 
 GAITS = ('tripod', 'tetrapod', 'pentapod')
 TERRAINS = ('flat', 'blocks')
 WALK_S = 20.0                 # simulated walking time of a walk case
 WALK_START_X = {'flat': 0.0, 'blocks': 0.45}   # on the blocks from the first step
+# calibration: config/calibration_walk.yaml (Fig. 4 in sequence, unhurried transfer phases), the walk a
+# robot is recorded with to name effects; default: the controller's default cycle (overlapped, fast)
+WALK_CYCLES = ('calibration', 'default')
 
 
 def _value(rng, effect: str) -> float:
@@ -127,18 +131,18 @@ def make_cases(seed: int, legs=LEGS) -> list[Case]:
     return cases
 
 
-def make_walk_cases(seed: int) -> list[Case]:
+def make_walk_cases(seed: int, cycle: str = 'calibration') -> list[Case]:
     """Walk cases: the stand cases' effects and scopes, gaits and terrains in turn, and a clean walk
-    of every gait on flat ground and on the blocks."""
+    of every gait on flat ground and on the blocks; every walk with the gait ``cycle`` (WALK_CYCLES)."""
     cases = []
     for i, c in enumerate(make_cases(seed + 1000)):
         if not c.effects:
             continue
         gait, terrain = GAITS[i % 3], TERRAINS[(i // 3) % 2]
-        cases.append(Case(f'{gait}/{terrain}:{c.name}', c.effects, walk=(gait, terrain)))
+        cases.append(Case(f'{gait}/{terrain}:{c.name}', c.effects, walk=(gait, terrain), cycle=cycle))
     for terrain in TERRAINS:
         for gait in GAITS:
-            cases.append(Case(f'{gait}/{terrain}:clean', (), walk=(gait, terrain)))
+            cases.append(Case(f'{gait}/{terrain}:clean', (), walk=(gait, terrain), cycle=cycle))
     return cases
 
 
@@ -177,10 +181,9 @@ def record_walk(case: Case, out_dir: Path, robot=None) -> tuple[Path, float]:
         ov = out_dir / (bag.name + '.truth.yaml')
         ov.write_text(yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
         overlays = (str(ov),)
-    # a calibration walk (config/calibration_walk.yaml): with the default, faster cycle the body moves
-    # under the swinging legs and the clean walks leave 0.4-1.3 ticks (docs/discrepancy.md)
     cfg = TrialConfig(gait=gait, terrain=terrain, duration_s=WALK_S, course_end_m=3.0, record=str(bag),
-                      start_x_m=WALK_START_X[terrain], overlays=overlays, **calibration_walk())
+                      start_x_m=WALK_START_X[terrain], overlays=overlays,
+                      **(calibration_walk() if case.cycle == 'calibration' else {}))
     with contextlib.redirect_stdout(io.StringIO()):
         run_trial(cfg)
     for ov in overlays:           # the tool only ever sees the bag
@@ -445,6 +448,10 @@ def main(argv=None) -> int:
     ap.add_argument('--set', choices=('stand', 'walk', 'all'), default='stand',
                     help='stand: the calibration routine on a stand (default); walk: %d s walks of the three gaits '
                          'on flat ground and the blocks; all: both' % WALK_S)
+    ap.add_argument('--walk-cycle', choices=WALK_CYCLES, default='calibration',
+                    help="the walks' gait cycle: calibration = config/calibration_walk.yaml (the cycle of Fig. 4 in "
+                         "sequence, unhurried; what a robot is recorded with to name effects); default = the "
+                         "controller's default (overlapped, faster)")
     ap.add_argument('--keep', metavar='DIR', help='keep the bags and JSON results here')
     ap.add_argument('--reuse', action='store_true',
                     help='with --keep: analyse the bags already kept there again instead of recording them anew '
@@ -467,7 +474,7 @@ def main(argv=None) -> int:
         make_walk_demo(Path(args.make_walk_demo), args.seed)
         return 0
     cases = ((make_cases(args.seed, args.legs) if args.set in ('stand', 'all') else [])
-             + (make_walk_cases(args.seed) if args.set in ('walk', 'all') else []))
+             + (make_walk_cases(args.seed, args.walk_cycle) if args.set in ('walk', 'all') else []))
     if args.list:
         print('\n'.join(c.name for c in cases))
         return 0

@@ -496,6 +496,31 @@ class HexapodSim:
         if target > self._step:
             self._advance_to_step(target)
 
+    def set_joint_state(self, angles_rad: Mapping[str, float], velocities_rad_s: Mapping[str, float]) -> None:
+        """Move joints to ``angles_rad`` with ``velocities_rad_s`` now, time and goals unchanged (a replay
+        that restarts a leg from a recorded state; on a welded base the legs do not touch each other)."""
+        m, d = self.model, self.data
+        for name, v in angles_rad.items():
+            i = self._joint_index(name)
+            w = float(velocities_rad_s.get(name, 0.0))
+            if not (math.isfinite(float(v)) and math.isfinite(w)):
+                raise SimError(f'{name}: state must be finite, got {v!r}, {w!r}')
+            d.qpos[self._qadr[i]] = float(v)
+            d.qvel[self._dadr[i]] = w
+        mujoco.mj_forward(m, d)
+
+    def joint_position_index(self, joint: str) -> int:
+        """Index of ``joint``'s angle in ``data.qpos`` (its output angle: without backlash play)."""
+        return int(self._qadr[self._joint_index(joint)])
+
+    def set_gravity(self, gravity_m_s2) -> None:
+        """Gravity in world coordinates from now on [m/s^2]. On a welded base, gravity minus the trunk's
+        acceleration (both in the trunk's frame) replays a moving body's legs as they would move on it."""
+        g = np.asarray(gravity_m_s2, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise SimError(f'gravity must be 3 finite numbers, got {gravity_m_s2!r}')
+        self.model.opt.gravity[:] = g
+
     # ------------------------------------------------------------------ torque
     def set_torque_enabled(self, enabled: bool, joints: Iterable[str] | None = None) -> None:
         """Torque on/off (Torque Enable register) for ``joints`` (default all). Re-enabling clears a shutdown."""

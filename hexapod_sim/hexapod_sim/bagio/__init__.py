@@ -31,11 +31,11 @@ definition lookup and type hashes), :mod:`.cdr` (message conversion and CDR enco
 """
 from .common import DEFAULT_QOS_PROFILE, BagError, BagMessage, BagWarning, MessageEncodeError, TopicInfo
 from .definitions import _EMBEDDED_PATH, message_definition, normalize_type_name, type_hash  # noqa: F401
-from .reader import BagReader, joint_series, recover_bag
+from .reader import BagReader, imu_series, joint_series, recover_bag
 from .writer import BagWriter, encode_message
 
 __all__ = [
     'BagError', 'BagWarning', 'MessageEncodeError', 'BagMessage', 'TopicInfo', 'BagWriter',
-    'BagReader', 'joint_series', 'message_definition', 'type_hash', 'normalize_type_name',
+    'BagReader', 'imu_series', 'joint_series', 'message_definition', 'type_hash', 'normalize_type_name',
     'DEFAULT_QOS_PROFILE', 'recover_bag', 'encode_message',
 ]

@@ -489,3 +489,22 @@ def joint_series(reader: BagReader, log_time: bool = False) -> dict[str, dict[st
             a = np.asarray(rows, dtype=float).reshape(-1, 3 if log_time else 2)
             out[topic][n] = a[np.argsort(a[:, 0], kind='stable')]
     return out
+
+
+def imu_series(reader: BagReader) -> np.ndarray | None:
+    """``/imu`` as an array (N, 7): header.stamp [s], the specific force in the body frame
+    (``linear_acceleration`` x, y, z [m/s^2]) and the angular velocity (``angular_velocity`` x, y, z
+    [rad/s]), sorted by stamp; rows with a non-finite value are dropped. None if the bag has no ``/imu``
+    of the contract's type, or fewer than two usable samples."""
+    name = reader.resolve(contract.IMU)
+    if name is None or reader.topics()[name] != contract.MSG_TYPES[contract.IMU]:
+        return None
+    rows = []
+    for _, _, _, msg in reader.messages(topics=[contract.IMU]):
+        a, w = msg.linear_acceleration, msg.angular_velocity
+        rows.append((contract.stamp_seconds(msg.header.stamp), a.x, a.y, a.z, w.x, w.y, w.z))
+    out = np.asarray(rows, dtype=float).reshape(-1, 7)
+    out = out[np.all(np.isfinite(out), axis=1)]
+    if len(out) < 2:
+        return None
+    return out[np.argsort(out[:, 0], kind='stable')]

@@ -23,6 +23,9 @@ from hexapod_model.description import ALL_JOINTS, DescriptionError, parse_joint_
 from hexapod_model.contract import stamp_parts_ns
 
 
+IMU_MIN_SPECIFIC_FORCE = 1.0     # [m/s^2]: /imu samples below are left out (see load_recording)
+
+
 class RecordingError(ValueError):
     """The recording cannot be analysed; the message says what is wrong with it."""
 
@@ -51,6 +54,10 @@ class Recording:
     t0_ns: int = 0
     source: str = '<memory>'
     glitches: tuple = ()     # samples left out as physically impossible (glitches.Glitch)
+    # /imu where the recording has one: (N, 7) stamp [s, same clock as the reads], specific force [m/s^2]
+    # and angular velocity [rad/s] in the body frame; the walk replay takes the body's motion from it
+    # (body_motion.py)
+    imu: np.ndarray | None = None
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -135,9 +142,11 @@ def load_recording(path: str | Path, robot=None) -> Recording:
     p = Path(path)
     if not p.exists():
         raise RecordingError(f'{p}: no such bag (expected a rosbag2 directory or a .mcap file)')
-    from ..bagio import BagError, BagReader, joint_series
+    from ..bagio import BagError, BagReader, imu_series, joint_series
     try:
-        series = joint_series(BagReader(str(p)), log_time=True)
+        reader = BagReader(str(p))
+        series = joint_series(reader, log_time=True)
+        imu = imu_series(reader)
     except BagError as exc:
         raise RecordingError(str(exc) if str(exc).startswith(str(p)) else f'{p}: {exc}') from None   # named once
     for topic, d in series.items():
@@ -166,5 +175,12 @@ def load_recording(path: str | Path, robot=None) -> Recording:
     glitches = tuple(sorted((Glitch(topic, j, t - t0, kind, detail)
                              for topic, found in (('command', bad_c), ('read', bad_r))
                              for j, t, kind, detail in found), key=lambda g: (g.t_s, g.joint)))
+    if imu is not None:
+        # a trunk on its legs feels about g; a sample with (almost) no specific force is the sim's sample
+        # before its first physics step, or a dropout, and would replay the legs weightless
+        imu = imu[np.linalg.norm(imu[:, 1:4], axis=1) >= IMU_MIN_SPECIFIC_FORCE]
+        imu = imu.copy() if len(imu) >= 2 else None
+    if imu is not None:
+        imu[:, 0] -= t0
     return Recording(commands=conv(cmds, 'command'), states=conv(reads, 'read'), t0_ns=t0_ms * 1_000_000,
-                     source=str(p), glitches=glitches)
+                     source=str(p), glitches=glitches, imu=imu)

@@ -204,14 +204,16 @@ def median_swing_up_s(phases: dict) -> float:
     return float(np.median(d)) if d else float('nan')
 
 
-def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.5, min_reads: int = 10) -> bool:
+def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.0, min_reads: int = 10) -> bool:
     """True if femurs are pushed up outside their swing phases: the stance legs carry the body.
 
     ``residual``: read - nominal free-leg prediction per joint (whole recording); ``swings``: the
     swing spans of :func:`swing_segments`. On a stand a femur fits the free-leg model as well
     outside its swings as inside (effects such as friction or play spread both ways); in a walk
     the body's weight pushes every stance femur above the prediction (median over the reads outside
-    the swings at least ``load_ticks`` above the median inside). A walk needs this on two femurs:
+    the swings at least ``load_ticks`` above the median inside; a pentapod's stance femurs, with five
+    legs sharing the weight, sit 0.5-2.5 ticks up in the default gait cycle, so 1.5 took some of its walks
+    for stand recordings). A walk needs this on two femurs:
     a recording of one leg is never taken for a walk (a femur that cannot hold its goal, e.g. a
     torque limit on a stand, also sits off the prediction between its motions; ``--mode walk``
     forces the choice).

@@ -59,6 +59,9 @@ class Replay:
     def __init__(self, robot: Robot, rec: Recording, joints=None, segments=None, moving_start: bool = False,
                  state_window_s: float = 0.03):
         self.robot = robot
+        # per joint, added to the prediction at each analysed read [ticks]: what a fuller replay of the
+        # nominal robot adds to the free-leg model (the body's motion in a walk, .body_motion); None = nothing
+        self.correction: dict[str, np.ndarray] | None = None
         self.moving_start = moving_start
         self.state_window_s = state_window_s
         self.rec = rec
@@ -223,6 +226,8 @@ class Replay:
             f = x - i0
             th = q[i0, col] * (1.0 - f) + q[i0 + 1, col] * f
             pred[m] = theta_to_tick(th, robot.servo)
+        if self.correction is not None and j in self.correction:
+            pred += self.correction[j]
         return pred
 
     def predict(self, robot: Robot) -> dict[str, np.ndarray]:
