@@ -193,3 +193,18 @@ def test_a_welded_replay_with_gravity_minus_acceleration_is_a_moving_body():
     sim.set_gravity([0.0, 30.0, -9.81])
     sim.step(0.3)
     assert abs(sim.data.qpos[sim.joint_position_index('leg1_coxa')] - still) > 0.01
+
+
+def test_an_imu_on_another_clock_is_not_used_and_said_so():
+    from hexapod_sim.discrepancy.recording import screen_imu
+
+    t = np.arange(0.0, 10.0, 0.0025)
+    imu = np.column_stack([t + 100.0, np.zeros_like(t), np.zeros_like(t), np.full_like(t, 9.81),
+                           np.zeros((len(t), 3))])
+    imu[0, 1:4] = 0.0                                  # the sim's first sample: no specific force
+    ok, why = screen_imu(imu, 100.0, 10.0)
+    assert why == () and len(ok) == len(t) - 1 and ok[0, 0] == pytest.approx(0.0025)
+    bad, why = screen_imu(imu, 0.0, 10.0)              # /imu 100 s after the reads
+    assert bad is None and len(why) == 1 and 'another clock' in why[0].detail and why[0].topic == 'imu'
+    from hexapod_sim.discrepancy.glitches import summary_line
+    assert '1 clock' in summary_line(why)

@@ -30,7 +30,7 @@ import numpy as np
 from hexapod_model.description import ServoParams
 from hexapod_model.servo import theta_to_tick
 
-KINDS = ('stamp_jump', 'out_of_order', 'out_of_range', 'speed')
+KINDS = ('stamp_jump', 'out_of_order', 'out_of_range', 'speed', 'clock')    # clock: /imu on another clock (recording.screen_imu)
 
 
 @dataclass(frozen=True)

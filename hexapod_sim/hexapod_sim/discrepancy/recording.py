@@ -128,6 +128,26 @@ def _to_series(d: Mapping[str, list], what: str) -> dict[str, Series]:
 
 
 # ----------------------------------------------------------------------------- bag loading
+IMU_COVER_S = 1.0      # /imu must start and end within this of the joint reads, or it is not used
+
+
+def screen_imu(imu: np.ndarray, t0_s: float, duration_s: float) -> tuple[np.ndarray | None, tuple]:
+    """``/imu`` rows (stamp [s], specific force, angular velocity) on the recording's clock (``t0_s`` taken
+    off), or None with a :class:`~.glitches.Glitch` saying why it is not used: stamps that do not cover the
+    joint reads (another clock: a bag whose /imu is stamped in wall time and its reads in sim time).
+    Samples with (almost) no specific force are left out silently: a trunk on its legs feels about g,
+    and the sim's sample before its first physics step, or a dropout, would replay the legs weightless."""
+    from .glitches import Glitch
+    imu = imu[np.linalg.norm(imu[:, 1:4], axis=1) >= IMU_MIN_SPECIFIC_FORCE].copy()
+    if len(imu) < 2:
+        return None, ()
+    imu[:, 0] -= t0_s
+    a, b = float(imu[0, 0]), float(imu[-1, 0])
+    if a > IMU_COVER_S or b < duration_s - IMU_COVER_S:
+        return None, (Glitch('imu', '', max(a, 0.0), 'clock',
+                             f'/imu stamped {a:.1f} to {b:.1f} s, the joint reads 0 to {duration_s:.1f} s: '
+                             'another clock, /imu not used'),)
+    return imu, ()
 def load_recording(path: str | Path, robot=None) -> Recording:
     """Read ``/joint_commands`` and ``/joint_states`` from a rosbag2 directory or an ``.mcap`` file.
 
@@ -172,15 +192,12 @@ def load_recording(path: str | Path, robot=None) -> Recording:
         for j, a in d.items():
             out[j] = [(float(t) - t0, float(v)) for t, v in a]
         return _to_series(out, what)
+    imu_glitches: tuple = ()
+    if imu is not None:
+        duration = max(float(a[-1, 0]) for d in (cmds, reads) for a in d.values() if len(a)) - t0
+        imu, imu_glitches = screen_imu(imu, t0, duration)
     glitches = tuple(sorted((Glitch(topic, j, t - t0, kind, detail)
                              for topic, found in (('command', bad_c), ('read', bad_r))
-                             for j, t, kind, detail in found), key=lambda g: (g.t_s, g.joint)))
-    if imu is not None:
-        # a trunk on its legs feels about g; a sample with (almost) no specific force is the sim's sample
-        # before its first physics step, or a dropout, and would replay the legs weightless
-        imu = imu[np.linalg.norm(imu[:, 1:4], axis=1) >= IMU_MIN_SPECIFIC_FORCE]
-        imu = imu.copy() if len(imu) >= 2 else None
-    if imu is not None:
-        imu[:, 0] -= t0
+                             for j, t, kind, detail in found), key=lambda g: (g.t_s, g.joint))) + imu_glitches
     return Recording(commands=conv(cmds, 'command'), states=conv(reads, 'read'), t0_ns=t0_ms * 1_000_000,
                      source=str(p), glitches=glitches, imu=imu)
