@@ -263,10 +263,12 @@ def unshown_check(bag: Path, robot=None):
     """``truly_unshown(effect, joints)`` for :func:`score`: the bench's own check, with the hidden truth,
     that a recording cannot show ``effect`` (its true magnitude) on ``joints``: added to the nominal
     model over the tool's analysed reads, it changes the prediction of the fitting and of the held-out
-    reads by less than the held-out drop the tool demands of any effect (so no fit judged on those
-    reads could confirm it: the held-out RMS cannot fall by more than the RMS of the change). The tool never runs this; it sees only the bag."""
+    reads too little for the held-out drop the tool demands of any effect on top of tick rounding, or on
+    too few held-out reads for its gain (:func:`hexapod_sim.discrepancy.fit.can_confirm` with
+    ``either``: both changes too small): no fit judged on those reads could confirm it. The tool never
+    runs this; it sees only the bag."""
     from hexapod_sim.discrepancy.analysis import analyse
-    from hexapod_sim.discrepancy.fit import Predictor, prediction_change
+    from hexapod_sim.discrepancy.fit import Predictor, can_confirm, prediction_change
     from hexapod_sim.discrepancy.recording import load_recording
     state = {}
 
@@ -281,7 +283,8 @@ def unshown_check(bag: Path, robot=None):
         if not joints:
             return True           # not analysed at all: nothing of it is shown
         e = Effect(effect.effect, joints, dict(effect.params))
-        return max(prediction_change(pred, a.split, state['p0'], e)) < a.min_drop_ticks
+        return not can_confirm(prediction_change(pred, a.split, state['p0'], e), a.min_drop_ticks,
+                               a.min_gain_ticks2, either=True)
     return check
 
 

@@ -155,3 +155,30 @@ def test_parsimony_keeps_joints_whose_own_held_out_reads_confirm_the_effect():
                          affected=('leg3_coxa', 'leg3_femur', 'leg3_tibia'))
         leg.hold_by_joint = dict(femur.hold_by_joint, leg3_coxa=(35 * 0.70 ** 2, 35 * coxa_after ** 2, 35))
         assert namer._extra_joints_confirm(leg, femur) is keep
+
+
+@pytest.mark.parametrize('min_drop', [0.03, 0.15])
+def test_least_confirmable_change_is_where_an_exact_fit_reaches_the_drop(min_drop):
+    """"Cannot show" accounts for tick rounding: reads are a smooth angle rounded to whole ticks, and
+    an effect changes the prediction by RMS ``c``. Even a fit that removes the effect exactly leaves
+    the rounding, so the held-out RMS falls by min_drop only from ``least_confirmable_change`` on (on a
+    walk 0.33 tick, not the 0.15 the drop alone suggests); and too few reads cannot give the gain."""
+    from hexapod_sim.discrepancy.fit import can_confirm, least_confirmable_change
+    least = least_confirmable_change(min_drop)
+    rng = np.random.default_rng(0)
+    angle = np.cumsum(rng.normal(0, 0.3, 200_000)) + rng.uniform(0, 1)     # a motion in ticks
+    signal = np.sin(np.arange(angle.size) / 40.0)                          # the effect's shape, RMS 1/sqrt(2)
+    drops = {}
+    for c in (0.9 * least, 1.1 * least):
+        truth = angle + c * math.sqrt(2) * signal
+        before = math.sqrt(np.mean((np.round(truth) - angle) ** 2))          # nominal model: no effect
+        after = math.sqrt(np.mean((np.round(truth) - truth) ** 2))           # the effect fitted exactly
+        drops[c] = before - after
+    assert drops[0.9 * least] < min_drop < drops[1.1 * least]
+    assert least > min_drop
+    assert can_confirm((1.1 * least, 1.1 * least, 10_000), min_drop, 10.0)
+    assert not can_confirm((0.9 * least, 1.1 * least, 10_000), min_drop, 10.0)
+    assert can_confirm((0.9 * least, 1.1 * least, 10_000), min_drop, 10.0, either=True)
+    assert not can_confirm((0.9 * least, 0.8 * least, 10_000), min_drop, 10.0, either=True)
+    n_few = int(10.0 / (1.1 * least) ** 2)                                 # too few held-out reads for the gain
+    assert not can_confirm((1.1 * least, 1.1 * least, n_few), min_drop, 10.0)

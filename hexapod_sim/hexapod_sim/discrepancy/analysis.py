@@ -115,9 +115,10 @@ class Analysis:
     glitches: tuple = ()             # samples left out as physically impossible (recording.glitches)
     # walks: per joint and gait phase (segments.PHASES) -> PhaseFit over the analysed reads
     phase_fit: dict = field(default_factory=dict)
-    # candidate effect -> analysed joints on which the recording cannot show it (locate.unobservable)
+    # candidate effect -> analysed joints on which the recording cannot show it (fit.unobservable)
     blind: dict = field(default_factory=dict)
     min_drop_ticks: float = 0.0      # held-out RMS drop an effect had to reach (the "cannot show" bound)
+    min_gain_ticks2: float = 0.0     # and held-out squared-error gain (fit.can_confirm)
 
     @property
     def found(self) -> tuple[Effect, ...]:
@@ -250,7 +251,8 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         step('naming and fitting effects')
         namer = Namer(replay, robot, split, settings, progress=step, workers=workers)
         try:
-            blind = unobservable(namer.pred, split, pred0, settings.candidates, settings.min_drop_ticks)
+            blind = unobservable(namer.pred, split, pred0, settings.candidates, settings.min_drop_ticks,
+                                 settings.min_gain_ticks2)
             effects, accepted = namer.run()
             step('before/after on held-out data')
             pred1 = namer.pred.predict(effects, replay.joints)
@@ -292,7 +294,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                         mismatches=mism, effects=found, joints=jfit, notes=notes,
                         runtime_s=time.perf_counter() - t_start, log=list(settings.log),
                         glitches=tuple(rec.glitches), phase_fit=phase_fit, blind=blind,
-                        min_drop_ticks=settings.min_drop_ticks)
+                        min_drop_ticks=settings.min_drop_ticks, min_gain_ticks2=settings.min_gain_ticks2)
     finally:
         if bar is not None:
             bar.close()

@@ -182,15 +182,42 @@ class Predictor:
         return out
 
 
-def unobservable(pred: Predictor, split: Split, base_pred: dict, candidates, min_change_ticks: float) -> dict[str, tuple]:
+def least_confirmable_change(min_drop_ticks: float) -> float:
+    """RMS change [ticks] of a prediction below which no fit can pass the held-out drop.
+
+    The reads also carry tick rounding (variance :data:`ROUNDING_VAR`, independent of the motion), so
+    even a fit that explains an effect exactly leaves RMS ``sigma = sqrt(ROUNDING_VAR)``: an effect that
+    changes the prediction by RMS ``c`` raises the nominal residual to at most
+    ``sqrt(sigma^2 + c^2)`` where nothing else is missing, and the drop reaches ``min_drop_ticks``
+    only when ``c >= sqrt((sigma + min_drop_ticks)^2 - sigma^2)``: 0.33 tick on a walk, 0.14 on a stand.
+    """
+    sigma = math.sqrt(ROUNDING_VAR)
+    return math.sqrt((sigma + min_drop_ticks) ** 2 - ROUNDING_VAR)
+
+
+def can_confirm(change: tuple[float, float, int], min_drop_ticks: float, min_gain_ticks2: float,
+                either: bool = False) -> bool:
+    """Whether an effect whose prediction change is ``change`` (:func:`prediction_change`) could pass
+    the held-out test at all: a large enough RMS change (:func:`least_confirmable_change`) on the
+    fitting and on the held-out reads (``either``: on one of them, the more cautious answer), and on
+    enough held-out reads that the squared error can fall by ``min_gain_ticks2`` (at most
+    ``n_hold * c_hold^2``)."""
+    fit_c, hold_c, n_hold = change
+    least = least_confirmable_change(min_drop_ticks)
+    big = (max if either else min)(fit_c, hold_c) >= least
+    return big and n_hold * hold_c ** 2 >= min_gain_ticks2
+
+
+def unobservable(pred: Predictor, split: Split, base_pred: dict, candidates, min_drop_ticks: float,
+                 min_gain_ticks2: float) -> dict[str, tuple]:
     """Per candidate effect: the analysed joints on which this recording cannot show it.
 
     The effect at its typical magnitude (:mod:`.effects`) is put on one joint (a payload: on one
-    leg) and the change of the prediction is measured on the analysed reads it touches. Where
-    its RMS on the fitting reads or on the held-out reads stays below ``min_change_ticks`` (the
-    held-out drop an effect must reach to be accepted), no fit can pass: by the triangle
-    inequality the held-out RMS cannot fall by more than the RMS of the change. So "cannot show"
-    is a property of the recording's motion, computed, not guessed from its conditions.
+    leg) and the change of the prediction is measured on the analysed reads it touches. Where it
+    is too small for any fit to pass the held-out test (:func:`can_confirm`: below the drop an
+    accepted effect needs on top of tick rounding, or on too few held-out reads for the gain), no
+    fit can be accepted there. So "cannot show" is a property of the recording's motion and length,
+    computed, not guessed from its conditions.
     """
     rep = pred.rep
     out = {}
@@ -200,25 +227,27 @@ def unobservable(pred: Predictor, split: Split, base_pred: dict, candidates, min
                  else [(j,) for j in rep.joints])
         blind = []
         for on in units:
-            if on and min(prediction_change(pred, split, base_pred, c.make(on, c.typical))) < min_change_ticks:
+            if on and not can_confirm(prediction_change(pred, split, base_pred, c.make(on, c.typical)),
+                                      min_drop_ticks, min_gain_ticks2):
                 blind.extend(j for j in on if not (name == 'mass_error' and j.endswith('_coxa')))
         if blind:
             out[name] = tuple(blind)
     return out
 
 
-def prediction_change(pred: Predictor, split: Split, base_pred: dict, effect: Effect) -> tuple[float, float]:
+def prediction_change(pred: Predictor, split: Split, base_pred: dict, effect: Effect) -> tuple[float, float, int]:
     """RMS change [ticks] of the prediction when ``effect`` is added, on the fitting and on the held-out
-    reads of the joints it touches (0 where it touches no analysed read)."""
+    reads of the joints it touches (0 where it touches no analysed read), and the number of those
+    held-out reads."""
     aff = sorted(_affected(effect.effect, effect.joints) & set(pred.rep.joints))
     if not aff:
-        return 0.0, 0.0
+        return 0.0, 0.0, 0
     p = pred.predict((effect,), aff)
     out = []
     for masks in (split.fit, split.hold):
         d = np.concatenate([(p[j] - base_pred[j])[masks[j]] for j in aff])
         out.append(math.sqrt(float(d @ d) / len(d)) if len(d) else 0.0)
-    return out[0], out[1]
+    return out[0], out[1], int(sum(np.count_nonzero(split.hold[j]) for j in aff))
 
 
 @dataclass

@@ -8,6 +8,7 @@ import yaml
 from hexapod_model.description import effects_to_overlay
 from .analysis import Analysis
 from .effects import BY_NAME
+from .fit import least_confirmable_change
 from .glitches import summary_line
 from .segments import PHASES
 from .locate import CONDITION_WORDS, REVEALED_BY, WINDOW_S
@@ -81,7 +82,9 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
         n_j = len(a.replay.joints)
         lines.append('')
         lines.append(f'what this recording cannot show (a typical size of the effect changes the prediction of the '
-                     f'fitting or the held-out reads by less than the {a.min_drop_ticks:g} tick an effect must gain):')
+                     f'fitting or the held-out reads by less than the {least_confirmable_change(a.min_drop_ticks):.2f} '
+                     f'tick RMS that an effect needs to gain {a.min_drop_ticks:g} tick over tick rounding, or on too '
+                     f'few held-out reads):')
         for name, js in a.blind.items():
             c = BY_NAME[name]
             n_all = n_j - (sum(1 for j in a.replay.joints if j.endswith('_coxa')) if name == 'mass_error' else 0)
