@@ -20,7 +20,7 @@ from __future__ import annotations
 import sys
 
 import rclpy
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 
 from hexapod_model.bus import BusError
 from hexapod_model.description import DescriptionError
@@ -84,7 +84,15 @@ def main(args=None) -> None:
             nodes.append(ModelNode())
             loco = LocomotionNode(bus=bus)
             nodes.append(loco)
-            ex = MultiThreadedExecutor(num_threads=2)
+            # One executor thread. No callback here waits for another callback, a service or a future
+            # of this executor: the controller runs in its own thread and only publishes; the sim
+            # node's recording subscriptions only enqueue (hexapod_sim.recorder.RecorderThread); its
+            # emergency stop, like the driver's, waits at most for the bus transaction under way.
+            # rclpy's MultiThreadedExecutor (Jazzy) busy-loops while a callback waits in its thread
+            # pool (ros2/rclpy#1452), holding the interpreter against the controller's thread: with
+            # record:=... (~660 /ground_detection callbacks per second of walking) the robot ran at
+            # 0.25-0.3 of real time, whether or not those callbacks waited for the sim's lock.
+            ex = SingleThreadedExecutor()
             for n in nodes:
                 ex.add_node(n)
             spin_while_walking(ex, loco)

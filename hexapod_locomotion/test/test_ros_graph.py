@@ -1,7 +1,8 @@
 """The ROS graph as users run it, driven by /cmd_vel: lock-stepped over DDS (deterministic), in real
 time with default parameters over DDS (the clocks agree), and composed in one process
 (``hexapod_locomotion robot``, the real-time route). Judged on simulated time and message
-contents; wall-clock limits are only failure bounds."""
+contents; wall-clock limits are only failure bounds, except for the composed robot's simulated
+seconds per wall second while recording (a ``realtime`` test)."""
 import math
 import os
 import signal
@@ -18,10 +19,13 @@ from hexapod_model.testing import installed_executable  # noqa: E402
 
 
 _exe = installed_executable
+DOMAIN_ID = 1 + os.getpid() % 19          # 1..19: this file's processes and probe; DDS stays on loopback
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'    # the probe's context too
 
 
 def _start(pkg, exe, *params, remap=()):
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1')
     args = [_exe(pkg, exe), '--ros-args'] + [a for p in params for a in ('-p', p)] + \
         [a for r in remap for a in ('-r', r)]
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -35,7 +39,7 @@ class Probe:
         from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from rclpy.executors import SingleThreadedExecutor
         self.ctx = rclpy.context.Context()
-        rclpy.init(context=self.ctx)
+        rclpy.init(context=self.ctx, domain_id=DOMAIN_ID)
         self.node = rclpy.create_node('graph_probe', context=self.ctx)
         self.pose, self.swings, self.reads = [], [], []
         self.node.create_subscription(PoseStamped, f'{ns}/sim/body_pose', self._on_pose, 100)
@@ -154,6 +158,81 @@ def test_composed_robot_walks_in_real_time_and_stops_cleanly(sig):
     assert procs[0].returncode == 0, outs
     assert 'Traceback' not in outs[0], outs[0][-3000:]
     assert 'serving /predict_swing_down' in outs[0]            # the model node is part of the graph
+
+
+class JointProbe(Probe):
+    """A :class:`Probe` that also keeps every /joint_states and /joint_commands it receives, and the
+    wall-clock time each body pose arrived."""
+
+    def __init__(self, vx=0.05):
+        from rclpy.qos import QoSProfile
+        from sensor_msgs.msg import JointState
+        self.pose_wall = []
+        super().__init__(vx=vx)
+        self.joints = {'/joint_states': [], '/joint_commands': []}
+        for topic, got in self.joints.items():
+            self.node.create_subscription(JointState, topic, lambda m, got=got: got.append(_joint_key(m)),
+                                          QoSProfile(depth=1000))
+
+    def _on_pose(self, m):
+        super()._on_pose(m)
+        self.pose_wall.append(time.monotonic())
+
+    def real_time_factor(self, skip_s=1.0):
+        """Simulated seconds per wall second over the poses received (the first ``skip_s`` of wall
+        time left out: DDS discovery)."""
+        pairs = [(w, p[0]) for w, p in zip(self.pose_wall, self.pose) if w >= self.pose_wall[0] + skip_s]
+        (w0, s0), (w1, s1) = pairs[0], pairs[-1]
+        return (s1 - s0) / (w1 - w0)
+
+
+def _joint_key(m):
+    return (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, tuple(m.name), tuple(m.position))
+
+
+@pytest.mark.realtime
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_composed_robot_records_in_real_time_every_message_it_published(sig, tmp_path):
+    """``robot record:=PATH``: the bag is written by a thread of its own and the robot keeps real time
+    (it used to fall to 0.25-0.3 of it, rclpy's MultiThreadedExecutor busy-looping over the recording
+    callbacks; measured in README.md). After Ctrl-C or SIGTERM the bag holds every /joint_states and
+    /joint_commands a subscriber received, one /joint_states per read the bus counted on /bus_timing,
+    every topic, and as many messages as the closing line says."""
+    from hexapod_sim.bagio import BagReader
+    bag = tmp_path / 'walk'
+    procs = [_start('hexapod_locomotion', 'robot', 'terrain:=flat', f'record:={bag}')]
+    probe = JointProbe(vx=0.05)
+    try:
+        probe.wait(lambda p: len(p.swings) >= 3 and len(p.joints['/joint_states']) > 2000
+                   and p.pose_wall and p.pose_wall[-1] - p.pose_wall[0] > 10.0, procs)
+    finally:
+        outs = _stop(procs, sig)
+        probe.close()
+    out = outs[0]
+    assert procs[0].returncode == 0 and 'Traceback' not in out, out[-3000:]
+    rtf = probe.real_time_factor()
+    assert rtf > 0.8 and 'cannot keep real_time_factor' not in out, (rtf, out[-3000:])
+    closing = [line for line in out.splitlines() if 'bag closed:' in line]
+    assert len(closing) == 1 and f'bag closed: {bag} (' in closing[0], out[-3000:]
+    reader = BagReader(bag)
+    assert reader.complete
+    assert closing[0].endswith(f'({reader.message_count} messages)'), (closing, reader.message_count)
+    topics = set(reader.topics())
+    for name in ('joint_states', 'joint_commands', 'clock', 'imu', 'power', 'servo_diagnostics', 'diagnostics',
+                 'bus_timing', 'sim/body_pose', 'sim/foot_contacts', 'ground_detection', 'swing_down', 'cmd_vel',
+                 'read_schedule', 'tf', 'tf_static', 'robot_description'):
+        assert f'/{name}' in topics, sorted(topics)
+    for topic, seen in probe.joints.items():
+        recorded = {_joint_key(m.msg) for m in reader.messages(topics=[topic])}
+        missing = [k for k in seen if k not in recorded]
+        assert seen and not missing, (topic, len(seen), len(recorded), missing[:3])
+    # one /joint_states per read: the reads /bus_timing counted up to its last window are all there
+    timing = [m.msg for m in reader.messages(topics=['/bus_timing'])]
+    assert len(timing) >= 2
+    last = timing[-1].header.stamp.sec * 1_000_000_000 + timing[-1].header.stamp.nanosec
+    states = [_joint_key(m.msg)[0] for m in reader.messages(topics=['/joint_states'])]
+    assert sum(t.reads for t in timing) == sum(1 for t in states if t < last)
+    assert len(states) == len(set(states))                    # each read once
 
 
 def test_the_whole_stack_runs_under_a_namespace():

@@ -21,12 +21,24 @@ once at the first message and offered transient local as their publishers do, an
 (tf2_msgs/TFMessage) at :data:`TF_RATE_HZ` of log time: ``world -> base_link`` from
 ``/sim/body_pose`` and ``base_link -> ... -> leg{l}_{role}`` from the latest ``/joint_states`` of
 each joint, or from the true joint angles a simulator hands to :meth:`Recorder.write_tf`.
+
+:class:`RecorderThread` runs a :class:`Recorder` in a thread of its own, fed through a queue: the
+sim node's callers (the controller's thread in the composed robot, executor callbacks) only enqueue
+the message objects they made anyway, and never wait for the conversion, the bag writer or its
+periodic flush. The bus transactions of the composed robot no longer include the bag's writes, and
+the sim node's recording callbacks no longer wait for a transaction to end (they took the sim's
+lock). What had kept the composed robot from real time while recording was its executor (README.md,
+hexapod_locomotion.robot): rclpy's MultiThreadedExecutor (Jazzy) busy-loops while a callback waits
+in its thread pool (ros2/rclpy#1452), and the recording subscriptions make several hundred callbacks
+a second.
 """
 from __future__ import annotations
 
+import collections
 import datetime as _dt
 import os
 import struct
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +46,11 @@ from hexapod_model import contract
 from hexapod_model.description import Robot, load_robot
 from hexapod_model.tf_tree import TfTree
 from hexapod_model.urdf import urdf_xml
-from hexapod_sim.bagio import DEFAULT_QOS_PROFILE, BagWriter, encode_message
+from hexapod_sim.bagio import DEFAULT_QOS_PROFILE, BagError, BagWriter, encode_message
 
 FLUSH_PERIOD_S = 1.0          # at most this much is lost on a crash
 TF_RATE_HZ = 50.0             # /tf in log time: smooth in Foxglove, ~20 % of the bag's messages
+MAX_QUEUED = 20_000           # RecorderThread: messages waiting for the writer (~6 s of the robot's) before callers wait
 LATCHED_QOS = {**DEFAULT_QOS_PROFILE, 'depth': 1, 'durability': 'transient_local'}
 
 
@@ -308,3 +321,137 @@ class Recorder:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class RecorderThread:
+    """A :class:`Recorder` written by a thread of its own, fed through a queue (thread safe).
+
+    :meth:`write` and :meth:`write_tf_if_due` only enqueue (the message objects must not change
+    afterwards: the sim node makes a new one per message); the thread converts and writes them in
+    the order they were enqueued, so the bag holds what the same calls on the :class:`Recorder`
+    would have written. :meth:`close` writes everything enqueued before it, then closes the bag; a
+    write that comes once :meth:`close` has begun is dropped, also one that was waiting for room
+    in the queue (no caller waits for a writer that has ended).
+
+    A write that fails (disk full, a message that does not fit its topic's type) ends the
+    recording: its one-line reason is kept in :attr:`error` and handed once to ``on_error``, from
+    the writer thread; later messages are dropped and the bag is still closed at :meth:`close`
+    with what was written. A bag that cannot be closed keeps its reason in :attr:`close_error`
+    instead, not handed to ``on_error``: the caller of :meth:`close` reports it.
+
+    At most ``max_queued`` messages wait: a writer that falls that far behind (a simulation running
+    as fast as possible, ``real_time_factor:=0`` or lock-step) makes :meth:`write` wait for it, so
+    the recording throttles the caller as it did when written in line, instead of filling memory.
+    """
+
+    def __init__(self, recorder: Recorder, on_error=None, max_queued: int = MAX_QUEUED):
+        if max_queued < 1:
+            raise ValueError(f'max_queued must be >= 1, got {max_queued}')
+        self.recorder = recorder
+        self.path = recorder.path
+        self.on_error = on_error
+        self.error: str | None = None          # the write that ended the recording
+        self.close_error: str | None = None    # why the bag could not be closed
+        self._items: collections.deque = collections.deque()
+        self._max = max_queued
+        self._closed = False
+        self._ended = False                    # the writer thread has returned (closed, or died)
+        lock = threading.Lock()
+        self._not_empty = threading.Condition(lock)     # the writer waits for work
+        self._not_full = threading.Condition(lock)      # callers wait for room
+        self._thread = threading.Thread(target=self._run, name='recorder', daemon=True)
+        self._thread.start()
+
+    @property
+    def count(self) -> int:
+        """Messages written so far (those still queued not counted)."""
+        return self.recorder.count
+
+    def _put(self, item) -> None:
+        with self._not_full:
+            while len(self._items) >= self._max and not (self._closed or self._ended):
+                self._not_full.wait()
+            if self._closed or self._ended or self.error is not None:
+                return
+            self._items.append(item)
+            self._not_empty.notify()
+
+    def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
+        """:meth:`Recorder.write` from the writer thread; dropped once closed or failed."""
+        self._put((topic, msg_type, msg, t_s))
+
+    def write_tf_if_due(self, t_s: float, joint_names, joint_angles, body_pose=None) -> None:
+        """:meth:`Recorder.write_tf` from the writer thread when a /tf is due at ``t_s`` (:meth:`Recorder.tf_due`)."""
+        self._put((None, joint_names, joint_angles, body_pose, t_s))
+
+    def _take(self) -> list:
+        """Everything queued, in order (waits for some); empty once closed and drained."""
+        with self._not_empty:
+            while not self._items and not self._closed:
+                self._not_empty.wait()
+            batch = list(self._items)
+            self._items.clear()
+            self._not_full.notify_all()
+            return batch
+
+    def _run(self) -> None:
+        try:
+            self._write_batches()
+        finally:                                    # callers never wait for a writer that has ended
+            with self._not_full:
+                self._ended = True
+                self._not_full.notify_all()
+
+    def _write_batches(self) -> None:
+        rec = self.recorder
+        while True:
+            batch = self._take()
+            if not batch:
+                return
+            for item in batch:
+                if self.error is not None:
+                    break
+                try:
+                    if item[0] is None:
+                        _, names, angles, pose, t_s = item
+                        if rec.tf_due(t_s):
+                            rec.write_tf(t_s, names, angles, pose)
+                    else:
+                        rec.write(*item)
+                except Exception as exc:               # noqa: BLE001 - reported once, the robot runs on
+                    self.error = f'{item[0] or contract.TF}: {one_line(exc)}'
+                    if self.on_error is not None:
+                        try:
+                            self.on_error(self.error)
+                        except Exception:              # noqa: BLE001 - a failing report must not end the writer
+                            pass
+
+    def close(self) -> None:
+        """Write everything enqueued so far, then close the bag (idempotent)."""
+        with self._not_full:
+            if self._closed:
+                return
+            self._closed = True
+            self._not_empty.notify()
+            self._not_full.notify_all()         # callers waiting for room: their messages are dropped
+        self._thread.join()
+        try:
+            self.recorder.close()
+        except Exception as exc:                   # noqa: BLE001 - the caller reports it in its closing line
+            self.close_error = one_line(exc)
+
+    def __enter__(self) -> 'RecorderThread':
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line of text: the first line of its message, after its type unless it
+    is one whose message says it all (a bad value, the file system, the bag)."""
+    text = str(exc).strip()
+    if not text:
+        return type(exc).__name__
+    first = text.splitlines()[0]
+    return first if isinstance(exc, (ValueError, OSError, BagError)) else f'{type(exc).__name__}: {first}'

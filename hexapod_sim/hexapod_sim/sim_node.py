@@ -19,7 +19,10 @@ the old schedule.
 
 ``record``: '' (off), 'auto' (``bags/sim_<UTC time>``), a name (``bags/<name>``) or a path: every
 topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag,
-with ``/robot_description``, ``/tf_static`` and ``/tf`` (hexapod_sim.recorder).
+with ``/robot_description``, ``/tf_static`` and ``/tf`` (hexapod_sim.recorder). The bag is written by
+a thread of its own (:class:`~hexapod_sim.recorder.RecorderThread`): publishing and recording a message
+only enqueues it, so neither the controller's bus transactions nor the executor's callbacks wait for
+the bag; closing the node writes everything enqueued, then closes the bag.
 
 ``/robot_description`` (std_msgs/String, transient local): the URDF of the description.
 ``foxglove:=true`` (``foxglove_port``, default 8765): a Foxglove WebSocket live view on 127.0.0.1
@@ -53,7 +56,7 @@ from .live import LiveView, LiveViewError
 from .params import NODE, SimParams
 from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from .bagio import BagError
-from .recorder import Recorder, resolve_bag_dir
+from .recorder import Recorder, RecorderThread, resolve_bag_dir
 from .plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
 from .bus_master_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
                        TruthSample, truth_vector)
@@ -84,7 +87,7 @@ class SimNode(Node):
         self.pacer = Pacer(p.real_time_factor, self.sim.now, max_lag_s=MAX_LAG_S)
         params.on_change('real_time_factor', self.pacer.reanchor)
         self.lockstep = p.lockstep
-        self._lock = threading.RLock()      # the sim, its loop and the bag: executor vs in-process controller
+        self._lock = threading.RLock()      # the sim and its loop: executor vs in-process controller
         self._local: LocalSimBus | None = None
         self._last_timing_t_s = 0.0         # start of the /bus_timing window (bus health on /diagnostics)
         self.recorder = None
@@ -97,7 +100,7 @@ class SimNode(Node):
             self.get_logger().info(f'Foxglove live view on {self.live.url}')
         if p.record or self.live is not None:     # the live view gets what a bag would hold
             path = resolve_bag_dir(p.record) if p.record else None
-            self.recorder = Recorder(path, robot=robot, live=self.live)
+            self.recorder = RecorderThread(Recorder(path, robot=robot, live=self.live), on_error=self._recording_failed)
             if path is not None:
                 self.get_logger().info(f'recording to {path}')
 
@@ -230,9 +233,19 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ outputs
     def _record(self, topic: str, msg, t_s: float) -> None:
-        with self._lock:
-            if self.recorder is not None:
-                self.recorder.write(topic, contract.MSG_TYPES.get(topic) or _type_name(msg), msg, t_s)
+        """Hand ``msg`` to the bag's writer thread (no lock: executor callbacks must not wait for the bus)."""
+        rec = self.recorder
+        if rec is not None:
+            rec.write(topic, contract.MSG_TYPES.get(topic) or _type_name(msg), msg, t_s)
+
+    def _recording_failed(self, text: str) -> None:
+        """The writer thread could not write (disk full, ...): one line; the robot runs on, unrecorded
+        (the closing line at :meth:`close` then says how many messages the bag holds)."""
+        line = f'recording stopped: {text}; the simulation runs on without recording'
+        if self.context.ok():
+            self.get_logger().error(line)
+        else:
+            print(f'[sim_node] {line}', file=sys.stderr, flush=True)
 
     def _send(self, topic: str, msg, t_s: float) -> None:
         self.pub[topic].publish(msg)
@@ -325,17 +338,17 @@ class SimNode(Node):
             w, x, y, z = (float(v) for v in ev.quat_wxyz)
             p.pose.orientation.w, p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z = w, x, y, z
             self._send(contract.SIM_TRUTH_POSE, p, ev.t_s)
-            with self._lock:
-                if self.recorder is not None and self.recorder.tf_due(ev.t_s):   # TF of the truth in the bag
-                    self.recorder.write_tf(ev.t_s, ALL_JOINTS, ev.joint_angles_rad, (ev.position_m, ev.quat_wxyz))
+            rec = self.recorder
+            if rec is not None:                                 # TF of the truth in the bag, when due
+                rec.write_tf_if_due(ev.t_s, ALL_JOINTS, ev.joint_angles_rad, (ev.position_m, ev.quat_wxyz))
 
     def _diagnostics(self, statuses, t_s: float) -> None:
         """/diagnostics (simulated time stamps); recorded as plain data (the byte level field)."""
         self.pub[contract.DIAGNOSTICS].publish(diagnostics.diagnostic_array(statuses, stamp_msg(t_s)))
-        if self.recorder is not None:
-            with self._lock:
-                self.recorder.write(contract.DIAGNOSTICS, contract.MSG_TYPES[contract.DIAGNOSTICS],
-                                    diagnostics.array_dict(statuses, t_s), t_s)
+        rec = self.recorder
+        if rec is not None:
+            rec.write(contract.DIAGNOSTICS, contract.MSG_TYPES[contract.DIAGNOSTICS],
+                      diagnostics.array_dict(statuses, t_s), t_s)
 
     def close(self) -> None:
         """Finalise the bag (safe to call twice, also after the ROS context was shut down)."""
@@ -346,15 +359,27 @@ class SimNode(Node):
                 self.loop.truth_log.save()
             self.loop.truth_log = None
         if self.recorder is not None:
-            with self._lock:
-                self.recorder.close()
-            if self.recorder.path is not None:
-                text = f'bag closed: {self.recorder.path} ({self.recorder.count} messages)'
-                if self.context.ok():
-                    self.get_logger().info(text)
+            with self._lock:                # no transaction in between: what was published is in the bag
+                rec, self.recorder = self.recorder, None
+            rec.close()                     # writes everything enqueued, then closes the bag
+            if rec.path is not None:
+                if rec.close_error is not None:     # the bag may lack its summary: readers may refuse it
+                    level, text = 'error', (f'bag not closed cleanly: {rec.path}: {rec.close_error} '
+                                            f'({rec.count} messages written)')
+                elif rec.error is not None:         # the write error itself was logged when it happened
+                    level, text = 'warn', (f'bag closed: {rec.path} ({rec.count} messages; recording had stopped '
+                                           f'on the error above)')
+                else:
+                    level, text = 'info', f'bag closed: {rec.path} ({rec.count} messages)'
+                if self.context.ok():               # one call site per severity (rclpy wants that)
+                    if level == 'info':
+                        self.get_logger().info(text)
+                    elif level == 'warn':
+                        self.get_logger().warning(text)
+                    else:
+                        self.get_logger().error(text)
                 else:                                   # after Ctrl-C the logger's publisher is gone
-                    print(f'[sim_node] {text}', file=sys.stderr)
-            self.recorder = None
+                    print(f'[sim_node] {text}', file=sys.stderr, flush=True)
         if self.live is not None:
             self.live.close()
             self.live = None

@@ -106,3 +106,155 @@ def test_fast_cdr_packers_for_imu_pose_and_arrays(tmp_path):
                                                                    ros_to_plain(a)), k
     finally:
         w.close()
+
+
+def _calls(n_ms: int):
+    """The sim node's recording calls for ``n_ms`` of a run, as plain data: (kind, args)."""
+    import numpy as np
+    from hexapod_model.description import ALL_JOINTS
+    rng = np.random.default_rng(3)
+    for k in range(n_ms):
+        t = k * 0.001
+        joint = ALL_JOINTS[k % 18]
+        yield 'write', ('joint_states', 'sensor_msgs/msg/JointState',
+                        {'header': {'stamp': stamp_dict(t)}, 'name': [joint], 'position': [float(rng.normal())]},
+                        t + 0.001)
+        yield 'write', ('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(t)}, t)
+        if k % 10 == 0:
+            yield 'tf', (t, ALL_JOINTS, rng.uniform(-0.5, 0.5, 18), ([0.0, 0.0, 0.1], [1.0, 0.0, 0.0, 0.0]))
+
+
+def _raw(bag):
+    """Every message of the bag in the order it was written to the file (not sorted by log time)."""
+    from mcap.reader import make_reader
+    out = []
+    for f in sorted(Path(bag).glob('*.mcap')):
+        with open(f, 'rb') as fh:
+            for _schema, channel, m in make_reader(fh).iter_messages(log_time_order=False):
+                out.append((channel.topic, m.log_time, bytes(m.data)))
+    return out
+
+
+def test_recorder_thread_writes_what_the_recorder_writes_in_line(tmp_path):
+    """The sim node's writer thread: the same calls give the same bag, message for message in file
+    order, and close() writes everything enqueued before it (a small queue makes the callers wait,
+    not drop)."""
+    with Recorder(tmp_path / 'inline') as rec:
+        for kind, args in _calls(1500):
+            if kind == 'write':
+                rec.write(*args)
+            elif rec.tf_due(args[0]):
+                rec.write_tf(*args)
+    threaded = recorder.RecorderThread(Recorder(tmp_path / 'threaded'), max_queued=64)
+    for kind, args in _calls(1500):
+        (threaded.write if kind == 'write' else threaded.write_tf_if_due)(*args)
+    threaded.close()
+    threaded.close()                                   # idempotent
+    want = _raw(tmp_path / 'inline')
+    assert threaded.error is None and threaded.close_error is None
+    assert threaded.count == len(want) == 1500 * 2 + 2 + 76    # + robot description, /tf_static; /tf at 50 Hz
+    got = _raw(tmp_path / 'threaded')
+    assert [m[:2] for m in got] == [m[:2] for m in want]        # same topics and times in the same order
+    assert got == want
+    assert BagReader(tmp_path / 'threaded').complete
+    threaded.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(9.0)}, 9.0)   # after close: ignored
+    assert threaded.count == len(want)
+
+
+def _clocks(rec, offset, n):
+    for k in range(n):
+        t = offset + k * 0.001
+        rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(t)}, t)
+
+
+def _producer_stamps(bag, offset):
+    """The log times of one producer's messages (offset .. offset + 9 s), in file order."""
+    return [t for topic, t, _ in _raw(bag) if offset * 1e9 <= t < (offset + 9.0) * 1e9]
+
+
+def test_recorder_thread_takes_writes_from_several_threads_in_each_ones_order(tmp_path):
+    import threading
+    rec = recorder.RecorderThread(Recorder(tmp_path / 'many', tf_rate_hz=0), max_queued=16)
+    threads = [threading.Thread(target=_clocks, args=(rec, i * 10.0, 2000)) for i in range(3)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    rec.close()
+    for i in range(3):
+        assert _producer_stamps(tmp_path / 'many', i * 10.0) == [int(round((i * 10.0 + k * 0.001) * 1e9))
+                                                                 for k in range(2000)]
+
+
+def test_close_while_threads_write_keeps_what_came_before_and_never_blocks_a_writer(tmp_path):
+    """Executor callbacks may still record while the node closes: each writer's messages in the bag
+    are exactly those it had handed over before close() (none after, none lost), and no writer
+    waits for ever on a queue whose writer thread has ended (a queue of 1 makes that likely)."""
+    import threading
+    import time
+    rec = recorder.RecorderThread(Recorder(tmp_path / 'race', tf_rate_hz=0), max_queued=1)
+    stop = threading.Event()
+    handed = [[] for _ in range(4)]
+
+    def produce(i):
+        k = 0
+        while not stop.is_set():
+            t = i * 10.0 + k * 0.001
+            rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(t)}, t)
+            handed[i].append((t, rec._closed))      # closed already when this write returned: maybe dropped
+            k += 1
+    threads = [threading.Thread(target=produce, args=(i,), daemon=True) for i in range(4)]
+    for th in threads:
+        th.start()
+    time.sleep(0.3)
+    rec.close()
+    stop.set()
+    for th in threads:
+        th.join(10.0)
+    assert not any(th.is_alive() for th in threads), 'a writer is blocked after close()'
+    assert rec.error is None and rec.close_error is None
+    for i in range(4):
+        got = _producer_stamps(tmp_path / 'race', i * 10.0)
+        before = [int(round(t * 1e9)) for t, closed in handed[i] if not closed]
+        # every write that returned before close() began is in the bag, in order, and nothing
+        # after a dropped one: the bag holds a prefix of what this thread handed over
+        assert got[:len(before)] == before, i
+        assert got == [int(round(t * 1e9)) for t, _ in handed[i][:len(got)]], i
+    assert 4 < rec.count <= sum(len(h) for h in handed)
+    assert BagReader(tmp_path / 'race').complete
+
+
+def test_a_failed_write_stops_the_recording_in_one_report_and_keeps_the_bag(tmp_path):
+    errors = []
+    rec = recorder.RecorderThread(Recorder(tmp_path / 'bad', tf_rate_hz=0), on_error=errors.append)
+    rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(0.0)}, 0.0)
+    rec.write('clock', 'std_msgs/msg/String', {'data': 'not a clock'}, 0.001)     # the topic has another type
+    rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(0.002)}, 0.002)
+    rec.close()
+    assert errors == [rec.error]
+    assert rec.error == ('clock: topic /clock is recorded as rosgraph_msgs/msg/Clock, '
+                         'cannot write std_msgs/msg/String on it'), rec.error
+    assert rec.close_error is None
+    rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(0.003)}, 0.003)     # closed: dropped
+    reader = BagReader(tmp_path / 'bad')
+    assert reader.complete and [m.t_ns for m in reader.messages()] == [0]
+
+
+def test_a_bag_that_cannot_be_closed_is_said_so_once_by_the_caller(tmp_path):
+    errors = []
+    rec = recorder.RecorderThread(Recorder(tmp_path / 'unclosable', tf_rate_hz=0), on_error=errors.append)
+    rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(0.0)}, 0.0)
+
+    def full(*_):
+        raise OSError(28, 'No space left on device')
+    rec.recorder._writer._mcap.finish = full          # the summary cannot be written
+    rec.close()
+    assert errors == [] and rec.error is None
+    assert rec.close_error == '[Errno 28] No space left on device'
+
+
+def test_one_line_names_the_error_in_one_line():
+    assert recorder.one_line(OSError(28, 'No space left on device')) == '[Errno 28] No space left on device'
+    assert recorder.one_line(KeyError('name')) == "KeyError: 'name'"
+    assert recorder.one_line(RuntimeError('first\nsecond')) == 'RuntimeError: first'
+    assert recorder.one_line(ValueError()) == 'ValueError'

@@ -244,3 +244,90 @@ def test_diagnostics_and_robot_description_over_ros(ctx):
         sim.close()
         node.destroy_node()
         sim.destroy_node()
+
+
+def test_recording_callbacks_do_not_wait_for_a_bus_transaction(ctx, tmp_path):
+    """The recording subscriptions (/cmd_vel, /ground_detection, /swing_down) only hand the message to
+    the bag's writer thread: they run while a bus transaction holds the sim's lock, as the composed
+    robot's controller thread does for every read (they used to wait for that lock, so the executor
+    thread waited for the controller). The bag holds every /cmd_vel sent, in order."""
+    import threading
+    from geometry_msgs.msg import Twist, Vector3
+    from hexapod_sim.bagio import BagReader
+    bag = tmp_path / 'bag'
+    sim = SimNode(context=ctx, parameter_overrides=[Parameter('lockstep', value=True),
+                                                    Parameter('record', value=str(bag))])
+    node = rclpy.create_node('cmd_vel_probe', context=ctx)
+    pub = node.create_publisher(Twist, contract.CMD_VEL, 10)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(sim)
+    ex.add_node(node)
+    held, release, stop = threading.Event(), threading.Event(), threading.Event()
+
+    def transaction():                        # a bus transaction that does not end until released
+        with sim._lock:
+            held.set()
+            release.wait(60.0)
+
+    def spin():
+        while not stop.is_set():
+            ex.spin_once(timeout_sec=0.05)
+    threads = [threading.Thread(target=transaction, daemon=True), threading.Thread(target=spin, daemon=True)]
+    threads[0].start()
+    held.wait(10.0)
+    threads[1].start()
+    sent = []
+    recorded = lambda: sim.recorder.count - 2          # noqa: E731 - after the robot description, /tf_static
+    try:
+        deadline = time.monotonic() + 30.0    # failure bound only
+        while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)                  # the sim's /cmd_vel subscription matched: nothing sent is lost
+        while recorded() < 5 and time.monotonic() < deadline:
+            if len(sent) < 5:
+                sent.append(0.01 * (len(sent) + 1))
+                pub.publish(Twist(linear=Vector3(x=sent[-1])))
+            time.sleep(0.1)
+        assert threads[0].is_alive() and not release.is_set()      # the transaction held the lock throughout
+        assert recorded() == 5, f'{recorded()} of {len(sent)} /cmd_vel recorded while the bus was busy'
+    finally:
+        release.set()
+        stop.set()
+        for t in threads:
+            t.join(10.0)
+        sim.close()
+        node.destroy_node()
+        sim.destroy_node()
+    got = [m.msg.linear.x for m in BagReader(bag).messages(topics=['/cmd_vel'])]
+    assert got == sent
+
+
+def test_a_recording_error_is_one_line_and_the_node_runs_on(ctx, tmp_path, capfd):
+    """A write the bag refuses (here a message of another type on a recorded topic) stops the
+    recording with one error line; the sim keeps serving, and closing says how much the bag holds."""
+    from hexapod_sim.bagio import BagReader
+    bag = tmp_path / 'bag'
+    sim = SimNode(context=ctx, parameter_overrides=[Parameter('lockstep', value=True),
+                                                    Parameter('record', value=str(bag))])
+    rec = sim.recorder
+    try:
+        rec.write(contract.CLOCK, 'rosgraph_msgs/msg/Clock', {'clock': contract.stamp_dict(0.0)}, 0.0)
+        rec.write(contract.CLOCK, 'std_msgs/msg/String', {'data': 'not a clock'}, 0.001)
+        deadline = time.monotonic() + 30.0                # failure bound only
+        while rec.error is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert rec.error is not None
+        with sim._lock:                                   # the node still steps (one lock-step cycle)
+            for ev in sim.loop.run(max_reads=sim.loop.cycle_reads):
+                sim._publish(ev)
+    finally:
+        sim.close()
+        sim.destroy_node()
+    err = capfd.readouterr().err
+    failed = [line for line in err.splitlines() if 'recording stopped' in line]
+    assert len(failed) == 1 and '[ERROR]' in failed[0], err
+    assert 'clock: topic /clock is recorded as rosgraph_msgs/msg/Clock, cannot write std_msgs/msg/String' in failed[0]
+    closing = [line for line in err.splitlines() if 'bag closed' in line]
+    n = BagReader(bag).message_count
+    assert len(closing) == 1 and f'({n} messages; recording had stopped on the error above)' in closing[0], err
+    assert '[ERROR]' not in closing[0] and 'Traceback' not in err
+    assert n == 3                                         # robot description, /tf_static, the first /clock
