@@ -113,6 +113,22 @@ def test_each_node_refuses_a_bad_start_value_in_one_line(exe):
     assert 'Traceback' not in r.stdout + r.stderr
 
 
+@pytest.mark.parametrize('package, exe', [('hexapod_sim', 'sim_node'), ('hexapod_locomotion', 'robot')])
+def test_a_bag_that_cannot_be_created_is_one_line(package, exe, tmp_path):
+    """record:= a path no bag can be written to (root may create nearly anything, but not under /proc):
+    the sim node alone and the composed robot (whose sim node records) refuse it in one line naming
+    the path, before anything runs, and leave nothing behind."""
+    exe_path = install_prefix(package) / 'lib' / package / exe
+    r = subprocess.run([str(exe_path), '--ros-args', '-p', 'record:=/proc/no_bag_here', '-p', 'terrain:=flat'],
+                       env=dict(node_env(), ROS_DOMAIN_ID='27'), capture_output=True, text=True, timeout=120,
+                       cwd=tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode != 0, (r.stdout, r.stderr)
+    assert len(lines) == 1 and lines[0].startswith(f'{exe}: /proc/no_bag_here: ') and 'bag' in lines[0], r.stderr
+    assert 'Traceback' not in r.stdout + r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 # ------------------------------------------------------------------------------------ launch files
 def launch_nodes(path: Path) -> list[dict]:
     """Every ``Node(...)`` of a launch file: package, executable, name, parameter files

@@ -70,13 +70,14 @@ def main(args=None) -> None:
     if rc is not None:
         raise SystemExit(rc)
     from hexapod_model.model_node import ModelNode
+    from hexapod_sim.bagio import BagError
     from hexapod_sim.plant import SimError
 
     from .locomotion_node import LocomotionNode, spin_while_walking
     init_node_process(args)
     nodes, cleanups, loco = [], [], None
     try:
-        with stopping_cleanly('robot', (DescriptionError, GaitError, DetectorError, LocomotionError, SimError)):
+        with stopping_cleanly('robot', (DescriptionError, GaitError, DetectorError, LocomotionError, SimError, BagError)):
             hardware = _hardware(rclpy.get_default_context())
             master, bus, cleanup = _bus_master(hardware)
             nodes.append(master)
