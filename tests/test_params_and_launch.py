@@ -113,6 +113,19 @@ def test_each_node_refuses_a_bad_start_value_in_one_line(exe):
     assert 'Traceback' not in r.stdout + r.stderr
 
 
+def test_the_composed_robot_refuses_a_bad_locomotion_parameter_in_one_line():
+    """The composed robot checks locomotion_node's parameters before its bus master and model node
+    start (their start-up lines used to come before the refusal)."""
+    prm, line = BAD_START['locomotion_node']
+    exe_path = install_prefix('hexapod_locomotion') / 'lib' / 'hexapod_locomotion' / 'robot'
+    r = subprocess.run([str(exe_path), '--ros-args', '-p', prm, '-p', 'terrain:=flat'],
+                       env=dict(node_env(), ROS_DOMAIN_ID='28'), capture_output=True, text=True, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    assert lines == [f'robot: {line}'], r.stderr
+    assert r.stdout.strip() == '' and 'Traceback' not in r.stderr
+
+
 @pytest.mark.parametrize('package, exe', [('hexapod_sim', 'sim_node'), ('hexapod_locomotion', 'robot')])
 def test_a_bag_that_cannot_be_created_is_one_line(package, exe, tmp_path):
     """record:= a path no bag can be written to (root may create nearly anything, but not under /proc):

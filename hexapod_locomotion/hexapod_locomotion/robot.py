@@ -43,6 +43,19 @@ def _hardware(context) -> str:
         probe.destroy_node()
 
 
+def _check_locomotion_parameters(context) -> None:
+    """Refuse a bad locomotion_node parameter before any node starts (the bus master's and the model
+    node's start-up lines would come first): a short-lived node of the same name declares them."""
+    from rclpy.node import Node
+
+    from .params import LocomotionNodeParams
+    probe = Node('locomotion_node', context=context)
+    try:
+        NodeParams(probe).declare(LocomotionNodeParams)
+    finally:
+        probe.destroy_node()
+
+
 def _bus_master(hardware: str):
     """(node, its bus for the controller, cleanup)."""
     if hardware == 'driver':
@@ -79,6 +92,7 @@ def main(args=None) -> None:
     try:
         with stopping_cleanly('robot', (DescriptionError, GaitError, DetectorError, LocomotionError, SimError, BagError)):
             hardware = _hardware(rclpy.get_default_context())
+            _check_locomotion_parameters(rclpy.get_default_context())
             master, bus, cleanup = _bus_master(hardware)
             nodes.append(master)
             cleanups.append(cleanup)
