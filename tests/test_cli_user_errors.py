@@ -57,6 +57,11 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_model', 'bench_model', ['--repeats', '-1']),
     ('hexapod_model', 'bench_model', ['--t-des', '0.0001']),
     ('hexapod_sim', 'record_contract', ['--out', 'BAG']),
+    ('hexapod_sim', 'record_contract', ['--out', '/proc/no_bag_here']),        # root passes os.access there
+    ('hexapod_sim', 'discrepancy', ['BAG', '--json', '/proc/no_report.json']),  # refused before the analysis
+    ('hexapod_locomotion', 'analyse', ['BAG', '--json', '/proc/no_report.json']),
+    ('hexapod_sim', 'stand_calibration', ['--out', '/proc/no_bag_here']),
+    ('hexapod_sim', 'stand_calibration', ['--out', 'new_bag', '--device', '/dev/nonexistent_tty']),
     ('hexapod_sim', 'record_contract', ['--out', 'new_bag', '--duration', 'nan']),
     ('hexapod_sim', 'stand_calibration', ['--out', 'new_bag', '--speed-scale', '-1']),
     ('hexapod_locomotion', 'experiment', ['sweep', 't_des_s', 'nan']),

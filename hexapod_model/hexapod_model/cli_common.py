@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import tempfile
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -154,14 +155,30 @@ def existing_path(text: str) -> str:
     return text
 
 
+def _cannot_create_in(parent: Path) -> str | None:
+    """Why nothing can be created in ``parent`` (None: a probe file could be made, and was removed).
+    Tried, not judged by ``os.access``: root passes that on read-only mounts and on /proc."""
+    try:
+        fd, name = tempfile.mkstemp(dir=parent, prefix='.hexapod_write_probe_')
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    os.close(fd)
+    os.unlink(name)
+    return None
+
+
 def new_directory(text: str) -> str:
-    """argparse type: a directory to create (e.g. a bag to write): must not exist, its parent must."""
+    """argparse type: a directory to create (e.g. a bag to write): must not exist, its parent must,
+    and must take new entries."""
     p = Path(text)
     if p.exists():
         raise argparse.ArgumentTypeError(f'{text}: already exists (choose a new bag directory)')
     parent = p.parent if str(p.parent) else Path('.')
     if not parent.is_dir():
         raise argparse.ArgumentTypeError(f'{text}: directory {parent} does not exist')
+    why = _cannot_create_in(parent)
+    if why is not None:
+        raise argparse.ArgumentTypeError(f'{text}: cannot create it in {parent}: {why}')
     return text
 
 
@@ -183,8 +200,9 @@ def output_file(extensions: Iterable[str] | Callable[[], Iterable[str]] | None =
         parent = p.parent if str(p.parent) else Path('.')
         if not parent.is_dir():
             raise argparse.ArgumentTypeError(f'{text}: directory {parent} does not exist')
-        if not os.access(parent, os.W_OK):
-            raise argparse.ArgumentTypeError(f'{text}: directory {parent} is not writable')
+        why = _cannot_create_in(parent)
+        if why is not None:
+            raise argparse.ArgumentTypeError(f'{text}: directory {parent} is not writable: {why}')
         return text
     return check
 

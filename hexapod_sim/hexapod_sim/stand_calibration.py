@@ -52,11 +52,11 @@ def main(argv=None) -> int:
                                 speed_scale=args.speed_scale)
     except (DescriptionError, CalibrationError) as exc:
         ap.error(str(exc))
-    print(f'stand calibration: {plan.duration_s:.1f} s on legs {", ".join(map(str, plan.legs))} through '
-          f'{args.device}; the robot must hang free on its stand', file=sys.stderr, flush=True)
     bus = DynamixelBus(robot, DriverConfig(device=args.device))
     try:
-        bus.start()
+        bus.start()                       # a bus that cannot start is the one line below
+        print(f'stand calibration: {plan.duration_s:.1f} s on legs {", ".join(map(str, plan.legs))} through '
+              f'{args.device}; the robot must hang free on its stand', file=sys.stderr, flush=True)
         rec = run_calibration(bus, plan, progress=args.progress, robot=robot)
     except (BusError, CalibrationError, OSError) as exc:
         print(f'{ap.prog}: error: {" ".join(str(exc).split())}', file=sys.stderr)
