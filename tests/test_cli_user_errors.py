@@ -62,6 +62,10 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_locomotion', 'analyse', ['BAG', '--json', '/proc/no_report.json']),
     ('hexapod_sim', 'stand_calibration', ['--out', '/proc/no_bag_here']),
     ('hexapod_sim', 'stand_calibration', ['--out', 'new_bag', '--device', '/dev/nonexistent_tty']),
+    ('hexapod_locomotion', 'experiment', ['table4', '--out', '/proc/no_folder_here']),
+    ('hexapod_locomotion', 'experiment', ['sweep', 'epsilon_tick', '3', '--out', '/proc/no_folder_here']),
+    ('hexapod_locomotion', 'discrepancy_bench', ['--keep', '/proc/no_folder_here']),
+    ('hexapod_locomotion', 'experiment', ['table4', '--out', 'BAD_YAML']),              # a file, not a folder
     ('hexapod_sim', 'record_contract', ['--out', 'new_bag', '--duration', 'nan']),
     ('hexapod_sim', 'stand_calibration', ['--out', 'new_bag', '--speed-scale', '-1']),
     ('hexapod_locomotion', 'experiment', ['sweep', 't_des_s', 'nan']),

@@ -441,7 +441,7 @@ def make_walk_demo(out_dir: Path, seed: int) -> None:
 
 
 def main(argv=None) -> int:
-    from hexapod_model.cli_common import add_no_progress_option, make_parser, nonnegative_int, output_file
+    from hexapod_model.cli_common import add_no_progress_option, make_parser, nonnegative_int, output_directory, output_file
     from hexapod_model.executor import ExecutorError, add_executor_options
     ap = make_parser('discrepancy_bench', __doc__.splitlines()[0])
     ap.add_argument('--seed', type=nonnegative_int, default=0, help='draws the magnitudes and joints of the cases')
@@ -455,7 +455,7 @@ def main(argv=None) -> int:
                     help="the walks' gait cycle: calibration = config/calibration_walk.yaml (the cycle of Fig. 4 in "
                          "sequence, unhurried; what a robot is recorded with to name effects); default = the "
                          "controller's default (overlapped, faster)")
-    ap.add_argument('--keep', metavar='DIR', help='keep the bags and JSON results here')
+    ap.add_argument('--keep', metavar='DIR', type=output_directory, help='keep the bags and JSON results here')
     ap.add_argument('--reuse', action='store_true',
                     help='with --keep: analyse the bags already kept there again instead of recording them anew '
                          '(recording dominates a walk case; the cases are the same for the same --seed)')

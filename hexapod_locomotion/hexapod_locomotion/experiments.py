@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.cli_common import add_no_progress_option, make_parser, positive_float, positive_int
+from hexapod_model.cli_common import add_no_progress_option, make_parser, output_directory, positive_float, positive_int
 from hexapod_model.executor import ExecutorError, add_executor_options, map_jobs
 
 from .trial_runner import TrialConfig, run_trial
@@ -313,7 +313,7 @@ def main(argv=None) -> int:
     ap.add_argument('--terrain', default='mockup', choices=list(TERRAINS), help='terrain of the mockup trials')
     ap.add_argument('--fixed-threshold', type=positive_float, default=21.0,
                     help="threshold of the fixed detector [ticks] (paper: 21, found for the authors' robot)")
-    ap.add_argument('--out', default='out/experiments', help='folder for PNGs and the JSON (created)')
+    ap.add_argument('--out', default='out/experiments', type=output_directory, help='folder for PNGs and the JSON (created)')
     ap.add_argument('--json', metavar='FILE', help='JSON results (default: OUT/<which>.json)')
     ap.add_argument('--approach-rate', type=positive_float, default=IMPROVED_APPROACH_RATE,
                     help='approach_rate of the improved touchdown cells (fraction of the Eq. 15 goal rate near the '

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.cli_common import add_no_progress_option, make_parser, positive_float, positive_int
+from hexapod_model.cli_common import add_no_progress_option, make_parser, output_directory, positive_float, positive_int
 from hexapod_model.executor import ExecutorError, add_executor_options, map_jobs
 
 from .experiments import DETECTORS, GAITS, _trial_job
@@ -197,7 +197,7 @@ def main(argv=None) -> int:
     ap.add_argument('--detector', default='adaptive', choices=DETECTORS, help='detector of the base walk')
     ap.add_argument('--t-des', type=positive_float, default=1.0, help='swing-down duration of the base walk [s]')
     ap.add_argument('--terrain', default='mockup', help='terrain of the base walk')
-    ap.add_argument('--out', default='out/experiments', help='folder for the PNG and the JSON (created)')
+    ap.add_argument('--out', default='out/experiments', type=output_directory, help='folder for the PNG and the JSON (created)')
     ap.add_argument('--json', metavar='FILE', help='JSON results (default: OUT/sweep_<PARAM>.json)')
     add_executor_options(ap)
     add_no_progress_option(ap)

@@ -182,6 +182,24 @@ def new_directory(text: str) -> str:
     return text
 
 
+def output_directory(text: str) -> str:
+    """argparse type: a folder to write into, created if missing (with its parents): an existing one
+    must take new files, else its nearest existing ancestor must take new folders. Nothing is
+    created while parsing."""
+    p = Path(text)
+    if p.exists() and not p.is_dir():
+        raise argparse.ArgumentTypeError(f'{text} is a file, expected a folder')
+    base = p
+    while not base.exists():
+        base = base.parent if str(base.parent) not in ('', str(base)) else Path('.')
+    if not base.is_dir():
+        raise argparse.ArgumentTypeError(f'{text}: {base} is a file, expected a folder')
+    why = _cannot_create_in(base)
+    if why is not None:
+        raise argparse.ArgumentTypeError(f'{text}: cannot write in {base}: {why}')
+    return text
+
+
 def output_file(extensions: Iterable[str] | Callable[[], Iterable[str]] | None = None):
     """argparse type: a file to write, in an existing directory, with one of ``extensions``.
 
