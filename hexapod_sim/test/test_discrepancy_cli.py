@@ -90,6 +90,23 @@ def test_cli_names_bad_input(bag, tmp_path, capsys):
     assert 'no /joint_commands' in capsys.readouterr().err
 
 
+def test_a_truncated_bag_is_analysed_as_far_as_it_goes_with_one_warning_line(bag, tmp_path, capsys):
+    """A bag cut off mid-chunk (a crash while recording): the tool reads the messages that are
+    complete, says so in one line naming the file, and analyses them; no Python warning text."""
+    import shutil
+    path, _ = bag
+    cut = tmp_path / 'cut'
+    shutil.copytree(path, cut)
+    mcap = next(cut.glob('*.mcap'))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[:int(len(data) * 0.6)])
+    assert main([str(cut), '--no-progress']) == 0
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and ': warning: ' in lines[0] and mcap.name in lines[0] and 'truncated' in lines[0], err
+    assert 'BagWarning' not in err and 'discrepancy report' in out
+
+
 def test_time_windows_restrict_the_analysis(bag, robot):
     from hexapod_sim.discrepancy import analyse
     _, rec = bag

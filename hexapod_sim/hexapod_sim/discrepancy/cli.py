@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from pathlib import Path
 
 from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, make_parser,
@@ -17,6 +18,7 @@ from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
 from .analysis import MODES, analyse
 from .effects import BY_NAME
 from .fit import FitSettings
+from hexapod_sim.bagio import BagWarning
 from .recording import RecordingError, load_recording
 from .segments import parse_windows
 
@@ -58,7 +60,14 @@ def main(argv=None) -> int:
                 raise RecordingError(f'--joints: unknown joint(s) {bad}; names are leg<1..6>_<coxa|femur|tibia>')
         windows = parse_windows(args.windows) if args.windows else None
         robot = load_robot(args.robot, overlays=args.overlay)
-        rec = load_recording(args.bag, robot)
+        with warnings.catch_warnings(record=True) as caught:      # a damaged bag: read what is there, say so
+            warnings.simplefilter('always', BagWarning)
+            rec = load_recording(args.bag, robot)
+        for w in caught:
+            if issubclass(w.category, BagWarning):
+                print(f'{ap.prog}: warning: {" ".join(str(w.message).split())}', file=sys.stderr)
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         settings = FitSettings(min_ratio=args.min_ratio)
         if args.candidates:
             settings.candidates = tuple(args.candidates)
