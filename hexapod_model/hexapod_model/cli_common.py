@@ -184,8 +184,8 @@ def new_directory(text: str) -> str:
 
 def output_directory(text: str) -> str:
     """argparse type: a folder to write into, created if missing (with its parents): an existing one
-    must take new files, else its nearest existing ancestor must take new folders. Nothing is
-    created while parsing."""
+    must take new files, else its nearest existing ancestor must take new folders. Parsing leaves
+    nothing behind (only a probe file, made and removed: :func:`_cannot_create_in`)."""
     p = Path(text)
     if p.exists() and not p.is_dir():
         raise argparse.ArgumentTypeError(f'{text} is a file, expected a folder')
