@@ -46,6 +46,11 @@ ROUTES = ('composed', 'dds', 'driver')
 TRUTH_FILE = '{route}_truth.npz'    # one per route: --route all runs every route in one folder
 
 
+def _truth_path(workdir: str, route: str) -> str:
+    """The sim's truth log of ``route`` in ``workdir``."""
+    return os.path.join(workdir, TRUTH_FILE.format(route=route))
+
+
 def _exe(pkg: str, name: str) -> str:
     from ament_index_python.packages import get_package_prefix
     return os.path.join(get_package_prefix(pkg), 'lib', pkg, name)
@@ -59,7 +64,7 @@ def _cpu_s(pid: int) -> float:
 
 
 def _processes(route: str, args, workdir: str) -> list[tuple[str, list[str]]]:
-    truth = os.path.join(workdir, TRUTH_FILE.format(route=route))
+    truth = _truth_path(workdir, route)
     sim_params = [f'terrain:={args.terrain}', f'seed:={args.seed}', f'truth_out:={truth}']
     loco_params = [f'gait:={args.gait}', *args.param]
     p = lambda params: [a for x in params for a in ('-p', x)]  # noqa: E731
@@ -169,7 +174,7 @@ def run_route(route: str, args, workdir: str) -> dict:
     logs = [open(os.path.join(workdir, f'{route}_{i}.log'), 'w+') for i in range(3)]
     procs = []
     probe_out = os.path.join(workdir, f'{route}_probe.json')
-    truth_file = os.path.join(workdir, TRUTH_FILE.format(route=route))
+    truth_file = _truth_path(workdir, route)
     for stale in (probe_out, probe_out + '.started', truth_file):     # a kept folder of an earlier run
         if os.path.exists(stale):
             os.remove(stale)

@@ -36,6 +36,12 @@ CALIBRATION_BODY_MOTION_SHARE = 0.1    # of the analysed swing time with the bod
 CALIBRATION_SWING_UP_S = 0.15          # swing-up duration [s]; the faster cycle in sequence left up to 0.96 ticks
 
 
+def _body_motion_share(phases: dict, replay: Replay) -> float:
+    """:func:`.segments.body_motion_share` over the replay's analysed swings (firmware periods -> s)."""
+    return body_motion_share(phases, {leg: [(a * replay.dt, b * replay.dt) for a, b in v]
+                                      for leg, v in replay.segments.items()})
+
+
 def walk_replay(robot: Robot, rec: Recording, joints, segments, phases, step=lambda msg: None) -> Replay:
     """The swings of a walk, from lift-off, started in motion; where the body moves under them (other legs
     leveling) and the recording has ``/imu``, corrected by a replay with the body's motion
@@ -43,9 +49,7 @@ def walk_replay(robot: Robot, rec: Recording, joints, segments, phases, step=lam
     on a calibration walk, where the body holds still, it took the coxa backlash of the walk bench from 20 %
     to 25 % off without lowering any clean walk's worst joint below 0.5 tick that was above it."""
     replay = Replay(robot, rec, joints=joints, segments=segments, moving_start=True)
-    share = body_motion_share(phases, {leg: [(a * replay.dt, b * replay.dt) for a, b in v]
-                                       for leg, v in replay.segments.items()})
-    if rec.imu is not None and share > CALIBRATION_BODY_MOTION_SHARE:
+    if rec.imu is not None and _body_motion_share(phases, replay) > CALIBRATION_BODY_MOTION_SHARE:
         step('replaying the swings with the body motion')
         replay.correction = body_motion_correction(replay, rec, robot)
     return replay
@@ -56,8 +60,7 @@ def walk_cycle_notes(phases: dict, replay: Replay) -> list[str]:
     if replay.correction is not None:
         return []
     out = []
-    share = body_motion_share(phases, {leg: [(a * replay.dt, b * replay.dt) for a, b in v]
-                                       for leg, v in replay.segments.items()})
+    share = _body_motion_share(phases, replay)
     up = median_swing_up_s(phases)
     if share > CALIBRATION_BODY_MOTION_SHARE:
         out.append(f'the body moved under the swinging legs for {100 * share:.0f} % of the analysed swing time '

@@ -148,6 +148,8 @@ def screen_imu(imu: np.ndarray, t0_s: float, duration_s: float) -> tuple[np.ndar
                              f'/imu stamped {a:.1f} to {b:.1f} s, the joint reads 0 to {duration_s:.1f} s: '
                              'another clock, /imu not used'),)
     return imu, ()
+
+
 def load_recording(path: str | Path, robot=None) -> Recording:
     """Read ``/joint_commands`` and ``/joint_states`` from a rosbag2 directory or an ``.mcap`` file.
 
