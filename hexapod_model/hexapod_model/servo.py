@@ -72,26 +72,36 @@ def joint_tick_of_servo_tick(tick, servo: ServoParams, bus: BusJoint):
 
 
 def winding_current_a(torque_nm, speed_rad_s, servo: ServoParams):
-    """Motor current for a joint torque and speed (torque constant, gear ratio; motor side)."""
-    del speed_rad_s  # the current follows the torque; speed enters the voltage (back-EMF)
-    return np.abs(np.asarray(torque_nm, dtype=float)) / (servo.torque_constant_nm_per_a * servo.gear_ratio)
+    """Winding current [A] (signed, as the torque) of a servo whose firmware asks for ``torque_nm`` while the
+    joint turns at ``speed_rad_s``.
+
+    The AX-12A's P controller sets the motor *voltage* (Eq. 13: V = k_P err); the torque the firmware
+    model outputs is the torque that voltage gives at stall, ``K_t V / R_w`` with ``K_t = K R`` at
+    the joint. Turning, the motor's back-EMF ``K_t omega`` opposes the voltage, so the winding carries
+    ``I = (V - K_t omega) / R_w = tau / K_t - K_t omega / R_w``. The dynamics have that back-EMF
+    torque ``K_t^2 omega / R_w`` (0.17 N m s/rad at the joint) inside the damping B R^2 of Table 3
+    (0.20 N m s/rad): K^2 / R_w = 2.6e-6 of B = 3.12e-6 N m s. Where the firmware outputs no torque
+    (torque off, or no error) the H-bridge does not drive the winding: no current.
+    """
+    kt = servo.torque_constant_nm_per_a * servo.gear_ratio
+    tau = np.asarray(torque_nm, dtype=float)
+    return np.where(tau != 0.0, tau / kt - kt * np.asarray(speed_rad_s, dtype=float) / servo.winding_resistance_ohm, 0.0)
 
 
 def electrical_power_w(torque_nm, speed_rad_s, servo: ServoParams):
-    """Electrical power a servo draws: copper loss plus mechanical power (never negative).
-
-    ``P = I^2 R + max(tau * omega, 0)``; regeneration is not returned to the battery by the
-    AX-12A's H-bridge, so negative mechanical power counts as zero.
-    """
+    """Electrical power a servo draws from the battery: ``V I`` (copper loss ``I^2 R_w`` plus the
+    back-EMF's share ``K_t omega I``), with V and I of :func:`winding_current_a`. Never negative: the
+    AX-12A's H-bridge does not return a braking motor's energy to the battery. At rest it is the
+    copper loss of the holding current."""
     tau = np.asarray(torque_nm, dtype=float)
-    omega = np.asarray(speed_rad_s, dtype=float)
-    i = winding_current_a(tau, omega, servo)
-    return i * i * servo.winding_resistance_ohm + np.maximum(tau * omega, 0.0)
+    i = winding_current_a(tau, speed_rad_s, servo)
+    volts = tau / (servo.torque_constant_nm_per_a * servo.gear_ratio) * servo.winding_resistance_ohm
+    return np.maximum(volts * i, 0.0)
 
 
-def winding_loss_w(torque_nm, servo: ServoParams):
-    """Heat dissipated in the winding (I^2 R) for a joint torque."""
-    i = winding_current_a(torque_nm, 0.0, servo)
+def winding_loss_w(torque_nm, speed_rad_s, servo: ServoParams):
+    """Heat dissipated in the winding (I^2 R_w), with the current of :func:`winding_current_a`."""
+    i = winding_current_a(torque_nm, speed_rad_s, servo)
     return i * i * servo.winding_resistance_ohm
 
 

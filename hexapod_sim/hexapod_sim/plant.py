@@ -335,7 +335,7 @@ class HexapodSim:
         s = self._servo
         tau, omega = self._win_tau[:k], self._win_omega[:k]
         p = np.sum(electrical_power_w(tau, omega, s), axis=1) + self.robot.electronics_idle_power_w
-        t_inf = self.ambient_c + winding_loss_w(tau, s) * s.thermal_resistance_k_per_w
+        t_inf = self.ambient_c + winding_loss_w(tau, omega, s) * s.thermal_resistance_k_per_w
         carry, weights = self._therm_w[k]
         return (self._energy_j + float(np.sum(p)) * s.control_period_s, float(p[-1]),
                 carry * self._temp + weights @ t_inf)

@@ -432,7 +432,7 @@ def test_battery_idle_and_holding_power(robot):
     held.step(2.0)
     tau = held.applied_torque_nm()
     assert np.count_nonzero(tau) >= 2
-    want = robot.electronics_idle_power_w + float(np.sum(winding_loss_w(tau, robot.servo)))
+    want = robot.electronics_idle_power_w + float(np.sum(winding_loss_w(tau, 0.0, robot.servo)))
     assert held.battery().power_w == pytest.approx(want, abs=1e-3)
 
 
@@ -470,7 +470,7 @@ def test_overheating_servo_shuts_down(robot):
     sim.sync_write({'leg1_femur': robot.joint_limits('leg1_femur')[1]})
     sim.data.qfrc_applied[sim.model.joint('leg1_femur').dofadr[0]] = -4.0
     s = robot.servo
-    t_inf = 22.0 + s.thermal_resistance_k_per_w * float(winding_loss_w(s.stall_torque_nm, s))
+    t_inf = 22.0 + s.thermal_resistance_k_per_w * float(winding_loss_w(s.stall_torque_nm, 0.0, s))
     assert t_inf > 100
     sim.step(3.0)
     st = sim.servo_state()
