@@ -14,6 +14,7 @@ from pathlib import Path
 
 from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, fail, finite_float, make_parser,
                                       nonnegative_int, output_file, port_number, positive_float)
+from hexapod_sim.terrain import MOCKUP_COURSE_END_M
 
 from .trial_runner import TrialConfig, run_trial
 
@@ -64,7 +65,8 @@ def build_parser():
     ap.add_argument('--duration', type=positive_float, default=180.0,
                     help='simulated walking time limit [s]; checked every control period, so the walk stops '
                          'within one control period (t_con) of it, mid-phase if need be')
-    ap.add_argument('--course-end', type=finite_float, default=2.6, help='stop when the trunk passes this x [m]')
+    ap.add_argument('--course-end', type=finite_float, default=MOCKUP_COURSE_END_M,
+                    help='stop when the trunk passes this x [m]')
     ap.add_argument('--record', default='auto',
                     help="bag directory; 'auto' = bags/demo_<UTC time>; '' = do not record")
     ap.add_argument('--foxglove', metavar='PORT', nargs='?', type=port_number, const=DEFAULT_LIVE_PORT,

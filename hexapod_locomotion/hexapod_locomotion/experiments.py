@@ -28,6 +28,7 @@ import numpy as np
 
 from hexapod_model.cli_common import add_no_progress_option, make_parser, output_directory, positive_float, positive_int
 from hexapod_model.executor import ExecutorError, add_executor_options, map_jobs
+from hexapod_sim.terrain import MOCKUP_COURSE_END_M
 
 from .trial_runner import TrialConfig, run_trial
 
@@ -86,7 +87,7 @@ def run_many(configs: list[TrialConfig], jobs: int, desc: str) -> list[dict]:
 def table4_configs(trials: int, duration_s: float, terrain: str, t_des=(0.5, 1.0),
                    fixed_threshold_tick: float = 21.0) -> list[TrialConfig]:
     return [TrialConfig(gait=g, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s,
-                        course_end_m=2.6, fixed_threshold_tick=fixed_threshold_tick, **variant_fields(d))
+                        course_end_m=MOCKUP_COURSE_END_M, fixed_threshold_tick=fixed_threshold_tick, **variant_fields(d))
             for g in GAITS for t in t_des for d in VARIANTS for s in range(trials)]
 
 

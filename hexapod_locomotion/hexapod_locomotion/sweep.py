@@ -22,6 +22,7 @@ import numpy as np
 
 from hexapod_model.cli_common import add_no_progress_option, make_parser, output_directory, positive_float, positive_int
 from hexapod_model.executor import ExecutorError, add_executor_options, map_jobs
+from hexapod_sim.terrain import MOCKUP_COURSE_END_M
 
 from .experiments import DETECTORS, GAITS, _trial_job
 from .trial_runner import TrialConfig
@@ -205,7 +206,7 @@ def main(argv=None) -> int:
     if args.param not in names:
         ap.error(f'unknown parameter {args.param!r}; sweepable: {", ".join(names)}')
     base = TrialConfig(gait=args.gait, detector=args.detector, t_des_s=args.t_des, terrain=args.terrain,
-                       duration_s=args.duration, course_end_m=2.6)
+                       duration_s=args.duration, course_end_m=MOCKUP_COURSE_END_M)
     try:
         values = [parse_value(args.param, v) for v in args.values]
         if len(set(values)) != len(values):

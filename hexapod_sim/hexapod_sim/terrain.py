@@ -37,7 +37,7 @@ FIELD_HALF_WIDTH_M = 0.40            # y extent (+-) of blocks, stairs and rough
 STEP_RISE_M = 0.04                   # [P] Fig. 10: stairs with 4 cm steps
 STEP_TREAD_M = 0.20                  # tread depth of one step
 STEP_COUNT = 3                       # steps up, then a landing of LANDING_DEPTH_M
-LANDING_DEPTH_M = 0.60
+LANDING_DEPTH_M = 1.00              # long enough that the front feet still stand on it at the course end
 STAIRS_START_X_M = 0.45              # stairs terrain: x of the first riser
 ROUGH_HALF_SIZE_M = (1.5, 1.0)       # rough terrain: height field half extents (x, y)
 ROUGH_CELL_M = 0.02                  # height-field resolution
@@ -45,6 +45,10 @@ ROUGH_AMPLITUDE_M = 0.04             # peak-to-peak height of the rough terrain
 ROUGH_CORRELATION_M = 0.06           # smoothing length of the random field
 MOCKUP_BLOCKS_X_M = (0.60, 1.40)     # mockup: flat, then blocks, ...
 MOCKUP_STAIRS_X_M = 1.60             # ... then the first riser of the stairs
+# where a walk over the mockup ends (the trunk's x): on the landing, whose far edge is a drop of three
+# steps; the front feet reach about 0.3 m ahead of the trunk (with 0.6 m of landing, robots that got
+# there within a minute stepped off its edge)
+MOCKUP_COURSE_END_M = 2.60
 
 WOOD_RGBA = (0.72, 0.55, 0.35, 1.0)
 WOOD_DARK_RGBA = (0.60, 0.44, 0.27, 1.0)

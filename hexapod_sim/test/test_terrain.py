@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hexapod_model.description import load_robot
+from hexapod_model.kinematics import stance_feet
 from hexapod_sim import terrain as T
 from hexapod_sim.mjcf import scene
 
@@ -59,6 +60,16 @@ def test_mockup_is_flat_then_blocks_then_stairs_along_x():
     assert np.std(ter.height_at(bx, 0.025)) > 0.005          # y = 0.025: the middle of a block row
     assert ter.height_at(T.MOCKUP_STAIRS_X_M + 0.1, y) == pytest.approx(0.04)
     assert ter.height_at(T.MOCKUP_STAIRS_X_M + 0.5, y) == pytest.approx(0.12)
+
+
+def test_the_front_feet_stand_on_the_landing_when_a_walk_ends():
+    """A walk over the mockup ends when the trunk passes MOCKUP_COURSE_END_M; the front feet (stride
+    and all) are then still on the landing, not over its far edge, a drop of three steps."""
+    robot = load_robot()
+    front = max(f[0] for f in stance_feet(robot)) + 0.06        # neutral foothold + half the longest stride
+    ter = T.make_terrain('mockup', 0)
+    xs = np.linspace(T.MOCKUP_COURSE_END_M - 0.3, T.MOCKUP_COURSE_END_M + front + 0.02, 20)
+    np.testing.assert_allclose(ter.height_at(xs, np.zeros_like(xs)), T.STEP_RISE_M * T.STEP_COUNT)
 
 
 @pytest.mark.parametrize('name', ['flat', 'blocks', 'stairs', 'rough', 'mockup'])
