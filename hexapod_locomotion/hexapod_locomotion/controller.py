@@ -23,6 +23,7 @@ from hexapod_model.bus import ServoBus
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import UnreachableTargetError, forward, inverse, stance_feet
 from hexapod_model.leveling import LevelingError, level_body
+from hexapod_model.servo import theta_to_tick
 from hexapod_model.swing_model import LegModel, predict_swing_down
 
 from .detector import (STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, ReadResult, SwingDownPhase,
@@ -41,21 +42,19 @@ class LocomotionParams:
     t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
     # Transfer phases (node parameters too). With the overlapped transfer (overlap_transfer) the
     # leveling runs beside the next swing-up + swing-forward, so a phase is max(0.3, 0.1 + 0.2) s +
-    # settle + swing-down; issue 16, table4 trials on the mockup: with the 9 cm stride tripod and
-    # tetrapod walk at or above the paper's speeds (in sequence, 0.15 / 0.25 / 0.1 / 0.3 s and 7 cm:
-    # 63-77 %). A 0.05-0.1 s settle after a 0.15 s swing-forward left the legs moving at the
-    # swing-down start, which the model (started at rest) does not predict: 1-23 premature stops per
-    # cell. Leveling in 0.2 s raised the tripod CoT 1.6-2.5x.
+    # settle + swing-down; issue 16, table4 trials on the mockup: with the gaits' strides (9 / 10 /
+    # 12 cm) tripod, tetrapod and pentapod at t_des 1 s walk at or above the paper's speeds (in
+    # sequence, 0.15 / 0.25 / 0.1 / 0.3 s and 7 cm: 63-77 %). No settle at all (start_in_motion):
+    # 5-9 % faster, with more premature stops and missed contacts. Faster transfers (0.07 / 0.13 /
+    # 0.2 s) made the pentapod slower on the blocks (missed contacts, feet on block edges).
     t_swing_up_s: float = 0.1
     t_swing_forward_s: float = 0.2
     t_level_s: float = 0.3
-    t_settle_s: float = 0.1          # pause after swing-forward so swing-down starts from rest
+    t_settle_s: float = 0.1          # pause after swing-forward before the swing-down
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
-    # longest foothold displacement per cycle (reach: about 11 cm). A 10 cm stride stalled the
-    # real-time ROS graph at the first blocks of the mockup (docs/architecture.md); 9 cm is what
-    # tetrapod needs for the paper's speed at t_des = 1 s.
-    max_stride_m: float = 0.09
+    # longest foothold displacement per cycle; 0 = the gait's own (gaits.yaml: 9 / 10 / 12 cm)
+    max_stride_m: float = 0.0
     max_turn_rad: float = 0.25       # largest yaw per cycle
     # theta_fin this far below the nominal ground. Eq. 15 moves the goal from theta_init to theta_fin
     # in t_des, so a deeper theta_fin means a faster swing-down at the same t_des: more free-swing lag
@@ -88,6 +87,15 @@ class LocomotionParams:
     # instead of their sum. The swing-down (Algorithm 1) and the leveled pose are unchanged, and the
     # leveling still starts only after every landing leg has stopped (Fig. 4).
     overlap_transfer: bool = True
+    # Where Algorithm 1's model (CalcModel) starts, at the measured theta_init. False = at rest (the
+    # paper's robot waited for its legs). True = in the leg's motion: the same leg model, run over the
+    # goals written since the swing-up began, gives each leg's (femur, tibia) speed at the swing-down
+    # start. A leg still moving there lags differently from one at rest, and a model started at rest
+    # stops it in the air. Issue 16, table4 (10 trials of 60 s per cell): with the 12 cm pentapod
+    # stride, 0.1 s of settle leaves the legs moving, 28 / 25 premature stops at t_des 0.5 / 1 s
+    # started at rest, 4 / 2 started in motion; without any settle, free swings on flat ground:
+    # 34 -> 0 (pentapod, t_des 0.5 s).
+    start_in_motion: bool = True
 
     def __post_init__(self):
         positive = ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_level_s', 'write_period_s')
@@ -101,8 +109,8 @@ class LocomotionParams:
             raise LocomotionError(f'locomotion parameter approach_rate must be in (0, 1], got {self.approach_rate!r}')
 
     def stride_m(self, gait: Gait) -> float:
-        """Longest foothold displacement per cycle for ``gait``: max_stride_m, capped by the gait's own."""
-        return self.max_stride_m if gait.max_stride_m is None else min(self.max_stride_m, gait.max_stride_m)
+        """Longest foothold displacement per cycle for ``gait``: max_stride_m if set, else the gait's own."""
+        return self.max_stride_m if self.max_stride_m > 0 else gait.max_stride_m
 
     def transfer_s(self) -> float:
         """Duration of one phase outside the settle and the swing-down: leveling plus the next swing-up and
@@ -188,6 +196,9 @@ class GaitController:
         self.phase_index = 0
         self._pending_level: dict[str, float] | None = None  # leveling left for the next transfer
         self._rr = 0                                        # round-robin read pointer
+        # (bus time, (femur, tibia) goals of the swinging legs) per write since the swing-up began
+        self._goal_log: list[tuple[float, np.ndarray]] | None = None
+        self._logged_legs: tuple[int, ...] = ()
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the swing-down model now, before the robot moves: in
@@ -231,6 +242,7 @@ class GaitController:
             for j, v in target.items():
                 self.goals[j] = start[j] + a * (v - start[j])
             bus.sync_write({j: self.goals[j] for j in target})
+            self._log_goals(bus)
             self.idle_until(bus, t0 + i * duration_s / n)
 
     def move_keyframes(self, bus: ServoBus, keys: dict[str, list[tuple[float, float]]], duration_s: float) -> None:
@@ -244,7 +256,35 @@ class GaitController:
             for j, (ts, vs) in tables.items():
                 self.goals[j] = float(np.interp(t, ts, vs))
             bus.sync_write({j: self.goals[j] for j in keys})
+            self._log_goals(bus)
             self.idle_until(bus, t0 + t)
+
+    def start_ramp(self) -> float:
+        """Fraction of the stride allowed in this phase: it grows over the first gait cycle, (k + 1) / n
+        in phase k of n, then stays 1. From the home stance every foot starts at its neutral foothold,
+        so a full stride in the first cycle leaves the feet further apart than any later cycle does
+        (pentapod, 10 cm: a stance foot lifted off for up to 0.1 s in the first cycle, never later)."""
+        n = self.gait.n_phases
+        return min(1.0, (self.phase_index + 1) / n)
+
+    def _log_goals(self, bus: ServoBus) -> None:
+        if self._goal_log is not None:
+            self._goal_log.append((bus.now(), np.array([self.leg_angles(leg)[1:] for leg in self._logged_legs])))
+
+    def start_speeds(self, t_end_s: float) -> np.ndarray | None:
+        """(L, 2) femur and tibia speeds [rad/s] of the swinging legs at ``t_end_s`` as the swing-down
+        model predicts them: each leg from rest at its goals when the swing-up began, driven by the goals
+        written since (held between writes, one per servo control period). None without a log."""
+        log, self._goal_log = self._goal_log, None
+        dt = self.robot.servo.control_period_s
+        if not log or t_end_s - log[0][0] < dt:
+            return None
+        ts = np.array([t for t, _ in log])
+        grid = log[0][0] + dt * np.arange(int((t_end_s - log[0][0]) / dt + 1e-9))
+        held = np.searchsorted(ts, grid + 1e-9, side='right') - 1
+        ticks = np.rint(theta_to_tick(np.stack([v for _, v in log])[held], self.robot.servo))   # (n, L, 2)
+        return np.array([self.models[leg].rollout(log[0][1][slot], [0.0, 0.0], ticks[:, slot]).qd_rad_s[-1]
+                         for slot, leg in enumerate(self._logged_legs)])
 
     # ------------------------------------------------------------------ the cycle
     def startup(self, bus: ServoBus, duration_s: float = 0.5) -> None:
@@ -260,13 +300,16 @@ class GaitController:
         t_start = bus.now()
         cycle_s = p.cycle_s(self.gait)
         d = np.array([cmd.vx, cmd.vy]) * cycle_s
-        stride = p.stride_m(self.gait)
+        stride = p.stride_m(self.gait) * self.start_ramp()
         if np.linalg.norm(d) > stride:
             d *= stride / np.linalg.norm(d)
         yaw = float(np.clip(cmd.wz * cycle_s, -p.max_turn_rad, p.max_turn_rad))
 
         # 1.-2. swing-up and swing-forward (with the pending leveling, if the transfer is overlapped):
         # the feet go to the neutral foothold advanced by half the stride (and turned)
+        if p.start_in_motion:
+            self._logged_legs, self._goal_log = legs, []
+            self._log_goals(bus)
         ground_z = self._transfer(bus, legs, d, yaw, warnings)
 
         # 3. swing-down with ground detection (Algorithm 1), from the measured rest state
@@ -283,10 +326,12 @@ class GaitController:
             approach.append(self.approach_fraction(foot[2], forward(self.robot, leg, np.r_[th[0], th_fin[1:]])[2],
                                                    ground_z[leg]))
         t_sd = bus.now()
+        qd0 = self.start_speeds(t_sd) if p.start_in_motion else None
         phase = SwingDownPhase(self.robot, legs, coxa, init, fin, p.t_des_s, self.t_com_s, self.detector,
                                t_start_s=t_sd, models=self.models, approach_from=approach,
                                approach_rate=p.approach_rate,
-                               fin_dwell_steps=int(math.ceil(p.fin_dwell_s / (L * self.t_com_s) - 1e-9)))
+                               fin_dwell_steps=int(math.ceil(p.fin_dwell_s / (L * self.t_com_s) - 1e-9)),
+                               qd0_rad_s=qd0)
         if self.on_swing_start is not None:
             self.on_swing_start(phase)
         run_swing_down(bus, phase, on_read=self.on_read)

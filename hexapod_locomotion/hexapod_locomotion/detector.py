@@ -118,15 +118,18 @@ class SwingDownPhase:
     def __init__(self, robot: Robot, legs, coxa_rad, theta_init_rad, theta_fin_rad, t_des_s: float,
                  t_com_s: float, config: DetectorConfig, t_start_s: float = 0.0,
                  models: dict[int, LegModel] | None = None, approach_from=1.0, approach_rate: float = 1.0,
-                 fin_dwell_steps: int = 0):
+                 fin_dwell_steps: int = 0, qd0_rad_s=None):
         self.robot = robot
         self.legs = tuple(int(x) for x in legs)
         self.config = config
         L = len(self.legs)
         init = np.asarray(theta_init_rad, dtype=float).reshape(L, 2)
         fin = np.asarray(theta_fin_rad, dtype=float).reshape(L, 2)
-        if not (np.all(np.isfinite(init)) and np.all(np.isfinite(fin))):
-            raise DetectorError('swing-down start or final angles contain NaN')
+        qd0 = np.zeros((L, 2)) if qd0_rad_s is None else np.asarray(qd0_rad_s, dtype=float).reshape(L, 2)
+        if not (np.all(np.isfinite(init)) and np.all(np.isfinite(fin)) and np.all(np.isfinite(qd0))):
+            raise DetectorError('swing-down start or final angles (or start speeds) contain NaN')
+        # (femur, tibia) speed of each leg at the start [rad/s], where the model starts (0: at rest)
+        self.qd0_rad_s = qd0
         self.t_des_s = float(t_des_s)
         self.t_com_s = float(t_com_s)
         self.t_con_s = L * self.t_com_s                                   # line 1
@@ -157,7 +160,7 @@ class SwingDownPhase:
         self.prediction: SwingDownPrediction | None = None
         if config.kind == 'adaptive':
             self.prediction = predict_swing_down(robot, self.legs, init, fin, t_des_s, t_com_s,
-                                                 epsilon_tick=config.epsilon_tick,
+                                                 epsilon_tick=config.epsilon_tick, qd0_rad_s=qd0,
                                                  n_steps=self.n_interp + 1 + self.fin_dwell_steps, models=models,
                                                  approach_from=self.approach_from, approach_rate=self.approach_rate)
         self._start_foot_z = {leg: forward(robot, leg, [self.state[leg].coxa_rad, *init[i]])[2]
@@ -414,7 +417,9 @@ def swing_start_fields(phase: SwingDownPhase) -> dict:
             't_des_s': phase.t_des_s, 't_com_s': phase.t_com_s, 'detector': c.kind, 'epsilon_tick': c.epsilon_tick,
             'fixed_threshold_tick': c.fixed_threshold_tick, 'min_descent_m': c.min_descent_m,
             'confirm_reads': c.confirm_reads, 'approach_rate': phase.approach_rate,
-            'approach_from': [float(a) for a in phase.approach_from], 'fin_dwell_steps': phase.fin_dwell_steps}
+            'approach_from': [float(a) for a in phase.approach_from], 'fin_dwell_steps': phase.fin_dwell_steps,
+            'femur_init_rad_s': [float(v) for v in phase.qd0_rad_s[:, 0]],
+            'tibia_init_rad_s': [float(v) for v in phase.qd0_rad_s[:, 1]]}
 
 
 def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None,
@@ -426,6 +431,8 @@ def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None
     rate = float(f.get('approach_rate', 1.0) if isinstance(f, dict) else getattr(f, 'approach_rate', 1.0))
     frm = list(f.get('approach_from', ()) if isinstance(f, dict) else getattr(f, 'approach_from', ()))
     dwell = int(f.get('fin_dwell_steps', 0) if isinstance(f, dict) else getattr(f, 'fin_dwell_steps', 0))
+    # nor the start speeds before the model started from the leg's motion: at rest
+    speeds = [list(f.get(n, ()) if isinstance(f, dict) else getattr(f, n, ())) for n in ('femur_init_rad_s', 'tibia_init_rad_s')]
     cfg = DetectorConfig(kind=kind or get('detector'), epsilon_tick=float(get('epsilon_tick')),
                          fixed_threshold_tick=float(get('fixed_threshold_tick')),
                          min_descent_m=float(get('min_descent_m')), confirm_reads=int(get('confirm_reads')))
@@ -434,4 +441,5 @@ def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None
     fin = np.column_stack([get('femur_fin_rad'), get('tibia_fin_rad')])
     return SwingDownPhase(robot, legs, list(get('coxa_rad')), init, fin, float(get('t_des_s')), float(get('t_com_s')),
                           cfg, t_start_s=t_start_s, models=models, approach_from=frm if len(frm) else 1.0,
-                          approach_rate=rate if rate > 0 else 1.0, fin_dwell_steps=dwell)
+                          approach_rate=rate if rate > 0 else 1.0, fin_dwell_steps=dwell,
+                          qd0_rad_s=np.column_stack(speeds) if all(len(v) == len(legs) for v in speeds) else None)

@@ -17,6 +17,12 @@ import yaml
 from hexapod_model.description import LEGS, source_path, yaml_problem
 
 
+# stride of a gait whose definition gives none [m] (reach: about 11 cm). A 10 cm stride stalled the
+# real-time ROS graph at the first blocks of the mockup (docs/architecture.md); 9 cm is what tetrapod
+# needs for the paper's speed at t_des = 1 s.
+DEFAULT_STRIDE_M = 0.09
+
+
 class GaitError(ValueError):
     """A gait definition is malformed (the message names the gait and the problem)."""
 
@@ -25,12 +31,12 @@ class GaitError(ValueError):
 class Gait:
     name: str
     groups: tuple[tuple[int, ...], ...]
-    # longest foothold displacement per cycle this gait keeps its support with [m] (caps
-    # LocomotionParams.max_stride_m; None = no cap of its own)
-    max_stride_m: float | None = None
+    # the gait's stride: longest foothold displacement per cycle [m] with which it keeps its support
+    # (LocomotionParams.max_stride_m, when set, replaces it)
+    max_stride_m: float = DEFAULT_STRIDE_M
 
     def __post_init__(self):
-        if self.max_stride_m is not None and not (math.isfinite(self.max_stride_m) and self.max_stride_m > 0):
+        if not (isinstance(self.max_stride_m, (int, float)) and math.isfinite(self.max_stride_m) and self.max_stride_m > 0):
             raise GaitError(f'gait {self.name!r}: max_stride_m must be a finite positive number, got {self.max_stride_m!r}')
         flat = [leg for g in self.groups for leg in g]
         if not self.groups or any(not g for g in self.groups):
@@ -73,7 +79,7 @@ def gaits_from_mapping(data: Mapping) -> dict[str, Gait]:
         stride = spec.get('max_stride_m')
         if stride is not None and (isinstance(stride, bool) or not isinstance(stride, (int, float))):
             raise GaitError(f'gait {name!r}: max_stride_m must be a number, got {stride!r}')
-        out[str(name)] = Gait(str(name), groups, None if stride is None else float(stride))
+        out[str(name)] = Gait(str(name), groups, DEFAULT_STRIDE_M if stride is None else float(stride))
     return out
 
 

@@ -52,15 +52,19 @@ class LocomotionNodeParams:
                                 min=0.0, min_exclusive=True)
     t_swing_forward_s: float = param(_GAIT.t_swing_forward_s, 'swing-forward duration [s]; shorter is faster but the '
                                      'leg may not settle before the swing-down', min=0.0, min_exclusive=True)
-    t_settle_s: float = param(_GAIT.t_settle_s, 'pause before the swing-down so it starts from rest [s]; too short '
-                              'and the model, which starts at rest, mispredicts the start', min=0.0)
+    t_settle_s: float = param(_GAIT.t_settle_s, 'pause before the swing-down [s]; too short and a model started at '
+                              'rest (start_in_motion false) mispredicts the start', min=0.0)
     t_level_s: float = param(_GAIT.t_level_s, 'body leveling and forward motion duration [s]; shorter is faster but '
                              'loads the servos harder', min=0.0, min_exclusive=True)
     overlap_transfer: bool = param(_GAIT.overlap_transfer, 'gait-cycle structure: true = the body leveling after a '
                                    'swing-down runs while the next group swings up and forward (the phase takes '
                                    'max(t_level_s, t_swing_up_s + t_swing_forward_s) besides settle and swing-down); '
                                    'false = every step in sequence, as drawn in the paper\'s Fig. 4 (slower)')
-    max_stride_m: float = param(_GAIT.max_stride_m, 'largest foothold displacement per cycle [m] (a gait may cap it lower in gaits.yaml); beyond reach is clamped',
+    start_in_motion: bool = param(_GAIT.start_in_motion, 'start Algorithm 1\'s model in the leg\'s motion at the '
+                                  'swing-down start (the leg model run over the transfer\'s goals); false = at rest, as '
+                                  'the paper\'s robot, which waited for its legs (needs a long settle)')
+    max_stride_m: float = param(_GAIT.max_stride_m, 'largest foothold displacement per cycle [m]; 0 = the gait\'s own (gaits.yaml: tripod 0.09, tetrapod 0.10, pentapod 0.12); beyond '
+                                'reach is clamped',
                                 min=0.0)
     cmd_vel_timeout_s: float = param(
         2.0, 'stop walking (finish the phase, then stand) when the last /cmd_vel is older than this [s of bus '

@@ -1,7 +1,7 @@
 """Gaits as data: support counts at every phase, phase offsets, validation."""
 import pytest
 
-from hexapod_locomotion.gait import Gait, GaitError, get_gait, load_gaits
+from hexapod_locomotion.gait import DEFAULT_STRIDE_M, Gait, GaitError, get_gait, load_gaits
 
 
 @pytest.mark.parametrize('name, down', [('tripod', 3), ('tetrapod', 4), ('pentapod', 5)])
@@ -57,12 +57,13 @@ def test_bad_gaits_are_named(tmp_path):
         Gait('wave', ((1,), (2,), (3,), (4,), (5,), (6,)), -0.1)
 
 
-def test_a_gait_caps_the_stride():
+def test_a_gait_has_its_stride_and_the_parameter_replaces_it():
     from hexapod_locomotion.controller import LocomotionParams
-    p = LocomotionParams(max_stride_m=0.10)
-    assert p.stride_m(get_gait('pentapod')) == get_gait('pentapod').max_stride_m < 0.10
-    assert p.stride_m(get_gait('tripod')) == 0.10
+    p = LocomotionParams()
+    assert p.stride_m(get_gait('pentapod')) == get_gait('pentapod').max_stride_m == 0.12
+    assert p.stride_m(get_gait('tripod')) == DEFAULT_STRIDE_M
     assert LocomotionParams(max_stride_m=0.05).stride_m(get_gait('pentapod')) == 0.05
+    assert LocomotionParams(max_stride_m=0.10).stride_m(get_gait('tripod')) == 0.10
 
 
 def test_roll_pitch_yaw_of_known_rotations():

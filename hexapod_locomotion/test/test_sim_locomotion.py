@@ -334,3 +334,34 @@ def test_turns_in_place_and_on_the_move(robot, vx, wz):
         assert moved < 0.05, moved                          # in place
     else:
         assert moved > 0.05, moved
+
+
+_HURRIED = dict(t_settle_s=0.0, t_swing_up_s=0.05, t_swing_forward_s=0.1, t_level_s=0.15)   # the legs still move at the swing-down start
+
+
+@pytest.mark.parametrize('t_des', [0.5, 1.0])
+def test_a_model_started_in_motion_lets_a_hurried_leg_swing_free(robot, t_des):
+    """No settle after a fast swing-forward: the legs still move when the swing-down starts. Started at
+    rest (the paper), the model predicts less lag than the moving leg has and Algorithm 1 stops legs in
+    the air; started in the leg's motion (start_in_motion), every leg swings free to theta_fin."""
+    def stops(start_in_motion):
+        sim = HexapodSim(robot, terrain='flat', fixed_base=True)
+        c = GaitController(robot, get_gait('tripod'),
+                           LocomotionParams(t_des_s=t_des, start_in_motion=start_in_motion, **_HURRIED),
+                           DetectorConfig(kind='adaptive'), t_com_s=sim.t_com_s)
+        c.startup(sim)
+        return [o.stop_reason for _ in range(4) for o in c.step_phase(sim, VelocityCommand(0.05, 0.0, 0.0)).outcomes]
+    assert stops(True) == [STOP_THETA_FIN] * 12
+    assert STOP_CONTACT in stops(False)
+
+
+def test_a_model_started_in_motion_still_stops_on_the_block(robot):
+    sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5, start_in_motion=True, **_HURRIED),
+                       DetectorConfig(kind='adaptive'), t_com_s=sim.t_com_s)
+    c.startup(sim)
+    rep = c.step_phase(sim, VelocityCommand(0.05, 0.0, 0.0))      # legs 1, 6, 3 swing
+    o = {x.leg: x for x in rep.outcomes}
+    assert all(x.stop_reason == STOP_CONTACT for x in o.values())
+    # leg 1 on the block: it stops higher, i.e. earlier, than the legs that reach the floor
+    assert o[1].stop_time_s < min(o[6].stop_time_s, o[3].stop_time_s)

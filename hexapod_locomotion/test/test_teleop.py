@@ -90,10 +90,10 @@ def test_default_limits_are_where_the_controller_clamps():
     p = LocomotionParams()
     tripod = get_gait('tripod')                      # fewest phases: the shortest cycle
     lin, ang = controller_limits()
-    assert lin == pytest.approx(p.max_stride_m / p.cycle_s(tripod))
+    assert lin == pytest.approx(p.stride_m(tripod) / p.cycle_s(tripod))
     assert ang == pytest.approx(p.max_turn_rad / p.cycle_s(tripod))
     # a command at the limit is a full stride per cycle, not more
-    assert lin * p.cycle_s(tripod) == pytest.approx(p.max_stride_m)
+    assert lin * p.cycle_s(tripod) == pytest.approx(p.stride_m(tripod))
 
 
 def test_velocity_check_is_the_controllers_and_names_the_flag():

@@ -29,6 +29,9 @@ class ModelNode(Node):
         legs = list(req.legs)
         n = len(legs)
         arrays = [req.femur_init_rad, req.tibia_init_rad, req.femur_fin_rad, req.tibia_fin_rad]
+        speeds = [req.femur_init_rad_s, req.tibia_init_rad_s]
+        if len(speeds[0]) or len(speeds[1]):
+            arrays += speeds
         if n == 0 or any(len(a) != n for a in arrays) or any(not 1 <= leg <= 6 for leg in legs):
             resp.success = False
             resp.message = (f'legs must be 1..6 and every angle array must have one entry per leg '
@@ -38,7 +41,8 @@ class ModelNode(Node):
             pred = predict_swing_down(
                 self.robot, legs, list(zip(req.femur_init_rad, req.tibia_init_rad)),
                 list(zip(req.femur_fin_rad, req.tibia_fin_rad)), req.t_des_s, req.t_com_s,
-                epsilon_tick=req.epsilon_tick, n_steps=req.max_steps or None, models=self.models)
+                epsilon_tick=req.epsilon_tick, n_steps=req.max_steps or None, models=self.models,
+                qd0_rad_s=list(zip(*speeds)) if len(arrays) > 4 else None)
         except SwingDownError as exc:
             resp.success, resp.message = False, str(exc)
             return resp

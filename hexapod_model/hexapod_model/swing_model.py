@@ -882,6 +882,8 @@ def predict_swing_down(robot: Robot, legs, theta_init_rad, theta_fin_rad, t_des_
     if n_steps is None:
         n_steps = int(math.ceil(n_fin * 1.2)) + 1
     qd0 = np.zeros((L, 2)) if qd0_rad_s is None else np.asarray(qd0_rad_s, dtype=float).reshape(L, 2)
+    if not np.all(np.isfinite(qd0)):
+        raise SwingDownError('initial joint speeds contain NaN or infinity')
     delay = np.zeros(L) if read_delay_s is None else np.asarray(read_delay_s, dtype=float).reshape(L)
     dt = servo.control_period_s
     t_read_max = (n_steps - 1) * t_con + (L - 1) * t_com_s   # lines 8-15: the last read

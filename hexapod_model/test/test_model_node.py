@@ -62,3 +62,20 @@ def test_bad_request_is_named(client):
     resp = client(legs=[2], femur_init_rad=[0.4], tibia_init_rad=[0.1], femur_fin_rad=[0.0], tibia_fin_rad=[0.0],
                   t_des_s=-1.0, t_com_s=0.001, epsilon_tick=3.0)
     assert not resp.success and 't_des_s' in resp.message
+
+
+def test_a_start_in_motion_is_served_like_the_library(client):
+    robot = load_robot()
+    common = dict(legs=[1, 6], femur_init_rad=[0.45] * 2, tibia_init_rad=[0.1] * 2, femur_fin_rad=[-0.15] * 2,
+                  tibia_fin_rad=[-0.05] * 2, t_des_s=0.5, t_com_s=0.001, epsilon_tick=3.0, max_steps=60)
+    resp = client(femur_init_rad_s=[-1.5, 0.5], tibia_init_rad_s=[0.8, 0.0], **common)
+    assert resp.success, resp.message
+    lib = predict_swing_down(robot, [1, 6], [[0.45, 0.1]] * 2, [[-0.15, -0.05]] * 2, 0.5, 0.001, n_steps=60,
+                             qd0_rad_s=[[-1.5, 0.8], [0.5, 0.0]])
+    assert np.asarray(resp.theta_est_tick) == pytest.approx(lib.theta_est_tick.ravel())
+    at_rest = client(**common)
+    assert np.asarray(at_rest.theta_est_tick) != pytest.approx(lib.theta_est_tick.ravel())
+    resp = client(femur_init_rad_s=[-1.5], tibia_init_rad_s=[0.8], **common)
+    assert not resp.success and 'one entry per leg' in resp.message
+    resp = client(femur_init_rad_s=[float('nan'), 0.0], tibia_init_rad_s=[0.0, 0.0], **common)
+    assert not resp.success and 'speeds' in resp.message
