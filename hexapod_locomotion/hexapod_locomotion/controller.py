@@ -312,7 +312,7 @@ class GaitController:
             self._log_goals(bus)
         ground_z = self._transfer(bus, legs, d, yaw, warnings)
 
-        # 3. swing-down with ground detection (Algorithm 1), from the measured rest state
+        # 3. swing-down with ground detection (Algorithm 1), from the measured state
         self.idle_until(bus, bus.now() + p.t_settle_s)
         init, fin, coxa, approach = [], [], [], []
         for leg in legs:

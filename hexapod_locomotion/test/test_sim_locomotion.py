@@ -184,7 +184,8 @@ def test_a_stall_of_the_host_does_not_stop_a_free_swing(robot, where, stall_s):
 @pytest.mark.parametrize('where', ['before a read', 'before a write'])
 def test_a_stall_of_the_host_still_finds_the_block(robot, where):
     """Onto a block under leg 1, with a 70 ms pause every 40 writes: leg 1 still stops on contact,
-    not before its foot touched the block and within 15 control periods of it."""
+    not before its foot touched the block and within 15 control periods of it (15 of its reads: a
+    pause that falls after the touch delays the reads, and no detector stops a leg it does not read)."""
     sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
     swing, touch = [], []
     c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(kind='adaptive'),
@@ -198,7 +199,8 @@ def test_a_stall_of_the_host_still_finds_the_block(robot, where):
     assert out[1].stop_reason == STOP_CONTACT
     stop = swing[0].state[1].stop_time_s
     first = next(t for t, touching in touch if touching)
-    assert first <= stop <= first + 15 * 3 * sim.t_com_s
+    assert first <= stop
+    assert len([t for t, _ in touch if first < t <= stop + 1e-9]) <= 15
 
 
 class _PhaseOnStartTimes(SwingDownPhase):
