@@ -84,9 +84,16 @@ def run_many(configs: list[TrialConfig], jobs: int, desc: str) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------- Table 4
+# The walking command of the mockup trials: above every gait's stride limit (at most 0.063 m/s, tripod
+# at t_des 0.5 s), so each gait walks as fast as its cycle and stride allow, as the paper's robot did
+# with one parametrization of the gaits. (At 0.05 m/s the tripod at t_des 0.5 s walked the command,
+# 0.045 m/s on the mockup, under the paper's 0.046.)
+TABLE4_VX_MPS = 0.1
+
+
 def table4_configs(trials: int, duration_s: float, terrain: str, t_des=(0.5, 1.0),
                    fixed_threshold_tick: float = 21.0) -> list[TrialConfig]:
-    return [TrialConfig(gait=g, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s,
+    return [TrialConfig(gait=g, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s, vx_mps=TABLE4_VX_MPS,
                         course_end_m=MOCKUP_COURSE_END_M, fixed_threshold_tick=fixed_threshold_tick, **variant_fields(d))
             for g in GAITS for t in t_des for d in VARIANTS for s in range(trials)]
 
