@@ -96,6 +96,10 @@ class LocomotionParams:
     # started at rest, 4 / 2 started in motion; without any settle, free swings on flat ground:
     # 34 -> 0 (pentapod, t_des 0.5 s).
     start_in_motion: bool = True
+    # The stride grows over the first gait cycle (GaitController.start_ramp); False = full stride from
+    # the first phase (a calibration walk's short stride keeps its support without the ramp, and its
+    # first swings then carry as much as the later ones).
+    start_ramp: bool = True
 
     def __post_init__(self):
         positive = ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_level_s', 'write_period_s')
@@ -264,6 +268,8 @@ class GaitController:
         in phase k of n, then stays 1. From the home stance every foot starts at its neutral foothold,
         so a full stride in the first cycle leaves the feet further apart than any later cycle does
         (pentapod, 10 cm: a stance foot lifted off for up to 0.1 s in the first cycle, never later)."""
+        if not self.params.start_ramp:
+            return 1.0
         n = self.gait.n_phases
         return min(1.0, (self.phase_index + 1) / n)
 

@@ -162,7 +162,7 @@ def calibration_walk() -> dict:
     from hexapod_locomotion.trial_runner import TIMING_FIELDS
     path = Path(get_package_share_directory('hexapod_locomotion')) / 'config' / 'calibration_walk.yaml'
     values = yaml.safe_load(path.read_text())['/**']['ros__parameters']
-    known = set(TIMING_FIELDS) | {'overlap_transfer'}
+    known = set(TIMING_FIELDS) | {'overlap_transfer', 'start_ramp', 'start_in_motion'}
     unknown = sorted(set(values) - known)
     if unknown:
         raise ValueError(f'{path}: not a trial parameter: {", ".join(unknown)}')

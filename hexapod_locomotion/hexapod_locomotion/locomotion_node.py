@@ -66,7 +66,7 @@ class LocomotionNode(Node):
                              approach_rate=p.approach_rate, approach_height_m=p.approach_height_m, fin_dwell_s=p.fin_dwell_s,
                              t_swing_up_s=p.t_swing_up_s, t_swing_forward_s=p.t_swing_forward_s,
                              t_settle_s=p.t_settle_s, t_level_s=p.t_level_s, overlap_transfer=p.overlap_transfer,
-                             start_in_motion=p.start_in_motion,
+                             start_in_motion=p.start_in_motion, start_ramp=p.start_ramp,
                              background_reads=False),
             DetectorConfig(kind=p.detector, epsilon_tick=p.epsilon_tick, fixed_threshold_tick=p.fixed_threshold_tick),
             t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,

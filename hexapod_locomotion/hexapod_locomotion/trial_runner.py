@@ -50,6 +50,7 @@ class TrialConfig:
     fin_dwell_s: float = 0.0
     overlap_transfer: bool = True       # the gait cycle (LocomotionParams): False = Fig. 4 in sequence
     start_in_motion: bool = True        # Algorithm 1's model starts in the leg's motion (LocomotionParams)
+    start_ramp: bool = True             # the stride grows over the first cycle (LocomotionParams)
     # transfer-phase timing and stride (LocomotionParams, node parameters of the same names); None = its default
     t_swing_up_s: float | None = None
     t_swing_forward_s: float | None = None
@@ -72,7 +73,7 @@ def locomotion_params(cfg: TrialConfig) -> LocomotionParams:
     timing = {k: getattr(cfg, k) for k in TIMING_FIELDS if getattr(cfg, k) is not None}
     return LocomotionParams(t_des_s=cfg.t_des_s, approach_rate=cfg.approach_rate, approach_height_m=cfg.approach_height_m,
                             fin_dwell_s=cfg.fin_dwell_s, overlap_transfer=cfg.overlap_transfer,
-                            start_in_motion=cfg.start_in_motion, **timing)
+                            start_in_motion=cfg.start_in_motion, start_ramp=cfg.start_ramp, **timing)
 
 
 def joint_state_msg(t_s: float, names, positions) -> dict:
