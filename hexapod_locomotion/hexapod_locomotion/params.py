@@ -62,11 +62,11 @@ class LocomotionNodeParams:
                                    'false = every step in sequence, as drawn in the paper\'s Fig. 4 (slower)')
     start_in_motion: bool = param(_GAIT.start_in_motion, 'start Algorithm 1\'s model in the leg\'s motion at the '
                                   'swing-down start (the leg model run over the transfer\'s goals); false = at rest, as '
-                                  'the paper\'s robot, which waited for its legs (needs a long settle)')
+                                  'before (needs a settle long enough for the legs to stop)')
     start_ramp: bool = param(_GAIT.start_ramp, 'grow the stride over the first gait cycle (from the home stance a '
                              'full stride spreads the feet further than any later cycle); false = full stride at once')
-    max_stride_m: float = param(_GAIT.max_stride_m, 'largest foothold displacement per cycle [m]; 0 = the gait\'s own (gaits.yaml: tripod 0.09, tetrapod 0.10, pentapod 0.12); beyond '
-                                'reach is clamped',
+    max_stride_m: float = param(_GAIT.max_stride_m, 'largest foothold displacement per cycle [m]; 0 = the gait\'s '
+                                'own (gaits.yaml: tripod 0.09, tetrapod 0.10, pentapod 0.12); beyond reach is clamped',
                                 min=0.0)
     cmd_vel_timeout_s: float = param(
         2.0, 'stop walking (finish the phase, then stand) when the last /cmd_vel is older than this [s of bus '
