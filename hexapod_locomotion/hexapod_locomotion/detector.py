@@ -427,12 +427,16 @@ def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None
     """Rebuild a :class:`SwingDownPhase` from SwingDownStart fields (dict or message), optionally
     with the other detector ``kind``."""
     get = (lambda n: f[n]) if isinstance(f, dict) else (lambda n: getattr(f, n))
+
+    def optional(name, default):
+        """A field that older recordings lack."""
+        return f.get(name, default) if isinstance(f, dict) else getattr(f, name, default)
     # recordings made before the approach profile existed carry neither field: Eq. 15
-    rate = float(f.get('approach_rate', 1.0) if isinstance(f, dict) else getattr(f, 'approach_rate', 1.0))
-    frm = list(f.get('approach_from', ()) if isinstance(f, dict) else getattr(f, 'approach_from', ()))
-    dwell = int(f.get('fin_dwell_steps', 0) if isinstance(f, dict) else getattr(f, 'fin_dwell_steps', 0))
+    rate = float(optional('approach_rate', 1.0))
+    frm = list(optional('approach_from', ()))
+    dwell = int(optional('fin_dwell_steps', 0))
     # nor the start speeds before the model started from the leg's motion: at rest
-    speeds = [list(f.get(n, ()) if isinstance(f, dict) else getattr(f, n, ())) for n in ('femur_init_rad_s', 'tibia_init_rad_s')]
+    speeds = [list(optional(n, ())) for n in ('femur_init_rad_s', 'tibia_init_rad_s')]
     cfg = DetectorConfig(kind=kind or get('detector'), epsilon_tick=float(get('epsilon_tick')),
                          fixed_threshold_tick=float(get('fixed_threshold_tick')),
                          min_descent_m=float(get('min_descent_m')), confirm_reads=int(get('confirm_reads')))

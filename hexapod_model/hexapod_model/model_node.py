@@ -30,7 +30,8 @@ class ModelNode(Node):
         n = len(legs)
         arrays = [req.femur_init_rad, req.tibia_init_rad, req.femur_fin_rad, req.tibia_fin_rad]
         speeds = [req.femur_init_rad_s, req.tibia_init_rad_s]
-        if len(speeds[0]) or len(speeds[1]):
+        moving = bool(len(speeds[0]) or len(speeds[1]))     # empty: every leg starts at rest
+        if moving:
             arrays += speeds
         if n == 0 or any(len(a) != n for a in arrays) or any(not 1 <= leg <= 6 for leg in legs):
             resp.success = False
@@ -42,7 +43,7 @@ class ModelNode(Node):
                 self.robot, legs, list(zip(req.femur_init_rad, req.tibia_init_rad)),
                 list(zip(req.femur_fin_rad, req.tibia_fin_rad)), req.t_des_s, req.t_com_s,
                 epsilon_tick=req.epsilon_tick, n_steps=req.max_steps or None, models=self.models,
-                qd0_rad_s=list(zip(*speeds)) if len(arrays) > 4 else None)
+                qd0_rad_s=list(zip(*speeds)) if moving else None)
         except SwingDownError as exc:
             resp.success, resp.message = False, str(exc)
             return resp
