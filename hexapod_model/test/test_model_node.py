@@ -79,3 +79,37 @@ def test_a_start_in_motion_is_served_like_the_library(client):
     assert not resp.success and 'one entry per leg' in resp.message
     resp = client(femur_init_rad_s=[float('nan'), 0.0], tibia_init_rad_s=[0.0, 0.0], **common)
     assert not resp.success and 'speeds' in resp.message
+
+
+def test_the_running_model_node_refuses_bad_start_speeds_and_serves_on():
+    """The installed model_node process: a request with a NaN start speed gets one named refusal, the
+    node keeps serving (a request with start speeds is answered), and Ctrl-C ends it cleanly."""
+    import subprocess
+
+    from hexapod_msgs.srv import PredictSwingDown
+
+    from hexapod_model.testing import installed_executable, node_env, ros_probe, stop_process
+    domain = 225 + os.getpid() % 10                  # 225..234: this test's own
+    proc = subprocess.Popen([installed_executable('hexapod_model', 'model_node')], env=node_env(domain),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        with ros_probe('model_node_process_test', domain) as (node, ex):
+            cli = node.create_client(PredictSwingDown, PREDICT_SWING_DOWN)
+            assert cli.wait_for_service(timeout_sec=30.0), 'model_node did not come up'
+
+            def call(**fields):
+                req = PredictSwingDown.Request(legs=[1, 6], femur_init_rad=[0.45] * 2, tibia_init_rad=[0.1] * 2,
+                                               femur_fin_rad=[-0.15] * 2, tibia_fin_rad=[-0.05] * 2, t_des_s=0.5,
+                                               t_com_s=0.001, epsilon_tick=3.0, max_steps=20, **fields)
+                fut = cli.call_async(req)
+                ex.spin_until_future_complete(fut, timeout_sec=30.0)
+                assert fut.done(), 'no answer from model_node'
+                return fut.result()
+            bad = call(femur_init_rad_s=[float('nan'), 0.0], tibia_init_rad_s=[0.0, 0.0])
+            assert not bad.success and 'speeds' in bad.message
+            good = call(femur_init_rad_s=[-1.5, 0.5], tibia_init_rad_s=[0.8, 0.0])
+            assert good.success and len(good.theta_est_tick) == 40
+    finally:
+        rc, out = stop_process(proc)
+    assert rc == 0, out
+    assert 'Traceback' not in out, out
