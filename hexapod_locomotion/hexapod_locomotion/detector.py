@@ -43,6 +43,12 @@ class DetectorError(ValueError):
 class DetectorConfig:
     kind: str = 'adaptive'           # 'adaptive' (Eq. 17) or 'fixed'
     epsilon_tick: float = 3.0        # Eq. 17 margin (paper: 3 ticks)
+    # Eq. 17 margin while a leg dwells at theta_fin (SwingDownPhase fin_dwell_steps > 0, the improved
+    # touchdown; Algorithm 1 has no dwell). The goal stands still there and the modelled leg settles
+    # to rest, so the model needs no margin for the goal's motion: a contact at the end of a slow
+    # approach adds under epsilon_tick to the error and was missed (issue 16: most of the improved
+    # touchdown's missed contacts). Below about 1 tick the servo's own quantisation decides.
+    dwell_epsilon_tick: float = 3.0
     fixed_threshold_tick: float = 21.0   # baseline threshold of the earlier work
     min_descent_m: float = 0.004     # a detection before the foot has descended this much is suspect
     confirm_reads: int = 3           # ...and must then persist for this many consecutive reads
@@ -55,7 +61,7 @@ class DetectorConfig:
     def __post_init__(self):
         if self.kind not in DETECTOR_KINDS:
             raise DetectorError(f"detector kind must be one of {DETECTOR_KINDS}, got {self.kind!r}")
-        for name in ('epsilon_tick', 'fixed_threshold_tick', 'min_descent_m'):
+        for name in ('epsilon_tick', 'dwell_epsilon_tick', 'fixed_threshold_tick', 'min_descent_m'):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0:
                 raise DetectorError(f'{name} must be a finite non-negative number, got {v!r}')
@@ -306,7 +312,8 @@ class SwingDownPhase:
             ro = self._rollouts[slot]
             est = float(theta_to_tick(np.interp(t_model, np.arange(len(ro.q_rad)) * ro.dt_s, ro.q_rad[:, 0]), servo))
             err_est = s.direction * (des - est)
-            thld = err_est + self.config.epsilon_tick                      # Eq. 17
+            dwelling = self.fin_dwell_steps > 0 and k >= self._n_fin[slot]
+            thld = err_est + (self.config.dwell_epsilon_tick if dwelling else self.config.epsilon_tick)   # Eq. 17
         else:
             est, err_est = math.nan, math.nan
             thld = self.config.fixed_threshold_tick
@@ -415,7 +422,8 @@ def swing_start_fields(phase: SwingDownPhase) -> dict:
             'femur_init_rad': [float(s.theta_init[0]) for s in st], 'tibia_init_rad': [float(s.theta_init[1]) for s in st],
             'femur_fin_rad': [float(s.theta_fin[0]) for s in st], 'tibia_fin_rad': [float(s.theta_fin[1]) for s in st],
             't_des_s': phase.t_des_s, 't_com_s': phase.t_com_s, 'detector': c.kind, 'epsilon_tick': c.epsilon_tick,
-            'fixed_threshold_tick': c.fixed_threshold_tick, 'min_descent_m': c.min_descent_m,
+            'fixed_threshold_tick': c.fixed_threshold_tick, 'dwell_epsilon_tick': c.dwell_epsilon_tick,
+            'min_descent_m': c.min_descent_m,
             'confirm_reads': c.confirm_reads, 'approach_rate': phase.approach_rate,
             'approach_from': [float(a) for a in phase.approach_from], 'fin_dwell_steps': phase.fin_dwell_steps,
             'femur_init_rad_s': [float(v) for v in phase.qd0_rad_s[:, 0]],
@@ -437,7 +445,10 @@ def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None
     dwell = int(optional('fin_dwell_steps', 0))
     # nor the start speeds before the model started from the leg's motion: at rest
     speeds = [list(optional(n, ())) for n in ('femur_init_rad_s', 'tibia_init_rad_s')]
-    cfg = DetectorConfig(kind=kind or get('detector'), epsilon_tick=float(get('epsilon_tick')),
+    eps = float(get('epsilon_tick'))
+    cfg = DetectorConfig(kind=kind or get('detector'), epsilon_tick=eps,
+                         # before the dwell's own margin existed the dwell used Eq. 17's
+                         dwell_epsilon_tick=float(optional('dwell_epsilon_tick', eps)),
                          fixed_threshold_tick=float(get('fixed_threshold_tick')),
                          min_descent_m=float(get('min_descent_m')), confirm_reads=int(get('confirm_reads')))
     legs = [int(x) for x in get('legs')]

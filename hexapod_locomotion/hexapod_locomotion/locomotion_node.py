@@ -68,7 +68,8 @@ class LocomotionNode(Node):
                              t_settle_s=p.t_settle_s, t_level_s=p.t_level_s, overlap_transfer=p.overlap_transfer,
                              start_in_motion=p.start_in_motion, start_ramp=p.start_ramp,
                              background_reads=False),
-            DetectorConfig(kind=p.detector, epsilon_tick=p.epsilon_tick, fixed_threshold_tick=p.fixed_threshold_tick),
+            DetectorConfig(kind=p.detector, epsilon_tick=p.epsilon_tick, dwell_epsilon_tick=p.dwell_epsilon_tick,
+                           fixed_threshold_tick=p.fixed_threshold_tick),
             t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
             on_swing_start=self._publish_swing_start)
         self.controller.warm_up()

@@ -26,6 +26,11 @@ class LocomotionNodeParams:
                           'baseline threshold)', choices=DETECTOR_KINDS)
     epsilon_tick: float = param(_DET.epsilon_tick, 'Eq. 17 margin [ticks]; too small stops legs early, too large '
                                 'stops late', min=0.0)
+    dwell_epsilon_tick: float = param(_DET.dwell_epsilon_tick, 'Eq. 17 margin [ticks] while a leg dwells at theta_fin '
+                                      '(fin_dwell_s > 0): the goal stands still there, so a smaller margin finds a '
+                                      'contact at the end of a slow approach; too small and a free leg at theta_fin is '
+                                      'taken for a contact (leveled on ground that is not there); the default is Eq. '
+                                      '17\'s 3 ticks, the experiments\' improved touchdown uses 1', min=0.0)
     fixed_threshold_tick: float = param(_DET.fixed_threshold_tick, 'baseline threshold [ticks] of the fixed '
                                         'detector', min=0.0)
     t_des_s: float = param(_GAIT.t_des_s, 'swing-down duration [s]; shorter is faster but hits the ground harder',

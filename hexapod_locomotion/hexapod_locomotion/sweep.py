@@ -77,8 +77,7 @@ def check_config(cfg: TrialConfig) -> None:
     from hexapod_sim.terrain import TERRAINS
 
     from .controller import LocomotionError
-    from .detector import DetectorConfig
-    from .trial_runner import locomotion_params
+    from .trial_runner import detector_config, locomotion_params
     from .gait import get_gait
     if cfg.terrain not in TERRAINS:
         raise SweepError(f'terrain: unknown terrain {cfg.terrain!r}; known: {sorted(TERRAINS)}')
@@ -91,7 +90,7 @@ def check_config(cfg: TrialConfig) -> None:
         load_robot(overlays=cfg.overlays)
         get_gait(cfg.gait)
         locomotion_params(cfg)
-        DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
+        detector_config(cfg)
     except (ValueError, LocomotionError) as exc:
         raise SweepError(str(exc).splitlines()[0]) from None
 

@@ -48,15 +48,18 @@ class TrialConfig:
     approach_rate: float = 1.0          # touchdown goal profile (LocomotionParams): 1 = the paper's Eq. 15
     approach_height_m: float = 0.015
     fin_dwell_s: float = 0.0
+    dwell_epsilon_tick: float | None = None   # Eq. 17 margin in the dwell (DetectorConfig); None = epsilon_tick
     overlap_transfer: bool = True       # the gait cycle (LocomotionParams): False = Fig. 4 in sequence
     start_in_motion: bool = True        # Algorithm 1's model starts in the leg's motion (LocomotionParams)
     start_ramp: bool = True             # the stride grows over the first cycle (LocomotionParams)
-    # transfer-phase timing and stride (LocomotionParams, node parameters of the same names); None = its default
+    # transfer-phase timing, stride and theta_fin depth (LocomotionParams, node parameters of the same names);
+    # None = its default
     t_swing_up_s: float | None = None
     t_swing_forward_s: float | None = None
     t_settle_s: float | None = None
     t_level_s: float | None = None
     max_stride_m: float | None = None
+    ground_depth_m: float | None = None
     probe_period_s: float = 0.05        # truth sampling period (pose, energy, temperature)
     record: str | None = None           # bag directory, or None
     overlays: tuple[str, ...] = ()
@@ -65,7 +68,7 @@ class TrialConfig:
     video_fps: float = 10.0
 
 
-TIMING_FIELDS = ('t_swing_up_s', 't_swing_forward_s', 't_settle_s', 't_level_s', 'max_stride_m')
+TIMING_FIELDS = ('t_swing_up_s', 't_swing_forward_s', 't_settle_s', 't_level_s', 'max_stride_m', 'ground_depth_m')
 
 
 def locomotion_params(cfg: TrialConfig) -> LocomotionParams:
@@ -74,6 +77,13 @@ def locomotion_params(cfg: TrialConfig) -> LocomotionParams:
     return LocomotionParams(t_des_s=cfg.t_des_s, approach_rate=cfg.approach_rate, approach_height_m=cfg.approach_height_m,
                             fin_dwell_s=cfg.fin_dwell_s, overlap_transfer=cfg.overlap_transfer,
                             start_in_motion=cfg.start_in_motion, start_ramp=cfg.start_ramp, **timing)
+
+
+def detector_config(cfg: TrialConfig) -> DetectorConfig:
+    """The detector of a trial (DetectorConfig checks it: DetectorError names a bad value)."""
+    dwell = cfg.epsilon_tick if cfg.dwell_epsilon_tick is None else cfg.dwell_epsilon_tick
+    return DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, dwell_epsilon_tick=dwell,
+                          fixed_threshold_tick=cfg.fixed_threshold_tick)
 
 
 def joint_state_msg(t_s: float, names, positions) -> dict:
@@ -339,7 +349,7 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     def on_swing_start(phase):
         swing_downs.append(phase)
         probe.record_swing_start(phase)
-    det = DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, fixed_threshold_tick=cfg.fixed_threshold_tick)
+    det = detector_config(cfg)
     controller = GaitController(robot, get_gait(cfg.gait),
                                 locomotion_params(cfg),
                                 det, t_com_s=sim.t_com_s, on_read=probe.record_detection, on_swing_start=on_swing_start)

@@ -158,3 +158,36 @@ def test_demo_says_when_it_writes_the_gif(tmp_path, capsys):
     assert gif.stat().st_size > 10_000 and f'video: {gif}' in out
     tail = err.replace('\r', '\n').rstrip().splitlines()
     assert tail[-1].startswith(f'writing GIF {gif} (') and 'walking:' in err     # the bar is not redrawn after it
+
+
+def test_the_improved_touchdown_is_replayed_with_its_dwell_margin(tmp_path):
+    """/swing_down carries the dwell's Eq. 17 margin, so analyse re-runs the improved touchdown as the
+    walk ran it; a recording made before the field existed replays the dwell with Eq. 17's margin."""
+    from hexapod_locomotion.detector import DetectorConfig, SwingDownPhase, phase_from_fields, swing_start_fields
+    from hexapod_locomotion.experiments import variant_fields
+    from hexapod_model.description import load_robot
+    bag = tmp_path / 'improved'
+    fields = variant_fields('improved')
+    assert fields['dwell_epsilon_tick'] < 3.0
+    res = run_trial(TrialConfig(gait='tripod', t_des_s=0.5, terrain='blocks', duration_s=12, record=str(bag), **fields))
+    r = rerun_detectors(str(bag))
+    assert r['swing_downs'] == res.phases >= 3
+    assert r['reproduced'] == r['legs_evaluated'] == 3 * res.phases, r['not_reproduced'][:3]
+    # read back by an independent reader (rosbags, with the bag's own message definitions)
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    store = get_typestore(Stores.EMPTY)
+    with Reader(bag) as reader:
+        for conn in reader.connections:
+            store.register(get_types_from_msg(conn.msgdef.data, conn.msgtype))
+        starts = [store.deserialize_cdr(d, c.msgtype) for c, _, d in reader.messages()
+                  if c.msgtype == 'hexapod_msgs/msg/SwingDownStart']
+    assert len(starts) >= res.phases
+    assert {(m.dwell_epsilon_tick, m.epsilon_tick, m.fin_dwell_steps > 0) for m in starts} == {(1.0, 3.0, True)}
+    robot = load_robot()
+    ph = SwingDownPhase(robot, (1,), [0.0], [[0.9, -0.9]], [[0.05, -0.75]], 0.5, 0.001,
+                        DetectorConfig(dwell_epsilon_tick=1.0), fin_dwell_steps=5)
+    f = swing_start_fields(ph)
+    assert phase_from_fields(robot, f, 0.0).config.dwell_epsilon_tick == 1.0
+    old = {k: v for k, v in f.items() if k != 'dwell_epsilon_tick'}
+    assert phase_from_fields(robot, old, 0.0).config.dwell_epsilon_tick == old['epsilon_tick'] == 3.0

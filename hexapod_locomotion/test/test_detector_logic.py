@@ -99,6 +99,30 @@ def test_dwell_at_theta_fin_finds_ground_just_above_it(robot, approach_rate):
         SwingDownPhase(robot, (1,), [0.0], [RAISED], [FIN], 0.5, 0.001, DetectorConfig(), approach_rate=1.5)
 
 
+def test_dwell_margin_finds_ground_a_servo_tick_above_theta_fin(robot):
+    """Ground 0.3 mm above the foot at theta_fin (about half a femur tick): in a 12-step dwell Eq. 17's
+    3-tick margin lets the leg run out to theta_fin, the dwell's own 1-tick margin finds the ground. Before
+    the dwell (and in Algorithm 1, which has none) the threshold is Eq. 17's, whatever the dwell's."""
+    ground = forward(robot, 1, [0.0, *FIN])[2] + 0.0003
+    out = {}
+    for dwell_eps in (3.0, 1.0):
+        bus = KinematicGroundBus(robot, ground_z_m=ground)
+        ph = SwingDownPhase(robot, (1, 6, 3), [0.0] * 3, [RAISED] * 3, [FIN] * 3, 0.5, 0.001,
+                            DetectorConfig(dwell_epsilon_tick=dwell_eps), approach_from=0.6, approach_rate=0.5,
+                            fin_dwell_steps=12)
+        run_swing_down(bus, ph)
+        out[dwell_eps] = ph
+    assert all(s.stop_reason == STOP_THETA_FIN for s in out[3.0].state.values())
+    assert all(s.stop_reason == STOP_CONTACT and s.stop_step >= out[1.0].n_interp for s in out[1.0].state.values())
+    for leg in (1, 6, 3):
+        before = [r for r in out[1.0].state[leg].history if r.step < out[1.0].n_interp]
+        assert all(r.threshold_tick == pytest.approx(r.err_est_tick + 3.0) for r in before)
+        dwelling = [r for r in out[1.0].state[leg].history if r.step >= out[1.0].n_interp]
+        assert dwelling and all(r.threshold_tick == pytest.approx(r.err_est_tick + 1.0) for r in dwelling)
+    with pytest.raises(DetectorError, match='dwell_epsilon_tick'):
+        DetectorConfig(dwell_epsilon_tick=-1.0)
+
+
 def test_bad_detector_input(robot):
     with pytest.raises(DetectorError, match="must be one of \\('adaptive', 'fixed'\\)"):
         DetectorConfig(kind='psychic')
@@ -144,7 +168,7 @@ def test_overlapped_transfer_levels_while_the_next_group_swings(robot):
             c.step_phase(bus, VelocityCommand(0.2, 0.0, 0.0))
         c.finish(bus)
         assert all(o.stop_reason == STOP_CONTACT for r in reports for o in r.outcomes)
-        runs[overlap] = (p, reports, np.array([c.foot(leg) for leg in range(1, 7)]))
+        runs[overlap] = (c.params, reports, np.array([c.foot(leg) for leg in range(1, 7)]))
     p, seq, feet_seq = runs[False]
     _, ovl, feet_ovl = runs[True]
     for r in seq[1:]:

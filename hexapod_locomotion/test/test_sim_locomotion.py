@@ -97,18 +97,22 @@ def test_improved_touchdown_stops_before_the_body_rises(robot, t_des):
 
 
 @pytest.mark.parametrize('t_des', [0.5, 1.0, 2.0])
-@pytest.mark.parametrize('approach_rate, fin_dwell_s', [(1.0, 0.0), (0.5, 0.05)])
-def test_no_premature_stop_in_free_swing(robot, t_des, approach_rate, fin_dwell_s):
+@pytest.mark.parametrize('cell', ['adaptive', 'improved'])
+@pytest.mark.parametrize('gait', ['tripod', 'pentapod'])
+def test_no_premature_stop_in_free_swing(robot, t_des, cell, gait):
     """On a stand (no ground) every swing-down must run to theta_fin, with the paper's Eq. 15 goals
-    and with the improved touchdown's approach profile and its dwell at theta_fin."""
+    and with the improved touchdown (the experiments' cell: approach profile, dwell at theta_fin and
+    the dwell's smaller Eq. 17 margin)."""
+    from hexapod_locomotion.experiments import variant_fields
+    from hexapod_locomotion.trial_runner import TrialConfig, detector_config, locomotion_params
+    cfg = TrialConfig(gait=gait, t_des_s=t_des, **variant_fields(cell))
     sim = HexapodSim(robot, terrain='flat', fixed_base=True)
-    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=t_des, approach_rate=approach_rate,
-                                                                    fin_dwell_s=fin_dwell_s),
-                       DetectorConfig(kind='adaptive'), t_com_s=sim.t_com_s)
+    c = GaitController(robot, get_gait(gait), locomotion_params(cfg), detector_config(cfg), t_com_s=sim.t_com_s)
     c.startup(sim)
-    for _ in range(2):
+    legs = len(get_gait(gait).swing_legs(0))
+    for _ in range(6 // legs):
         rep = c.step_phase(sim, VelocityCommand(0.05, 0.0, 0.0))
-        assert [o.stop_reason for o in rep.outcomes] == [STOP_THETA_FIN] * 3
+        assert [o.stop_reason for o in rep.outcomes] == [STOP_THETA_FIN] * legs
         assert all(o.premature_suspects == 0 for o in rep.outcomes)
 
 
