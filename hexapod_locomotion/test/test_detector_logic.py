@@ -168,7 +168,7 @@ def test_overlapped_transfer_levels_while_the_next_group_swings(robot):
             c.step_phase(bus, VelocityCommand(0.2, 0.0, 0.0))
         c.finish(bus)
         assert all(o.stop_reason == STOP_CONTACT for r in reports for o in r.outcomes)
-        runs[overlap] = (c.params, reports, np.array([c.foot(leg) for leg in range(1, 7)]))
+        runs[overlap] = (p, reports, np.array([c.foot(leg) for leg in range(1, 7)]))
     p, seq, feet_seq = runs[False]
     _, ovl, feet_ovl = runs[True]
     for r in seq[1:]:
