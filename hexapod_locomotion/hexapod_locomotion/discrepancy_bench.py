@@ -159,10 +159,10 @@ def calibration_walk() -> dict:
     package, the file a robot's walk is recorded with) as TrialConfig fields."""
     from ament_index_python.packages import get_package_share_directory
 
-    from hexapod_locomotion.trial_runner import TIMING_FIELDS
+    from hexapod_locomotion.trial_runner import CYCLE_FLAGS, TIMING_FIELDS
     path = Path(get_package_share_directory('hexapod_locomotion')) / 'config' / 'calibration_walk.yaml'
     values = yaml.safe_load(path.read_text())['/**']['ros__parameters']
-    known = set(TIMING_FIELDS) | {'overlap_transfer', 'start_ramp', 'start_in_motion'}
+    known = set(TIMING_FIELDS) | set(CYCLE_FLAGS)
     unknown = sorted(set(values) - known)
     if unknown:
         raise ValueError(f'{path}: not a trial parameter: {", ".join(unknown)}')

@@ -69,14 +69,15 @@ class TrialConfig:
 
 
 TIMING_FIELDS = ('t_swing_up_s', 't_swing_forward_s', 't_settle_s', 't_level_s', 'max_stride_m', 'ground_depth_m')
+# the gait-cycle switches, passed to LocomotionParams under their own names
+CYCLE_FLAGS = ('overlap_transfer', 'start_in_motion', 'start_ramp')
 
 
 def locomotion_params(cfg: TrialConfig) -> LocomotionParams:
     """The controller's parameters of a trial (LocomotionParams checks them: LocomotionError names a bad one)."""
     timing = {k: getattr(cfg, k) for k in TIMING_FIELDS if getattr(cfg, k) is not None}
     return LocomotionParams(t_des_s=cfg.t_des_s, approach_rate=cfg.approach_rate, approach_height_m=cfg.approach_height_m,
-                            fin_dwell_s=cfg.fin_dwell_s, overlap_transfer=cfg.overlap_transfer,
-                            start_in_motion=cfg.start_in_motion, start_ramp=cfg.start_ramp, **timing)
+                            fin_dwell_s=cfg.fin_dwell_s, **{k: getattr(cfg, k) for k in CYCLE_FLAGS}, **timing)
 
 
 def detector_config(cfg: TrialConfig) -> DetectorConfig:
