@@ -33,27 +33,27 @@ from .params import ComposedParams
 
 
 
-def _hardware(context) -> str:
-    """The ``hardware`` parameter, read by a short-lived node before the bus master is chosen."""
+def _declared(context, node_name: str, schema):
+    """``schema``'s parameters as a short-lived node of ``node_name`` declares them (a bad value raises
+    its ParameterError before any node of the robot starts)."""
     from rclpy.node import Node
-    probe = Node('robot', context=context)
+    probe = Node(node_name, context=context)
     try:
-        return NodeParams(probe).declare(ComposedParams).hardware
+        return NodeParams(probe).declare(schema)
     finally:
         probe.destroy_node()
+
+
+def _hardware(context) -> str:
+    """The ``hardware`` parameter, read before the bus master is chosen."""
+    return _declared(context, 'robot', ComposedParams).hardware
 
 
 def _check_locomotion_parameters(context) -> None:
     """Refuse a bad locomotion_node parameter before any node starts (the bus master's and the model
-    node's start-up lines would come first): a short-lived node of the same name declares them."""
-    from rclpy.node import Node
-
+    node's start-up lines would come first)."""
     from .params import LocomotionNodeParams
-    probe = Node('locomotion_node', context=context)
-    try:
-        NodeParams(probe).declare(LocomotionNodeParams)
-    finally:
-        probe.destroy_node()
+    _declared(context, 'locomotion_node', LocomotionNodeParams)
 
 
 def _bus_master(hardware: str):
