@@ -113,6 +113,18 @@ def test_each_node_refuses_a_bad_start_value_in_one_line(exe):
     assert 'Traceback' not in r.stdout + r.stderr
 
 
+def test_locomotion_node_refuses_a_negative_dwell_margin_in_one_line():
+    """The improved touchdown's dwell margin (issue 16) is checked by the running node as its other
+    parameters are: one line naming it, exit 1, before the node does anything."""
+    exe_path = install_prefix('hexapod_locomotion') / 'lib' / 'hexapod_locomotion' / 'locomotion_node'
+    r = subprocess.run([str(exe_path), '--ros-args', '-p', 'dwell_epsilon_tick:=-1.0'],
+                       env=dict(node_env(), ROS_DOMAIN_ID='29'), capture_output=True, text=True, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    assert len(lines) == 1 and lines[0].endswith('parameter dwell_epsilon_tick: must be a finite number >= 0, got -1'), r.stderr
+    assert 'Traceback' not in r.stdout + r.stderr
+
+
 def test_the_composed_robot_refuses_a_bad_locomotion_parameter_in_one_line():
     """The composed robot checks locomotion_node's parameters before its bus master and model node
     start (their start-up lines used to come before the refusal)."""
