@@ -36,9 +36,11 @@ class KinematicGroundBus:
 
     def _femur_actual(self, leg):
         g = [self.goals.get(f'leg{leg}_{r}', 0.0) for r in JOINT_ROLES]
-        if self.ground_z_m is None or forward(self.robot, leg, g)[2] >= self.ground_z_m:
+        # one ground height for every leg, or leg -> height (None: no ground under that leg)
+        ground = self.ground_z_m.get(leg) if isinstance(self.ground_z_m, dict) else self.ground_z_m
+        if ground is None or forward(self.robot, leg, g)[2] >= ground:
             return g[1]
-        f = lambda th2: forward(self.robot, leg, [g[0], th2, g[2]])[2] - self.ground_z_m
+        f = lambda th2: forward(self.robot, leg, [g[0], th2, g[2]])[2] - ground
         return brentq(f, g[1], g[1] + 1.5)
 
     def read_position(self, joint):

@@ -8,7 +8,7 @@ from hexapod_locomotion.controller import GaitController, LocomotionParams, Velo
 from hexapod_locomotion.detector import (STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, DetectorError,
                                          SwingDownPhase, run_swing_down)
 from hexapod_locomotion.gait import get_gait
-from hexapod_model.description import load_robot
+from hexapod_model.description import LEGS, load_robot
 from hexapod_model.kinematics import forward
 
 RAISED = [0.9, -0.9]
@@ -150,6 +150,29 @@ def test_gait_cycle_on_kinematic_ground(robot):
     rep = c.step_phase(bus)
     assert all(o.stop_reason == STOP_THETA_FIN for o in rep.outcomes)
     assert any('no ground found' in w for w in rep.warnings)
+
+
+def test_a_leg_without_ground_is_not_leveled_on_but_the_body_keeps_its_place(robot):
+    """Pentapod, leg 1's foothold over a hole (no ground down to theta_fin): the body's tilt and height
+    come from the five feet on the ground (it stays level), its position from all six (Eq. 10's
+    average), so it does not fall back towards the rear feet; leg 1 stays where it stopped, below the
+    others, until it swings again. Rigid kinematic ground, no landing preload."""
+    feet = {}
+    for ground in (-0.11, {1: None, 2: -0.11, 3: -0.11, 4: -0.11, 5: -0.11, 6: -0.11}):
+        bus = KinematicGroundBus(robot, ground_z_m=ground)
+        c = GaitController(robot, get_gait('pentapod'), LocomotionParams(t_des_s=0.5, landing_preload=0.0))
+        c.startup(bus)
+        reports = [c.step_phase(bus, VelocityCommand(0.05, 0.0, 0.0)) for _ in range(3)]   # legs 3, 5, 1
+        c.finish(bus)
+        feet[isinstance(ground, dict)] = np.array([c.foot(leg) for leg in LEGS])
+    assert [o.stop_reason for o in reports[2].outcomes] == [STOP_THETA_FIN]
+    assert max(map(abs, reports[2].body_roll_pitch_rad)) < 0.01
+    flat, hole = feet[False], feet[True]
+    # the body where the same walk on flat ground put it (centred on the five feet: 4-5 cm back and aside)
+    np.testing.assert_allclose(hole[:, :2].mean(axis=0), flat[:, :2].mean(axis=0), atol=1e-3)
+    # the feet on the ground too, but for a slight turn (the yaw is fitted to the five)
+    np.testing.assert_allclose(hole[1:], flat[1:], atol=0.01)
+    assert hole[0, 2] < flat[0, 2] - 0.02          # leg 1 hangs at theta_fin, 3 cm under the ground
 
 
 def test_overlapped_transfer_levels_while_the_next_group_swings(robot):
