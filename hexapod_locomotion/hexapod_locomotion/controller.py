@@ -488,13 +488,14 @@ class GaitController:
 
         A leg that found no ground down to theta_fin (``no_ground``) carries no weight, so it is left out
         of the plane (Eq. 8-9: the body's tilt and height), but the body's position along the plane
-        follows all six feet (Eq. 10's average), that leg's included where it stopped, and the leg
-        stays there (in the air over the step-down, theta_fin below where the ground was expected) until
-        it swings again. Centring the body on the five feet instead moved it back by about a sixth of a
+        follows all six feet (Eq. 10's average), that leg's included where it looked for ground. The leg
+        then waits over that spot at the nominal ground's height (in the air over a step-down) until it
+        swings again. Centring the body on the five feet instead moved it back by about a sixth of a
         front foot's reach (4 cm) whenever a front leg found a step-down, and the feet swung later were
         placed from that body: issue 16, pentapod at t_des 0.5 s on the mockup's blocks (5 seeds),
-        14-18 mm of progress per phase against 20-21 mm with all six feet, and 0.023 -> 0.026 m/s over
-        10 trials of 60 s, no falls.
+        14-18 mm of progress per phase against 20-21 mm with all six feet. A leg left hanging at
+        theta_fin (tried first: 0.023 -> 0.026 m/s, 10 trials of 60 s) pulled later levelings down
+        towards it, out of the legs' reach: a tripod with the fixed detector fell, tetrapod walks stalled.
 
         The feet are taken from the *commanded* joint angles of every leg, the stopped legs' frozen
         goals included. Loaded servos sag below their goals (about 1 cm of foot height at full
@@ -517,7 +518,7 @@ class GaitController:
         roll_pitch = pose.roll_pitch_rad()
         idx = [leg - 1 for leg in support]
         # Eq. 10's average over all six feet, not only the support (a no-op when every leg found ground)
-        shift_xy = np.asarray(shift_xy, dtype=float) + new_feet[:, :2].mean(axis=0) - new_feet[idx, :2].mean(axis=0)
+        new_feet[:, :2] -= new_feet[:, :2].mean(axis=0) - new_feet[idx, :2].mean(axis=0)
         nf = new_feet[idx, :2] - new_feet[idx, :2].mean(axis=0)
         nn = self.neutral[idx, :2] - self.neutral[idx, :2].mean(axis=0)
         yaw = math.atan2(np.sum(nn[:, 0] * nf[:, 1] - nn[:, 1] * nf[:, 0]), np.sum(nn * nf))
@@ -525,6 +526,8 @@ class GaitController:
             c, s = math.cos(-yaw * scale), math.sin(-yaw * scale)
             rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
             moved = (new_feet - np.array([shift_xy[0], shift_xy[1], 0]) * scale) @ rot.T
+            for leg in no_ground:
+                moved[leg - 1, 2] = self.neutral[leg - 1, 2]
             try:
                 target = {}
                 for leg in LEGS:
