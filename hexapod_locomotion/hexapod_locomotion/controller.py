@@ -53,7 +53,7 @@ class LocomotionParams:
     # (start_in_motion), so the legs need not come to rest; issue 16, pentapod on the mockup (10 trials
     # of 60 s): 0.1 s walked 0.026 / 0.018 m/s at t_des 0.5 / 1 s, 0.05 s 0.028 / 0.019 (the paper:
     # 0.028 / 0.017); none at all 0.030 / 0.019, but the improved touchdown then missed 1.2 % of its
-    # contacts at t_des 1 s (0.4 % with 0.05 s).
+    # contacts at t_des 1 s (0.2-0.4 % with 0.05 s).
     t_settle_s: float = 0.05
     write_period_s: float = 0.01     # goal update period outside the swing-down
     lift_m: float = 0.05             # swing-up height above the current foothold
