@@ -139,3 +139,13 @@ def test_help_names_the_hexapod_command_and_shows_defaults(pkg, exe):
         assert ('(default ' if exe in ROS_NODES else '(default: ') in text
     first = next(line for line in res.stdout.split('\n\n')[1].splitlines() if line.strip())
     assert res.stdout.count(first.strip()) == 1          # the description is printed once
+
+
+def test_an_unknown_hexapod_command_is_one_line_naming_the_nearest():
+    """A mistyped subcommand is one line naming it and the nearest known one, not the whole usage."""
+    res = subprocess.run([str(ROOT / 'hexapod'), 'dmeo'], capture_output=True, text=True, timeout=120,
+                         stdin=subprocess.DEVNULL)
+    assert res.returncode != 0 and res.stdout == ''
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    assert "unknown command 'dmeo'" in lines[0] and "did you mean 'demo'?" in lines[0], lines[0]

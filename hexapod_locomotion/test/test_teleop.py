@@ -13,6 +13,8 @@ import termios
 import threading
 import time
 
+from pathlib import Path
+
 import pytest
 
 from hexapod_locomotion.cmd_vel_pub import CliError, check_velocity, rate_warning
@@ -20,6 +22,7 @@ from hexapod_locomotion.controller import LocomotionParams
 from hexapod_locomotion.gait import get_gait
 from hexapod_locomotion.teleop_keyboard import Teleop, controller_limits, keys_from_bytes
 
+REPO = Path(__file__).resolve().parents[2]
 DOMAIN_ID = 100 + os.getpid() % 40          # 100..139: this file's process tests
 WAIT_S = 30.0                               # failure bound for discovery / delivery on a loaded machine
 
@@ -237,10 +240,11 @@ def test_cmd_vel_pub_bad_remap_is_one_line():
 class Pty:
     """teleop_keyboard with a pseudo-terminal as stdin/stdout; the output is collected."""
 
-    def __init__(self, *args):
+    def __init__(self, *args, command=None):
         self.master, self.slave = os.openpty()
         self.saved = termios.tcgetattr(self.slave)
-        self.proc = subprocess.Popen([executable('teleop_keyboard'), *args], env=proc_env(), stdin=self.slave,
+        command = command or [executable('teleop_keyboard')]
+        self.proc = subprocess.Popen([*command, *args], env=proc_env(), stdin=self.slave,
                                      stdout=self.slave, stderr=subprocess.PIPE, close_fds=True)
         self.out = b''
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -320,6 +324,27 @@ def test_teleop_sigterm_restores_terminal_and_stops(ros):
         wait_and_collect(t.proc, inbox)
         err = t.proc.stderr.read().decode()
         assert t.proc.returncode == 0 and 'Traceback' not in err, err
+        assert inbox.msgs[-1] == (0.0, 0.0, 0.0)
+        assert termios.tcgetattr(t.slave) == t.saved
+    finally:
+        t.close()
+        inbox.close()
+
+
+def test_hexapod_teleop_gets_the_terminal(ros):
+    """``./hexapod teleop`` hands the terminal to the program (the shortcut used to run it with the
+    shortcut table as its standard input): it draws its status line, takes a key and quits on 'q'."""
+    inbox = Inbox(ros, '/cmd_vel')
+    t = Pty(command=[str(REPO / 'hexapod'), 'teleop'])
+    try:
+        inbox.spin_until(lambda: 'vx +0.000' in t.text() or t.proc.poll() is not None, 'the status line')
+        assert t.proc.poll() is None, t.proc.stderr.read().decode()
+        t.send('w')
+        inbox.spin_until(lambda: inbox.msgs and inbox.msgs[-1][0] > 0, 'a forward command')
+        t.send('q')
+        wait_and_collect(t.proc, inbox)
+        err = t.proc.stderr.read().decode()
+        assert t.proc.returncode == 0 and 'Traceback' not in err and 'not a TTY' not in err, err
         assert inbox.msgs[-1] == (0.0, 0.0, 0.0)
         assert termios.tcgetattr(t.slave) == t.saved
     finally:
