@@ -5,8 +5,9 @@ one lock that every bus transaction takes. It
 
 * verifies at start-up that every joint's servo answers a PING and reports model number 12
   (:class:`ServoVerificationError` names each missing or wrong servo), then configures return
-  delay time, angle limits (from the joint limits), alarm shutdown, compliance and torque limit,
-  sets each goal to the present position and enables torque (no jump at start-up);
+  delay time, angle limits (from the joint limits), alarm shutdown, and every register of the servo
+  law from the robot description (compliance margin and slope, moving speed, punch) plus the torque
+  limit, sets each goal to the present position and enables torque (no jump at start-up);
 * implements the :class:`hexapod_model.bus.ServoBus` protocol (``now``, ``sync_write``,
   ``read_position``, ``wait_until``), so the locomotion library can run on it directly;
 * runs the bus loop one :meth:`DynamixelBus.step` at a time for the ROS node: pending goals are
@@ -133,6 +134,8 @@ class DynamixelBus:
         self.joints = tuple(ALL_JOINTS)
         self.margin = robot.servo.compliance_margin_ticks    # the model's servo law assumes these
         self.slope = robot.servo.compliance_slope_ticks
+        self.punch = robot.servo.punch
+        self.moving_speed = robot.servo.moving_speed
         self.lock = threading.RLock()
         self.packet = PacketHandler(1.0)
         self.port: LowLatencyPortHandler | None = None
@@ -351,7 +354,9 @@ class DynamixelBus:
                 if (_u16(old[:2]), _u16(old[2:])) != (cw, ccw):       # both in one write: never cw > ccw
                     self._write(j, 6, _word(cw) + _word(ccw))
             self._write(j, 26, [self.margin, self.margin, self.slope, self.slope])
+            self._write(j, 32, _word(self.moving_speed))
             self._write(j, 34, _word(self.config.torque_limit))
+            self._write(j, 48, _word(self.punch))
             data = self._read_raw(j, 36, 2)
             if data is None:
                 raise BusError(f'{j} (id {sid}): cannot read the present position during configuration: '

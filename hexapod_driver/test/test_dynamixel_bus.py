@@ -95,6 +95,27 @@ def test_startup_configures_every_servo_and_holds_present_position(robot, emu, b
     assert emu.servo(1).get('cw_angle_limit') == 316 and emu.servo(1).get('ccw_angle_limit') == 708
 
 
+def test_startup_writes_every_servo_law_register_from_the_description(robot, emu):
+    # The firmware acts on compliance margins and slopes, the moving speed and the punch: whatever
+    # an earlier program left in the servos' RAM, the driver writes the values the model assumes.
+    old = {'cw_compliance_margin': 4, 'ccw_compliance_margin': 4, 'cw_compliance_slope': 64,
+           'ccw_compliance_slope': 64, 'moving_speed': 300, 'punch': 200}
+    for bj in robot.bus.joints:
+        for name, v in old.items():
+            emu.servo(bj.servo_id).set_register(name, v)
+    b = make_bus(robot, emu)
+    try:
+        s = robot.servo
+        want = {'cw_compliance_margin': s.compliance_margin_ticks, 'ccw_compliance_margin': s.compliance_margin_ticks,
+                'cw_compliance_slope': s.compliance_slope_ticks, 'ccw_compliance_slope': s.compliance_slope_ticks,
+                'moving_speed': s.moving_speed, 'punch': s.punch}
+        for bj in robot.bus.joints:
+            assert {n: emu.servo(bj.servo_id).get(n) for n in want} == want, bj.joint
+        assert s.punch == p.REGISTERS['punch'].default == 32    # the AX-12A's own default, as the model has it
+    finally:
+        b.close()
+
+
 def test_missing_servo_is_named_at_startup(robot, tmp_path):
     with BusEmulator(robot, absent_ids=(8,)) as emu:
         b = DynamixelBus(robot, DriverConfig(device=emu.port, **BASE))

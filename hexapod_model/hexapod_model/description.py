@@ -90,6 +90,8 @@ class ServoParams:
     stall_torque_nm: float
     compliance_slope_ticks: int
     compliance_margin_ticks: int
+    punch: int               # register 48 (0..1023 of the full drive); the driver writes it
+    moving_speed: int        # register 32 (0 = full speed, no speed control); the driver writes it
     ticks_per_range: int
     range_deg: float
     center_tick: int
@@ -126,6 +128,11 @@ class ServoParams:
     def max_tick(self) -> int:
         return self.ticks_per_range - 1
 
+    @property
+    def punch_nm(self) -> float:
+        """The punch as joint torque: the register's share of the full drive (1023 = the stall torque)."""
+        return self.stall_torque_nm * self.punch / PUNCH_FULL_SCALE
+
 
 @dataclass(frozen=True)
 class BusJoint:
@@ -150,6 +157,8 @@ class BusConfig:
         raise DescriptionError(f'no bus entry for joint {name!r}')
 
 
+PUNCH_FULL_SCALE = 1023    # AX-12A drive registers (torque limit, punch): 1023 = the full drive
+
 EFFECT_PARAMS = {
     'coulomb_friction': ('tau_c_nm',),
     'static_friction': ('tau_s_nm',),
@@ -159,7 +168,12 @@ EFFECT_PARAMS = {
     'compliance_deadband': ('margin_ticks',),
     'readout_delay': ('delay_s',),
     'mass_error': ('payload_kg',),
+    # the servo law (the firmware, the same on every servo): fitted robot-wide
+    'punch': ('extra_punch_nm',),
+    'motor_damping': ('ratio',),
+    'goal_latency': ('delay_s',),
 }
+SERVO_LAW_EFFECTS = ('punch', 'motor_damping', 'goal_latency')
 
 
 @dataclass(frozen=True)
@@ -172,6 +186,11 @@ class Effect:
     torque_saturation: output torque limit below the stall torque; compliance_deadband: the servo
     outputs no torque while |goal - present| <= margin; readout_delay: the reported position is
     older than its stamp; mass_error: point mass at the tibia tip of the joint's leg.
+    Servo-law terms (:data:`SERVO_LAW_EFFECTS`): punch: the least drive outside the compliance
+    margin is higher than the description's punch by ``extra_punch_nm``; motor_damping: the
+    reflected motor damping (back-EMF and rotor friction) is ``ratio`` times the description's;
+    goal_latency: a written goal takes effect ``delay_s`` later than the model assumes (the first
+    firmware tick at or after its stamp plus the delay).
     """
 
     effect: str
@@ -191,6 +210,9 @@ class JointEffects:
     deadband_margin_ticks: float = 0.0
     readout_delay_s: float = 0.0
     payload_kg: float = 0.0
+    extra_punch_nm: float = 0.0
+    damping_ratio: float = 1.0
+    goal_latency_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -251,6 +273,12 @@ class Robot:
                 kw['readout_delay_s'] = kw.get('readout_delay_s', 0.0) + p['delay_s']
             elif eff.effect == 'mass_error':
                 kw['payload_kg'] = kw.get('payload_kg', 0.0) + p['payload_kg']
+            elif eff.effect == 'punch':
+                kw['extra_punch_nm'] = kw.get('extra_punch_nm', 0.0) + p['extra_punch_nm']
+            elif eff.effect == 'motor_damping':
+                kw['damping_ratio'] = kw.get('damping_ratio', 1.0) * p['ratio']
+            elif eff.effect == 'goal_latency':
+                kw['goal_latency_s'] = kw.get('goal_latency_s', 0.0) + p['delay_s']
         return JointEffects(**kw)
 
     def leg_payload_kg(self, leg: int) -> float:
@@ -407,6 +435,14 @@ def robot_from_dict(d: Mapping[str, Any]) -> Robot:
                    nonneg=('rotor_damping_nms', 'coulomb_friction_nm'))
     if servo.compliance_slope_ticks <= 0 or servo.ticks_per_range <= 1:
         raise DescriptionError('servo: compliance_slope_ticks and ticks_per_range must be positive')
+    if not 32 <= servo.punch <= PUNCH_FULL_SCALE:
+        raise DescriptionError(f'servo.punch: the AX-12A takes 32..{PUNCH_FULL_SCALE} (register 48), got {servo.punch}')
+    if not 0 <= servo.moving_speed <= PUNCH_FULL_SCALE:
+        raise DescriptionError(f'servo.moving_speed: the AX-12A takes 0..{PUNCH_FULL_SCALE} in joint mode '
+                               f'(register 32), got {servo.moving_speed}')
+    if servo.moving_speed != 0:
+        raise DescriptionError('servo.moving_speed: the servo model has no speed control; only 0 (full speed) is '
+                               f'modelled, got {servo.moving_speed}')
     if not 0 <= servo.center_tick < servo.ticks_per_range:
         raise DescriptionError('servo.center_tick: must lie within 0..ticks_per_range-1')
     lim_raw = _require(d, 'joint_limits_rad', 'robot')

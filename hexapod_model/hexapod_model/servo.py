@@ -3,8 +3,11 @@
 The firmware is modelled as the project's servo contract: every control
 period (1 ms) it reads the integer present tick and the integer goal tick and outputs, at the
 joint, ``clip((stall / slope) * (goal - present), -stall, stall)`` (paper Eq. 13 in output
-units). A compliance margin (dead-band) removes the first ``margin`` ticks of error. The swing-down
-model, the MuJoCo sim and the bus emulator all call :func:`firmware_torque_nm`.
+units). A compliance margin (dead-band) removes the first ``margin`` ticks of error. Outside the
+margin the AX-12A adds its *punch* (register 48, at least 32 of 1023: the e-manual's range starts
+there, so every AX-12A has one): the drive starts at the punch where the error leaves the margin
+and rises along the slope from there, ``sign(e) min(punch + gain (|e| - margin), max)``. The
+swing-down model, the MuJoCo sim and the bus emulator all call :func:`firmware_torque_nm`.
 """
 from __future__ import annotations
 
@@ -31,15 +34,20 @@ def quantize_tick(tick, servo: ServoParams):
 
 
 def firmware_torque_nm(goal_tick, present_tick, gain_nm_per_tick: float, torque_max_nm: float,
-                       margin_ticks: float = 0.0):
-    """Joint torque the firmware outputs for integer goal and present ticks (vectorised)."""
+                       margin_ticks: float = 0.0, punch_nm: float = 0.0):
+    """Joint torque the firmware outputs for integer goal and present ticks (vectorised).
+
+    Zero within the compliance margin; outside it the punch plus the slope's gain times the error
+    beyond the margin, limited to ``torque_max_nm``, with the error's sign.
+    """
     err = np.asarray(goal_tick, dtype=float) - np.asarray(present_tick, dtype=float)
-    eff = np.sign(err) * np.maximum(np.abs(err) - margin_ticks, 0.0)
-    return np.clip(gain_nm_per_tick * eff, -torque_max_nm, torque_max_nm)
+    mag = np.abs(err) - margin_ticks
+    drive = np.where(mag > 0.0, np.minimum(punch_nm + gain_nm_per_tick * mag, torque_max_nm), 0.0)
+    return np.where(err > 0.0, drive, -drive)
 
 
 def firmware_torque_scalar(err_tick: float, gain_nm_per_tick: float, torque_max_nm: float,
-                           margin_ticks: float) -> float:
+                           margin_ticks: float, punch_nm: float = 0.0) -> float:
     """:func:`firmware_torque_nm` for one integer error ``goal - present``, in plain float arithmetic.
 
     The scalar twin for compiled kernels (the swing-down model wraps it with numba): the same
@@ -49,7 +57,7 @@ def firmware_torque_scalar(err_tick: float, gain_nm_per_tick: float, torque_max_
     mag = abs(err_tick) - margin_ticks
     if mag <= 0.0:
         return 0.0
-    tau = gain_nm_per_tick * mag
+    tau = punch_nm + gain_nm_per_tick * mag
     if tau > torque_max_nm:
         tau = torque_max_nm
     return tau if err_tick > 0.0 else -tau

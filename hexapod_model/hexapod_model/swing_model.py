@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .description import Robot, joint_name
+from .description import JointEffects, Robot, ServoParams, joint_name
 from .servo import firmware_torque_scalar
 
 try:  # numba makes one 2 s prediction take well under a millisecond; the pure-Python path is exact too
@@ -57,7 +57,7 @@ except ImportError:  # pragma: no cover - numba is a pinned dependency
 # Indices into the packed parameter vector of the kernel.
 (P_M1, P_LC1, P_I1, P_M2, P_LC2, P_I2, P_A2, P_G, P_OFF2, P_OFF3, P_J2, P_J3, P_B2, P_B3,
  P_FC2, P_FC3, P_FS2, P_FS3, P_KP, P_TMAX2, P_TMAX3, P_MARG2, P_MARG3, P_RPT, P_CENTER, P_MAXTICK,
- P_CONTROL, P_SUBSTEPS, P_DT, P_BL2, P_BL3, N_PARAMS) = range(32)
+ P_CONTROL, P_SUBSTEPS, P_DT, P_BL2, P_BL3, P_PUNCH2, P_PUNCH3, N_PARAMS) = range(34)
 
 # The servo law of the kernels is hexapod_model.servo's own scalar twin of firmware_torque_nm, compiled.
 _firmware_torque = njit(cache=True, inline='always')(firmware_torque_scalar)
@@ -69,6 +69,12 @@ _firmware_torque = njit(cache=True, inline='always')(firmware_torque_scalar)
 # (test_a_freshly_compiled_kernel_and_the_cached_one_agree_bit_for_bit) at the same speed
 # (bench_model median 0.229 ms with every flag, 0.223 ms without 'reassoc', side by side).
 _FASTMATH = {'nnan', 'ninf', 'nsz', 'arcp', 'afn', 'contract'}
+
+def joint_damping_nms_per_rad(servo: ServoParams, e: JointEffects) -> float:
+    """Viscous damping at one joint: the servo's reflected damping (times a motor-damping ratio) plus
+    any extra viscous damping of the joint; the one rule the model and the MuJoCo sim share."""
+    return servo.reflected_damping_nms_per_rad * e.damping_ratio + e.extra_damping_nms_per_rad
+
 
 V_STICK = 1e-7  # rad/s: below this a joint counts as at rest (break-away friction applies)
 _NO_GAP = np.zeros(2)
@@ -263,8 +269,8 @@ def _servo_torques(p, goal2, goal3, q2, q3):
         return 0.0, 0.0
     pt2 = min(max(np.rint(p[P_CENTER] + q2 / p[P_RPT]), 0.0), p[P_MAXTICK])
     pt3 = min(max(np.rint(p[P_CENTER] + q3 / p[P_RPT]), 0.0), p[P_MAXTICK])
-    return (_firmware_torque(goal2 - pt2, p[P_KP], p[P_TMAX2], p[P_MARG2]),
-            _firmware_torque(goal3 - pt3, p[P_KP], p[P_TMAX3], p[P_MARG3]))
+    return (_firmware_torque(goal2 - pt2, p[P_KP], p[P_TMAX2], p[P_MARG2], p[P_PUNCH2]),
+            _firmware_torque(goal3 - pt3, p[P_KP], p[P_TMAX3], p[P_MARG3], p[P_PUNCH3]))
 
 
 @njit(cache=True, fastmath=_FASTMATH, nogil=True, inline='always')
@@ -522,11 +528,12 @@ class LegModel:
         p[P_J2] = p[P_J3] = s.reflected_inertia_kgm2
         for j, e in enumerate(eff):
             fc = (s.reflected_coulomb_nm + e.extra_coulomb_nm) if friction else 0.0
-            p[P_B2 + j] = (s.reflected_damping_nms_per_rad + e.extra_damping_nms_per_rad) if damping else 0.0
+            p[P_B2 + j] = joint_damping_nms_per_rad(s, e) if damping else 0.0
             p[P_FC2 + j] = fc
             p[P_FS2 + j] = max(fc, e.static_friction_nm) if friction else 0.0
             p[P_TMAX2 + j] = s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
             p[P_MARG2 + j] = s.compliance_margin_ticks + e.deadband_margin_ticks
+            p[P_PUNCH2 + j] = s.punch_nm + e.extra_punch_nm
             p[P_BL2 + j] = e.backlash_width_rad
         p[P_KP] = s.gain_nm_per_tick
         p[P_RPT], p[P_CENTER], p[P_MAXTICK] = s.rad_per_tick, s.center_tick, s.max_tick
@@ -640,17 +647,19 @@ class CoxaModel(LegModel):
         p[[P_M1, P_LC1, P_M2, P_LC2, P_I2, P_A2, P_G]] = 0.0
         p[P_I1] = coxa_axis_inertia_kgm2(robot, leg, float(femur_tibia_rad[0]), float(femur_tibia_rad[1]))
         fc = s.reflected_coulomb_nm + e.extra_coulomb_nm
-        p[P_B2] = s.reflected_damping_nms_per_rad + e.extra_damping_nms_per_rad
+        p[P_B2] = joint_damping_nms_per_rad(s, e)
         p[P_FC2] = fc
         p[P_FS2] = max(fc, e.static_friction_nm)
         p[P_TMAX2] = s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
         p[P_MARG2] = s.compliance_margin_ticks + e.deadband_margin_ticks
+        p[P_PUNCH2] = s.punch_nm + e.extra_punch_nm
         p[P_BL2] = e.backlash_width_rad
         # dummy second joint: rotor only, no friction, no play, never commanded away from centre
         p[P_B3] = s.reflected_damping_nms_per_rad
         p[P_FC3] = p[P_FS3] = 0.0
         p[P_TMAX3] = s.stall_torque_nm
         p[P_MARG3] = 0.0
+        p[P_PUNCH3] = 0.0
         p[P_BL3] = 0.0
         self.center_tick = float(s.center_tick)
 

@@ -170,6 +170,7 @@ class HexapodSim:
         self._tmax = np.array([s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
                                for e in eff])
         self._margin = np.array([s.compliance_margin_ticks + e.deadband_margin_ticks for e in eff], dtype=float)
+        self._punch = np.array([s.punch_nm + e.extra_punch_nm for e in eff])
         # The firmware law depends on the integer error goal - present only (-max..max ticks), so the
         # torque of every possible error is computed once, through firmware_torque_nm itself, per servo
         # (joint direction folded in); row n (the last) is all zeros for a servo with torque off.
@@ -177,7 +178,8 @@ class HexapodSim:
         err = np.arange(-s.max_tick, s.max_tick + 1, dtype=float)
         table = np.zeros((n + 1, err.size))
         for i in range(n):
-            table[i] = self._dir[i] * firmware_torque_nm(err, 0.0, s.gain_nm_per_tick, self._tmax[i], self._margin[i])
+            table[i] = self._dir[i] * firmware_torque_nm(err, 0.0, s.gain_nm_per_tick, self._tmax[i], self._margin[i],
+                                                         self._punch[i])
         self._torque_table = table.ravel()             # flat: index = row * width + error + max_tick
         self._table_width = err.size
         fc = np.array([m.dof_frictionloss[self._dadr[i]] for i in range(n)])
