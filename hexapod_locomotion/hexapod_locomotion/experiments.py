@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from hexapod_model.cli_common import add_no_progress_option, make_parser, output_directory, positive_float, positive_int
-from hexapod_model.executor import ExecutorError, add_executor_options, map_jobs
+from hexapod_model.executor import ExecutorError, JobsInterrupted, add_executor_options, map_jobs
 from hexapod_sim.terrain import MOCKUP_COURSE_END_M
 
 from .trial_runner import TrialConfig, detector_config, locomotion_params, run_trial
@@ -87,8 +87,12 @@ EXECUTOR = {'ray': None}              # --ray [ADDRESS]: run trials as Ray tasks
 def run_many(configs: list[TrialConfig], jobs: int, desc: str) -> list[dict]:
     """Run trials in parallel (processes, or Ray tasks with ``--ray``) with a progress bar; results in
     the order of ``configs``, the same for the same configs on every executor."""
-    return map_jobs(_trial_job, configs, jobs=jobs, ray_address=EXECUTOR['ray'], desc=desc, unit='trial',
-                    progress=not PROGRESS['disable'])
+    try:
+        return map_jobs(_trial_job, configs, jobs=jobs, ray_address=EXECUTOR['ray'], desc=desc, unit='trial',
+                        progress=not PROGRESS['disable'])
+    except JobsInterrupted as exc:
+        exc.desc = desc              # named in the line that says what was kept
+        raise
 
 
 # ----------------------------------------------------------------------------- Table 4
@@ -340,22 +344,54 @@ def main(argv=None) -> int:
     APPROACH['rate'] = args.approach_rate
     PROGRESS['disable'] = not args.progress
     EXECUTOR['ray'] = args.ray
-    try:
-        return _run(args, ap)
-    except ExecutorError as exc:
-        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
-        return 1
-
-
-def _run(args, ap) -> int:
     if args.which == 'sweep':
         ap.error('sweep takes its own arguments first: ./hexapod experiment sweep PARAM VALUE... [options]')
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         ap.error(f'--out {out} exists and is not a directory')
-    out.mkdir(parents=True, exist_ok=True)
     report: dict = {'which': args.which, 'trials': args.trials, 'duration_s': args.duration, 'terrain': args.terrain,
                     'fixed_threshold_tick': args.fixed_threshold, 'approach_rate': args.approach_rate}
+    try:
+        return _run(args, out, report)
+    except ExecutorError as exc:
+        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
+        return 1
+    except KeyboardInterrupt as exc:
+        return _keep_interrupted(ap.prog, args, out, report, exc)
+
+
+EXIT_INTERRUPTED = 130      # 128 + SIGINT, as a shell reports a program stopped by Ctrl-C
+
+
+def _json_path(args, out: Path) -> Path:
+    return Path(args.json) if args.json else out / f'{args.which}.json'
+
+
+def _keep_interrupted(prog: str, args, out: Path, report: dict, exc: KeyboardInterrupt) -> int:
+    """Ctrl-C: write what had finished (the stages done and the finished trials of the one under way)
+    to the JSON, say so in one line; nothing is written when no trial had finished."""
+    partial = exc.finished_results() if isinstance(exc, JobsInterrupted) else []
+    stages = [k for k in ('trials_results', 'free_swing', 'fig12') if k in report]
+    trials = len(report.get('trials_results', [])) + len(report.get('fig12', [])) + len(partial)
+    if not stages and not partial:
+        print(f'{prog}: interrupted (Ctrl-C) before any trial finished; nothing written', file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
+    report['interrupted'] = True
+    if partial:
+        report['interrupted_stage'] = {'stage': getattr(exc, 'desc', ''), 'finished': len(partial),
+                                       'of': len(exc.results)}
+        report['interrupted_stage_results'] = [{k: v for k, v in r.items() if k != 'events'} for r in partial]
+    path = _json_path(args, out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(report, indent=1))
+    what = f'{trials} finished trial(s)' + (f' ({len(partial)} of {len(exc.results)} {exc.desc})' if partial else '')
+    if 'free_swing' in report:
+        what += ' and the free-swing table'
+    print(f'{prog}: interrupted (Ctrl-C): kept {what} in {path}', file=sys.stderr, flush=True)
+    return EXIT_INTERRUPTED
+
+
+def _run(args, out: Path, report: dict) -> int:
     if args.which in ('table4', 'fig11', 'quality', 'all'):
         t_des = (1.0,) if args.which == 'fig11' else (0.5, 1.0)
         cfgs = table4_configs(args.trials, args.duration, args.terrain, t_des, args.fixed_threshold)
@@ -366,6 +402,7 @@ def _run(args, ap) -> int:
             report['table4'] = rows
             print(format_table4(rows))
         if args.which in ('fig11', 'all'):
+            out.mkdir(parents=True, exist_ok=True)
             plot_fig11(results, out / 'fig11_stability.png')
             report['fig11'] = summarize_fig11(results)
             print(f'Fig. 11 box plots: {out / "fig11_stability.png"}')
@@ -381,6 +418,7 @@ def _run(args, ap) -> int:
                             **variant_fields(d))
                 for d in VARIANTS]
         res12 = run_many(cfgs, args.jobs, 'fig12 walks')
+        out.mkdir(parents=True, exist_ok=True)
         plot_fig12(res12, out / 'fig12_temperature.png')
         report['fig12'] = [{'detector': variant(r['config']), 'path_length_m': r['path_length_m'], 'fell': r['fell'],
                             'femur_c_start': r['temperature_femur_c'][0], 'femur_c_end': r['temperature_femur_c'][-1],
@@ -391,7 +429,8 @@ def _run(args, ap) -> int:
             print(f'Fig. 12 {r["detector"]:8}: femur {r["femur_c_start"]:.1f} -> {r["femur_c_end"]:.1f} C, '
                   f'tibia -> {r["tibia_c_end"]:.1f} C over {args.fig12_duration / 60:.0f} min, walked {r["path_length_m"]:.2f} m')
         print(f'Fig. 12 plot: {out / "fig12_temperature.png"}')
-    path = Path(args.json) if args.json else out / f'{args.which}.json'
+    path = _json_path(args, out)
+    path.parent.mkdir(parents=True, exist_ok=True)      # created when there is something to write
     path.write_text(json.dumps(report, indent=1))
     print(f'JSON: {path}')
     return 0

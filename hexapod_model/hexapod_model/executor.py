@@ -13,6 +13,11 @@ A job is a picklable module-level function and one argument; results come back i
 arguments whatever the executor, so the same inputs give the same outputs (the jobs themselves are
 deterministic for their seeds). A failing job raises in the caller with the job's own exception.
 Progress: a tqdm bar on stderr.
+
+Ctrl-C (``KeyboardInterrupt`` in the caller) cancels the queued jobs, stops the running ones (the
+pool's worker processes are terminated, Ray tasks cancelled) and raises :class:`JobsInterrupted`
+with the results of the jobs that had finished. Pool workers ignore SIGINT themselves, so a Ctrl-C
+sent to the terminal's whole process group does not print a traceback per worker.
 """
 from __future__ import annotations
 
@@ -29,6 +34,27 @@ LOCAL_RAY = 'local'          # --ray without an address
 
 class ExecutorError(RuntimeError):
     """The executor could not be used (the message names why: Ray missing, cluster unreachable)."""
+
+
+class JobsInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`map_jobs`: the unfinished jobs were cancelled. ``results`` is in the order
+    of the arguments with ``None`` for a job that did not finish; ``finished`` counts the others."""
+
+    def __init__(self, results: list, done: list[bool]):
+        super().__init__(f'interrupted after {sum(done)} of {len(done)} jobs')
+        self.results = results
+        self.done = done
+        self.finished = sum(done)
+
+    def finished_results(self) -> list:
+        """The finished jobs' results, in argument order."""
+        return [r for r, d in zip(self.results, self.done) if d]
+
+
+def _ignore_sigint() -> None:
+    """Pool worker initializer: Ctrl-C is the caller's to handle (it terminates the workers)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def add_executor_options(ap, what: str = 'trials') -> None:
@@ -50,15 +76,41 @@ def map_jobs(fn: Callable[[T], R], args: Iterable[T], jobs: int = 1, ray_address
     bar = dict(total=len(items), desc=desc, unit=unit, file=sys.stderr, disable=not progress)
     if ray_address is not None:
         return _map_ray(fn, items, jobs, ray_address, bar)
+    done = [False] * len(items)
     if jobs <= 1 or len(items) <= 1:
-        for i, a in enumerate(tqdm(items, **bar)):
-            out[i] = fn(a)
+        try:
+            for i, a in enumerate(tqdm(items, **bar)):
+                out[i] = fn(a)
+                done[i] = True
+        except KeyboardInterrupt:
+            raise JobsInterrupted(out, done) from None
         return out
-    with ProcessPoolExecutor(max_workers=min(jobs, len(items))) as ex:
+    ex = ProcessPoolExecutor(max_workers=min(jobs, len(items)), initializer=_ignore_sigint)
+    try:
         futs = {ex.submit(fn, a): i for i, a in enumerate(items)}
         for f in tqdm(as_completed(futs), **bar):
             out[futs[f]] = f.result()
+            done[futs[f]] = True
+    except KeyboardInterrupt:
+        _stop_pool(ex)
+        raise JobsInterrupted(out, done) from None
+    except BaseException:
+        _stop_pool(ex)
+        raise
+    ex.shutdown(wait=True)
     return out
+
+
+def _stop_pool(ex: ProcessPoolExecutor, timeout_s: float = 5.0) -> None:
+    """Cancel the queued jobs and terminate the workers now (``shutdown`` alone waits for the running
+    jobs, and without ``cancel_futures`` for the queued ones too)."""
+    workers = list((getattr(ex, '_processes', None) or {}).values())
+    ex.shutdown(wait=False, cancel_futures=True)
+    for p in workers:
+        if p.is_alive():
+            p.terminate()
+    for p in workers:
+        p.join(timeout_s)
 
 
 def _map_ray(fn, items: list, jobs: int, address: str, bar: dict) -> list:
@@ -89,16 +141,26 @@ def _map_ray(fn, items: list, jobs: int, address: str, bar: dict) -> list:
         refs = [task.remote(a) for a in items]
         index = {r: i for i, r in enumerate(refs)}
         out: list = [None] * len(items)
+        finished = [False] * len(items)
         pending = list(refs)
-        with tqdm(**bar) as progress:
-            while pending:
-                done, pending = ray.wait(pending, num_returns=1)
-                for r in done:
-                    try:
-                        out[index[r]] = ray.get(r)
-                    except ray.exceptions.RayTaskError as exc:
-                        raise exc.as_instanceof_cause() from None
-                    progress.update(1)
+        try:
+            with tqdm(**bar) as progress:
+                while pending:
+                    ready, pending = ray.wait(pending, num_returns=1)
+                    for r in ready:
+                        try:
+                            out[index[r]] = ray.get(r)
+                        except ray.exceptions.RayTaskError as exc:
+                            raise exc.as_instanceof_cause() from None
+                        finished[index[r]] = True
+                        progress.update(1)
+        except KeyboardInterrupt:
+            for r in pending:
+                try:
+                    ray.cancel(r, force=True)
+                except Exception:   # noqa: BLE001 - a task that finished meanwhile cannot be cancelled
+                    pass
+            raise JobsInterrupted(out, finished) from None
         return out
     finally:
         if started:
