@@ -35,6 +35,13 @@ class LocomotionError(RuntimeError):
     """The controller cannot continue safely (message says why)."""
 
 
+# Longest duration of a gait-cycle step (t_des_s, swing-up, swing-forward, settle, leveling, dwell) [s].
+# The swing-down model and the goal profiles are computed per control period (about 3 ms), so a
+# duration far beyond a walk's (the paper: t_des 0.5-1 s) would only exhaust the memory.
+MAX_STEP_S = 10.0
+STEP_DURATIONS = ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_settle_s', 't_level_s', 'fin_dwell_s')
+
+
 @dataclass(frozen=True)
 class LocomotionParams:
     """Gait-cycle parameters. Lengths in metres, times in seconds."""
@@ -113,6 +120,10 @@ class LocomotionParams:
                 raise LocomotionError(f'locomotion parameter {f} must be finite and > 0, got {v!r}')
             if isinstance(v, float) and not (math.isfinite(v) and v >= 0):
                 raise LocomotionError(f'locomotion parameter {f} must be finite and >= 0, got {v!r}')
+        for f in STEP_DURATIONS:
+            v = getattr(self, f)
+            if v > MAX_STEP_S:
+                raise LocomotionError(f'locomotion parameter {f} must be in (0, {MAX_STEP_S:g}] s, got {v:g}')
         if not 0.0 < self.approach_rate <= 1.0:
             raise LocomotionError(f'locomotion parameter approach_rate must be in (0, 1], got {self.approach_rate!r}')
 
@@ -469,7 +480,8 @@ class GaitController:
         under-preloaded, and it is the first to lift off when the next group swings (in tetrapod, without
         this preload, a stance leg was often in the air). ``n_support`` legs share the weight. Only
         needed where the support is statically indeterminate (more than three legs).
-        Static balance: gain * (goal - theta) = -J^T f with f the ground reaction on the foot."""
+        Static balance: punch + gain * |goal - theta| = |J^T f| with f the ground reaction on the foot
+        (the servo law of :func:`hexapod_model.servo.firmware_torque_nm`)."""
         th = self.leg_angles(leg)
         jac = np.empty((3, 3))
         h = 1e-6
@@ -480,7 +492,8 @@ class GaitController:
         f = np.array([0.0, 0.0, self.params.landing_preload * self.robot.total_mass_kg * self.robot.gravity_mps2
                       / max(n_support, 1)])
         servo = self.robot.servo
-        return -(jac.T @ f) / (servo.gain_nm_per_tick / servo.rad_per_tick)
+        tau = -(jac.T @ f)
+        return np.sign(tau) * np.maximum(np.abs(tau) - servo.punch_nm, 0.0) / (servo.gain_nm_per_tick / servo.rad_per_tick)
 
     def _level_target(self, shift_xy, no_ground: set[int], warnings: list[str], landed=()):
         """Eq. 8-10 on the support feet, then the yaw that best maps the neutral stance onto the feet

@@ -61,9 +61,14 @@ RANGES = {
     'compliance_deadband': (1, 3),         # ticks, integer as the AX-12A register
     'readout_delay': (2, 8),               # ms, whole milliseconds (the sim delays by physics steps)
     'mass_error': (0.03, 0.10),            # kg at the foot
+    # the servo law (every servo alike)
+    'punch': (0.03, 0.15),                 # N m more than the model's 0.047 (register 48: 20-100 more)
+    'motor_damping': (1.1, 1.4),           # times the model's 0.20 N m s/rad
+    'goal_latency': (1, 2),                # ms, whole firmware ticks (the sim acts on whole physics steps)
 }
 TOLERANCE = {'coulomb_friction': 0.25, 'static_friction': 0.25, 'viscous_damping': 0.25, 'backlash': 0.25,
-             'compliance_deadband': 0.25, 'torque_saturation': 0.10, 'readout_delay': 0.10, 'mass_error': 0.10}
+             'compliance_deadband': 0.25, 'torque_saturation': 0.10, 'readout_delay': 0.10, 'mass_error': 0.10,
+             'punch': 0.25, 'motor_damping': 0.05, 'goal_latency': 0.10}
 GOALS = {'right': 0.9, 'ratio': 1.5, 'seconds_per_minute': 60.0}
 
 
@@ -89,7 +94,7 @@ def _value(rng, effect: str) -> float:
     lo, hi = RANGES[effect]
     if effect == 'compliance_deadband':
         return float(rng.integers(lo, hi + 1))
-    if effect == 'readout_delay':
+    if effect in ('readout_delay', 'goal_latency'):
         return float(rng.integers(lo, hi + 1)) / 1000.0
     return float(rng.uniform(lo, hi))
 
@@ -111,7 +116,7 @@ def make_cases(seed: int, legs=LEGS) -> list[Case]:
         return tuple(joint_name(leg, r) for r in JOINT_ROLES)
 
     cases = []
-    for name in BY_NAME:
+    for name in (n for n in BY_NAME if not BY_NAME[n].servo_law):
         cases.append(Case(f'{name}@joint' if name != 'mass_error' else 'mass_error@leg',
                           (_effect(rng, name, one_leg() if name == 'mass_error' else (one_joint(),)),)))
     for name in ('backlash', 'static_friction', 'coulomb_friction'):
@@ -126,6 +131,8 @@ def make_cases(seed: int, legs=LEGS) -> list[Case]:
     j2 = joint_name(int(rng.choice(others)), str(rng.choice(('femur', 'tibia'))))
     cases.append(Case('coulomb_friction@joint+mass_error@leg',
                       (_effect(rng, 'coulomb_friction', (j2,)), _effect(rng, 'mass_error', leg_a))))
+    cases.append(Case('servo_law@robot', tuple(_effect(rng, n, everything)
+                                               for n in ('punch', 'motor_damping', 'goal_latency'))))
     cases.append(Case('clean', ()))
     cases.append(Case('clean@0.8x', (), speed_scale=0.8))
     return cases
@@ -213,6 +220,21 @@ def _legs_of(joints) -> set[int]:
     return {parse_joint_name(j)[0] for j in joints}
 
 
+def _as_truth_names(found: dict, case: Case) -> dict:
+    """A found servo-law term in the truth's words where the truth holds its robot-wide joint-effect twin:
+    the free-leg replay cannot tell a readout delay of every joint from a goal latency (both shift the
+    response against the goals by one time), nor viscous damping on every joint from the motor damping
+    (``b = (ratio - 1) x`` the model's reflected damping). Anything else is returned as it is."""
+    twin = {'goal_latency': 'readout_delay', 'motor_damping': 'viscous_damping'}.get(found['effect'])
+    truth = next((t for t in case.effects if t.effect == twin and set(t.joints) == set(found['joints'])), None)
+    if truth is None:
+        return found
+    v = next(iter(found['params'].values()))
+    if twin == 'viscous_damping':
+        v = (v - 1.0) * load_robot().servo.reflected_damping_nms_per_rad
+    return {**found, 'effect': twin, 'params': {BY_NAME[twin].key: float(v)}}
+
+
 def score(case: Case, result: dict, truly_unshown=None) -> dict:
     """Compare the tool's JSON with the hidden truth of ``case``.
 
@@ -222,7 +244,7 @@ def score(case: Case, result: dict, truly_unshown=None) -> dict:
     only), provided ``truly_unshown(effect, joints)`` confirms with the hidden truth that the recording
     indeed cannot show it there (:func:`unshown_check`). Without that check no credit is given.
     """
-    found = result['effects']
+    found = [_as_truth_names(f, case) for f in result['effects']]
     blind = result.get('cannot_show', {})
     rows = []
     matched = set()

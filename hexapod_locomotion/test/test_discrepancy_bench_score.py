@@ -33,3 +33,22 @@ def test_missing_joints_count_only_if_said_and_confirmed():
     assert not score(CASE, _result(('leg6_coxa',), ('leg6_femur',)), truly_unshown=confirm)['right']  # not said
     # found on a joint outside the truth: wrong, whatever it says it cannot show
     assert not score(CASE, _result(('leg6_coxa', 'leg5_coxa'), LEG6), truly_unshown=confirm)['right']
+
+
+def test_a_servo_law_term_counts_for_its_robot_wide_joint_effect_twin_only():
+    # a readout delay of every joint is a goal latency to the replay, viscous damping on every joint the
+    # motor damping: found under the servo law's name they count for the truth, with the value converted
+    from hexapod_model.description import ALL_JOINTS, load_robot
+    b0 = load_robot().servo.reflected_damping_nms_per_rad
+    every = list(ALL_JOINTS)
+    case = Case('pair', (Effect('readout_delay', ALL_JOINTS, {'delay_s': 0.004}),
+                         Effect('viscous_damping', ALL_JOINTS, {'b_nms_per_rad': 0.2 * b0})))
+    found = {'effects': [{'effect': 'goal_latency', 'joints': every, 'params': {'delay_s': 0.0041},
+                          'heldout_rmse_ticks_before': 1.4, 'heldout_rmse_ticks_after': 0.3},
+                         {'effect': 'motor_damping', 'joints': every, 'params': {'ratio': 1.2},
+                          'heldout_rmse_ticks_before': 1.1, 'heldout_rmse_ticks_after': 0.3}]}
+    s = score(case, found)
+    assert s['right_strict'] and all(r['param_ok'] for r in s['truth'])
+    # a readout delay of one leg is no goal latency of every joint: that is a false effect
+    leg = Case('leg', (Effect('readout_delay', LEG6, {'delay_s': 0.004}),))
+    assert not score(leg, {'effects': [found['effects'][0]]})['right']

@@ -22,7 +22,8 @@ Timing (the project convention, all times in seconds of simulated time):
 Effects of the robot description are emulated here or in the MJCF (:mod:`hexapod_sim.mjcf`):
 static friction (per-tick switch of the joint's friction loss between break-away and Coulomb
 level; a velocity reversal between two ticks counts as rest, :mod:`hexapod_sim.firmware`),
-torque saturation (per-servo torque limit), compliance dead-band (margin), readout delay
+torque saturation (per-servo torque limit), compliance dead-band (margin), punch, goal latency
+(a written goal acts from the first step at or after its write plus the latency), readout delay
 (positions come from a history buffer), plus the MJCF-level coulomb friction, viscous damping,
 payload and backlash. Their values never leave this class except as physics.
 
@@ -188,6 +189,8 @@ class HexapodSim:
         self._stick_dadr = self._dadr[self._stick_idx]
         self._fric_coulomb = fc[self._stick_idx]
         self._fric_static = fs[self._stick_idx]
+        # goal latency (servo-law effect): a goal written at step k acts from step k + lag on
+        self._goal_lag = np.array([int(math.ceil(e.goal_latency_s / self.dt - 1e-9)) for e in eff], dtype=np.int64)
         delay = np.array([e.readout_delay_s for e in eff])
         self._delay_steps = np.rint(delay / self.dt).astype(np.int64)
         # history ring of output angles per physics step (only with a readout delay)
@@ -281,6 +284,7 @@ class HexapodSim:
         self._error_bits = np.zeros(n, dtype=np.int64)
         self._goal = np.zeros(n, dtype=np.int64)
         self._write_keys, self._write_idx = None, None  # joints of the last sync write and their indices
+        self._pending: list[tuple[int, int, np.ndarray, np.ndarray]] = []   # (step, seq, idx, angles) not yet acting
         self._set_goal_ticks(np.arange(n), self._quantize_n(self._output_q() * self._tick_scale + self._tick_base))
         self._tau[:] = 0.0
         self._power_w = self.robot.electronics_idle_power_w
@@ -354,6 +358,13 @@ class HexapodSim:
         self._error_bits = np.where(hot, self._error_bits | ERR_OVERHEATING, self._error_bits & ~ERR_OVERHEATING)
 
     def _advance_to_step(self, target: int) -> None:
+        while self._pending and self._pending[0][0] <= target:
+            at, _seq, idx, vals = self._pending.pop(0)
+            self._run_to_step(at)
+            self._write_goal_ticks(idx, vals)
+        self._run_to_step(target)
+
+    def _run_to_step(self, target: int) -> None:
         st = self._st
         while st[0] < target:                          # st[firmware.ST_STEP]
             firmware.run(target, *self._loop_args)
@@ -451,17 +462,33 @@ class HexapodSim:
         except (TypeError, ValueError):
             bad = next((k, v) for k, v in items if not isinstance(v, (int, float, np.number)))
             raise SimError(f'{bad[0]}: goal must be a number, got {bad[1]!r}') from None
-        bad = firmware.write_goals(idx, vals, self._lim_lo, self._lim_hi, self._tick_scale, self._tick_base,
-                                   float(self._servo.max_tick), ERR_ANGLE_LIMIT, self._error_bits, self._goal,
-                                   self._jint)
-        if bad >= 0:
-            raise SimError(f'{ALL_JOINTS[idx[bad]]}: goal must be finite, got {vals[bad]!r}')
+        lag = self._goal_lag[idx]
+        if lag.any():                                  # a goal latency: the goals act later (checked now)
+            finite = np.isfinite(vals)
+            if not finite.all():
+                bad = int(np.argmin(finite))
+                raise SimError(f'{ALL_JOINTS[idx[bad]]}: goal must be finite, got {vals[bad]!r}')
+            for lg in np.unique(lag):
+                sel = lag == lg
+                self._pending.append((self._step + int(lg), self.bus_stats['writes'], idx[sel], vals[sel]))
+            self._pending.sort(key=lambda x: (x[0], x[1]))
+            if self._pending[0][0] <= self._step:
+                self._advance_to_step(self._step)
+        else:
+            self._write_goal_ticks(idx, vals)
         self._write_keys, self._write_idx = keys, idx
         t = self.now()
         self.bus_stats['writes'] += 1
         if self._write_steps:
             self._advance_to_step(self._step + self._write_steps)
         return t
+
+    def _write_goal_ticks(self, idx: np.ndarray, vals: np.ndarray) -> None:
+        bad = firmware.write_goals(idx, vals, self._lim_lo, self._lim_hi, self._tick_scale, self._tick_base,
+                                   float(self._servo.max_tick), ERR_ANGLE_LIMIT, self._error_bits, self._goal,
+                                   self._jint)
+        if bad >= 0:
+            raise SimError(f'{ALL_JOINTS[idx[bad]]}: goal must be finite, got {vals[bad]!r}')
 
     def read_position(self, joint: str) -> tuple[float, float]:
         """Read one servo: (theta [rad] of the reported integer tick, sample time [s]). Costs ``t_com_s``."""

@@ -35,15 +35,47 @@ def test_backlash_in_the_mujoco_sim_is_named_located_and_fitted():
 
 def test_break_away_friction_on_a_coxa_is_found_between_two_firmware_torque_levels():
     """A coxa carries no gravity load, so its break-away friction shows only against the firmware's
-    torque, which takes one value per integer error: 0.153 N m lies between the 3- and 4-tick
-    levels (0.141, 0.188 N m), and every value between them gives the same motion. The screen
-    probes one value per such band (probes at 0.1, 0.2 and 0.4 N m found nothing here)."""
+    torque, which takes one value per integer error: 0.153 N m lies between the 2- and 3-tick
+    levels (punch + 2 and + 3 times the gain: 0.141, 0.188 N m), and every value between them gives
+    the same motion. The screen probes one value per such band (probes at 0.1, 0.2 and 0.4 N m found
+    nothing here)."""
     robot = load_robot()
     truth = Effect('static_friction', ('leg2_coxa',), {'tau_s_nm': 0.153})
     rec = _record(robot.with_effects([truth]), calibration_plan(robot, legs=(2,), phases=('coxa',)))
     a = analyse(rec, robot, workers=1)
     assert [(f.effect.effect, f.effect.joints) for f in a.effects] == [('static_friction', ('leg2_coxa',))], text_report(a)
     found = a.effects[0]
-    g = robot.servo.gain_nm_per_tick
-    assert 3 * g < found.effect.params['tau_s_nm'] < 4 * g
+    g, pn = robot.servo.gain_nm_per_tick, robot.servo.punch_nm
+    assert pn + 2 * g < found.effect.params['tau_s_nm'] < pn + 3 * g
     assert found.heldout_rmse_ticks_before / found.heldout_rmse_ticks_after >= 1.5
+
+
+def test_a_servo_law_unlike_the_model_is_named_as_the_servo_law_not_as_joint_effects():
+    """A plant whose firmware differs from the model's (32 more punch, 15 % more motor damping, goals one
+    firmware tick later) on the stand: the tool names servo-law terms fitted on the whole robot and no
+    joint effect. Alone, a robot-wide torque limit explains more than any one of the terms (more punch
+    speeds a move up where more damping slows it), so the terms are fitted together."""
+    robot = load_robot()
+    every = tuple(joint_name(2, r) for r in JOINT_ROLES)
+    punch = robot.servo.punch_nm               # 32 more in register 48: twice the model's punch
+    truth = [Effect('punch', every, {'extra_punch_nm': punch}), Effect('motor_damping', every, {'ratio': 1.15}),
+             Effect('goal_latency', every, {'delay_s': 0.001})]
+    rec = _record(robot.with_effects(truth), calibration_plan(robot, legs=(2,)))
+    a = analyse(rec, robot, workers=1)
+    found = {f.effect.effect: f for f in a.effects}
+    assert {'punch', 'motor_damping'} <= set(found) <= {'punch', 'motor_damping', 'goal_latency'}, text_report(a)
+    assert all(set(f.effect.joints) == set(every) for f in a.effects)
+    assert found['punch'].effect.params['extra_punch_nm'] == pytest.approx(punch, rel=0.25)
+    assert found['motor_damping'].effect.params['ratio'] == pytest.approx(1.15, rel=0.05)
+    assert max(v.heldout_rmse_ticks_after for v in a.joints.values()) < 0.4
+    assert 'the servo law' in text_report(a)
+
+
+def test_the_model_matches_the_sim_servo_law_on_a_clean_stand_recording():
+    """Model and sim share the AX-12A's servo law, punch included: a clean stand recording of one leg is
+    predicted to tick rounding, and nothing is claimed."""
+    robot = load_robot()
+    rec = _record(robot, calibration_plan(robot, legs=(2,)))
+    a = analyse(rec, robot, workers=1)
+    assert a.effects == [], text_report(a)
+    assert max(v.heldout_rmse_ticks_before for v in a.joints.values()) < 0.35

@@ -10,10 +10,9 @@ from __future__ import annotations
 import json
 import sys
 import warnings
-from pathlib import Path
 
-from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, make_parser,
-                          output_file, plot_extensions, positive_float, ratio_at_least_one)
+from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, interrupted, make_parser,
+                          open_for_writing, output_file, plot_extensions, positive_float, ratio_at_least_one)
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
 from .analysis import MODES, analyse
 from .effects import BY_NAME
@@ -26,9 +25,9 @@ from .segments import parse_windows
 def build_parser():
     ap = make_parser('discrepancy', __doc__)
     ap.add_argument('bag', help='rosbag2 directory or .mcap file following the recording contract')
-    ap.add_argument('--json', metavar='OUT.json', type=output_file(('.json',)), help='write the machine-readable result here')
-    ap.add_argument('--plot', metavar='OUT.png', type=output_file(plot_extensions), help='write the before/after figure here')
-    ap.add_argument('--write-overlay', metavar='OUT.yaml', type=output_file(('.yaml', '.yml')),
+    ap.add_argument('--json', metavar='OUT.json', type=output_file(('.json',), create_parent=True), help='write the machine-readable result here')
+    ap.add_argument('--plot', metavar='OUT.png', type=output_file(plot_extensions, create_parent=True), help='write the before/after figure here')
+    ap.add_argument('--write-overlay', metavar='OUT.yaml', type=output_file(('.yaml', '.yml'), create_parent=True),
                     help='write the fitted effects as a robot-description overlay (read it back with --overlay)')
     ap.add_argument('--joints', nargs='+', metavar='JOINT', help='analyse only these joints (e.g. leg3_tibia)')
     ap.add_argument('--time', nargs='+', metavar='START:END', dest='windows',
@@ -53,6 +52,13 @@ def build_parser():
 def main(argv=None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    try:
+        return _main(ap, args)
+    except KeyboardInterrupt:
+        return interrupted(ap.prog)
+
+
+def _main(ap, args) -> int:
     try:
         if args.joints:
             bad = [j for j in args.joints if j not in ALL_JOINTS]
@@ -79,15 +85,15 @@ def main(argv=None) -> int:
     from .report import overlay_yaml, text_report, to_json
     print(text_report(result))
     if args.json:
-        Path(args.json).write_text(json.dumps(to_json(result, args.bag), indent=2) + '\n')
+        open_for_writing(args.json).write_text(json.dumps(to_json(result, args.bag), indent=2) + '\n')
         print(f'\nJSON written to {args.json}')
     if args.write_overlay:
-        Path(args.write_overlay).write_text(overlay_yaml(result))
+        open_for_writing(args.write_overlay).write_text(overlay_yaml(result))
         print(f'overlay written to {args.write_overlay} (read it with --overlay {args.write_overlay}; '
               'empty when nothing was found)')
     if args.plot:
         from .plot import save_plot
-        save_plot(result, args.plot)
+        save_plot(result, open_for_writing(args.plot))
         print(f'plot written to {args.plot}')
     return 0
 

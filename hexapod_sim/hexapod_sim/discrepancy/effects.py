@@ -11,13 +11,22 @@ Ranges (joint side; nominal values from the robot description in brackets): Coul
 0.005-0.4 N m [0.060], break-away torque 0.07-0.9 N m, viscous damping 0.01-1.5 N m s/rad
 [0.20], backlash 0.1-6 deg, torque limit 0.1-1.45 N m [stall 1.5], compliance margin 0.3-10
 ticks [0], readout delay 0.3-40 ms, tibia-tip payload 5-400 g.
+
+The servo law (the firmware every servo runs) has candidates of its own, fitted on the whole robot
+only, so a difference in it is named as what it is and not spread over joints as joint effects:
+extra punch 0.005-0.6 N m [0.047, register 48 = 32], motor damping 0.5-2.5 times the model's
+[0.20 N m s/rad: back-EMF and rotor friction], goal latency 0.2-40 ms [goals act at the first
+firmware tick at or after their write]. On every analysed joint, viscous damping is the motor
+damping and a readout delay is the goal latency (a free leg's replay cannot tell a later goal from
+an older read): those joint candidates keep their joint and leg scopes.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
-from hexapod_model.description import EFFECT_PARAMS, Effect, Robot, joint_name, parse_joint_name, JOINT_ROLES
+from hexapod_model.description import (EFFECT_PARAMS, JOINT_ROLES, SERVO_LAW_EFFECTS, Effect, Robot, joint_name,
+                                       parse_joint_name)
 
 
 @dataclass(frozen=True)
@@ -34,6 +43,12 @@ class Candidate:
     unit: str
     scale: float         # display value = scale * parameter
     digits: int
+    two_sided: bool = False   # the parameter's nominal value lies inside its range (a ratio): probed both ways
+
+    @property
+    def servo_law(self) -> bool:
+        """A term of the servo law: the same firmware on every servo, so fitted on the whole robot only."""
+        return self.effect in SERVO_LAW_EFFECTS
 
     def describe(self, value: float) -> str:
         v = self.scale * value
@@ -55,6 +70,14 @@ CANDIDATES: tuple[Candidate, ...] = (
     Candidate('compliance_deadband', 'margin_ticks', 0.3, 10.0, 2.0, False, 'a compliance dead-band', 'ticks', 1.0, 1),
     Candidate('readout_delay', 'delay_s', 0.0003, 0.04, 0.005, False, 'a position readout delay', 'ms', 1000.0, 1),
     Candidate('mass_error', 'payload_kg', 0.005, 0.4, 0.05, True, 'an extra mass at the foot', 'g', 1000.0, 0),
+    Candidate('punch', 'extra_punch_nm', 0.005, 0.6, 0.05, False,
+              'extra servo punch (least drive outside the compliance margin)', 'N m',
+              1.0, 3),
+    Candidate('motor_damping', 'ratio', 0.5, 2.5, 1.15, False, 'a motor damping (back-EMF and rotor friction)',
+              'times the model\'s', 1.0, 2, two_sided=True),
+    Candidate('goal_latency', 'delay_s', 0.0002, 0.04, 0.002, False,
+              'a goal latency (every goal acts later than the model assumes; reads older than their stamps on '
+              'every joint look the same)', 'ms', 1000.0, 2),
 )
 
 BY_NAME = {c.effect: c for c in CANDIDATES}

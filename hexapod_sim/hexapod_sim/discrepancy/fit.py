@@ -51,6 +51,10 @@ from .simulate import Replay
 
 ROUNDING_VAR = 1.0 / 12.0   # variance [tick^2] of rounding to whole ticks (uniform in +-0.5)
 NONLINEAR = ('static_friction', 'backlash', 'compliance_deadband', 'torque_saturation')
+TIME_SHIFTS = ('readout_delay', 'goal_latency')     # predicted as a shift of the prediction (simulate.Replay.sample)
+# A joint effect that, put on every analysed joint, is a servo-law term the tool names as such: on the
+# whole robot the servo law's candidate stands for it (the replay cannot tell them apart).
+ROBOT_WIDE_AS = {'viscous_damping': 'motor_damping', 'readout_delay': 'goal_latency'}
 
 
 SINGLE_SWING_BLOCK_S = 0.1   # fit / held-out blocks within the only swing of a leg (walks)
@@ -93,12 +97,24 @@ def make_split(replay: Replay, block_s: float = 2.0, skip_start_s: float = 0.3, 
     return Split(fit, hold, 0.0 if by_segment else block_s)
 
 
+def _units(c: Candidate, joints) -> list[tuple[str, tuple[str, ...]]]:
+    """The smallest sets of ``joints`` candidate ``c`` is put on, each with a key joint: single joints;
+    a payload's legs; the servo law's whole robot (it is the same firmware on every servo)."""
+    joints = tuple(joints)
+    if c.servo_law:
+        return [(joints[0], joints)] if joints else []
+    if c.leg_only:
+        return [(leg_joints(leg)[0], tuple(j for j in leg_joints(leg) if j in joints))
+                for leg in sorted({parse_joint_name(j)[0] for j in joints})]
+    return [(j, (j,)) for j in joints]
+
+
 def _affected(effect: str, joints) -> set[str]:
     """Joints whose predictions an effect on ``joints`` changes."""
     out: set[str] = set()
     for j in joints:
         leg, role = parse_joint_name(j)
-        if effect == 'readout_delay':
+        if effect in TIME_SHIFTS:
             out.add(j)
         elif effect == 'mass_error':
             out.update(leg_joints(leg))
@@ -130,7 +146,7 @@ class Predictor:
         mine = {joint_name(leg, 'coxa')} if which == 'coxa' else {joint_name(leg, 'femur'), joint_name(leg, 'tibia')}
         key = []
         for e in effects:
-            if e.effect == 'readout_delay':
+            if e.effect in TIME_SHIFTS:       # a shift of the prediction at the reads, not of the rollout
                 continue
             if e.effect == 'mass_error':
                 if any(parse_joint_name(j)[0] == leg for j in e.joints):
@@ -223,8 +239,7 @@ def unobservable(pred: Predictor, split: Split, base_pred: dict, candidates, min
     out = {}
     for name in candidates:
         c = BY_NAME[name]
-        units = ([tuple(j for j in leg_joints(leg) if j in rep.reads) for leg in rep.legs] if c.leg_only
-                 else [(j,) for j in rep.joints])
+        units = [on for _key, on in _units(c, rep.joints)]
         blind = []
         for on in units:
             if on and not can_confirm(prediction_change(pred, split, base_pred, c.make(on, c.typical)),
@@ -266,6 +281,7 @@ class Hypothesis:
     evals: int = 0
     # per affected joint: held-out (squared error before, after, number of reads)
     hold_by_joint: dict = field(default_factory=dict)
+    bundle_gain: float = 0.0     # held-out gain of the servo-law terms taken with this one (its first)
 
     @property
     def effect(self) -> Effect:
@@ -303,6 +319,11 @@ class FitSettings:
     feature_window_s: float = 0.25
     candidates: tuple[str, ...] = tuple(c.effect for c in CANDIDATES)
     log: list = field(default_factory=list)
+
+
+def _gain(bundle: list[Hypothesis]) -> float:
+    """Held-out gain [tick^2] of a servo-law bundle taken together (:meth:`Namer._servo_law_bundle`)."""
+    return bundle[0].bundle_gain if len(bundle) > 1 else bundle[0].hold_gain
 
 
 class Namer:
@@ -352,11 +373,14 @@ class Namer:
         """
         if c.effect == 'static_friction':
             s = self.base.servo
-            g, m = s.gain_nm_per_tick, s.compliance_margin_ticks
-            k = np.arange(math.ceil(c.lo / g + m - 0.5), math.floor(c.hi / g + m - 0.5) + 1)
-            return tuple(float(v) for v in g * (k - m + 0.5))
+            g, m, pn = s.gain_nm_per_tick, s.compliance_margin_ticks, s.punch_nm
+            # levels pn + g (k - m) for k > m; probe the middle of every band between two of them
+            k = np.arange(math.ceil((c.lo - pn) / g + m - 0.5), math.floor((c.hi - pn) / g + m - 0.5) + 1)
+            return tuple(float(v) for v in pn + g * (k - m + 0.5))
         if c.effect in NONLINEAR:
             return (0.5 * c.typical, c.typical, 2.0 * c.typical)
+        if c.two_sided:            # a ratio: its nominal 1 lies inside the range, so probe both ways
+            return (1.0 / c.typical, c.typical)
         return (c.typical,)
 
     def _hypotheses(self) -> list[Hypothesis]:
@@ -365,6 +389,9 @@ class Namer:
         out = []
         for name in self.s.candidates:
             c = BY_NAME[name]
+            if c.servo_law:               # the same firmware on every servo: the whole robot only
+                out.append(Hypothesis(c, tuple(joints)))
+                continue
             if not c.leg_only:
                 out.extend(Hypothesis(c, (j,)) for j in joints)
             for leg in legs:
@@ -373,6 +400,11 @@ class Namer:
                     out.append(Hypothesis(c, lj))
             if len(legs) > 1:
                 out.append(Hypothesis(c, tuple(joints)))
+        # on every analysed joint, viscous damping is the motor damping and a readout delay the goal
+        # latency of the servo law: the servo law's candidate is the one named
+        every = set(joints)
+        out = [h for h in out if not (set(h.joints) == every and ROBOT_WIDE_AS.get(h.candidate.effect)
+                                      in self.s.candidates)]
         # drop duplicates (a leg with one analysed joint equals the joint hypothesis)
         seen, uniq = set(), []
         for h in out:
@@ -403,12 +435,7 @@ class Namer:
         for name in self.s.candidates:
             c = BY_NAME[name]
             mags = self._probes(c)
-            if c.leg_only:
-                units = [(leg_joints(leg)[0], tuple(leg_joints(leg)))
-                         for leg in sorted({parse_joint_name(j)[0] for j in joints})]
-            else:
-                units = [(j, (j,)) for j in joints]
-            for key_joint, on in units:
+            for key_joint, on in _units(c, joints):
                 aff = sorted(_affected(c.effect, on) & active)
                 if not aff:
                     continue
@@ -419,8 +446,12 @@ class Namer:
         fitm, holdm = self.split.fit, self.split.hold
         for h in hyps:
             c = h.candidate
-            members = [leg_joints(parse_joint_name(j)[0])[0] for j in h.joints] if c.leg_only else list(h.joints)
-            members = list(dict.fromkeys(members))
+            if c.servo_law:
+                members = [h.joints[0]]
+            elif c.leg_only:
+                members = list(dict.fromkeys(leg_joints(parse_joint_name(j)[0])[0] for j in h.joints))
+            else:
+                members = list(h.joints)
             for m in range(len(self._probes(c))):
                 D: dict[str, np.ndarray] = {}
                 for mj in members:
@@ -588,6 +619,13 @@ class Namer:
             if not ok:
                 break
             best = max(ok, key=lambda h: h.hold_gain)
+            bundle = self._servo_law_bundle(effects, base_pred, ok)
+            if len(bundle) > 1 and _gain(bundle) > best.hold_gain:
+                for h in bundle:
+                    effects.append(h.effect)
+                    accepted.append(h)
+                    self.s.log.append(('servo_law', round_, h.candidate.effect, h.value))
+                continue
             for h in sorted(ok, key=lambda h: len(h.joints)):
                 if (h.candidate.effect == best.candidate.effect and set(h.joints) < set(best.joints)
                         and h.hold_gain >= self.s.parsimony * best.hold_gain
@@ -600,6 +638,46 @@ class Namer:
             accepted = self._refine(accepted)
             effects = [h.effect for h in accepted]
         return effects, accepted
+
+    def _servo_law_bundle(self, effects, base_pred, ok: list[Hypothesis]) -> list[Hypothesis]:
+        """The servo-law terms that together explain the recording, starting from the best one accepted alone.
+
+        Punch, motor damping and goal latency act on every servo at once and partly stand in for each
+        other (more punch speeds a move up where more damping slows it down), so one of them alone can
+        lose to a joint effect that mimics their sum (a torque limit on the whole robot). Each other
+        term is fitted with the ones already taken in place and taken when it passes the acceptance
+        test; every term is then refitted once with the others in place. Returns the terms taken
+        (only the first when no other passes)."""
+        law = [h for h in ok if h.candidate.servo_law]
+        if not law:
+            return []
+        bundle = [max(law, key=lambda h: h.hold_gain)]
+        joints = tuple(self.rep.joints)
+        todo = [BY_NAME[n] for n in self.s.candidates
+                if BY_NAME[n].servo_law and n != bundle[0].candidate.effect]
+        while todo:
+            inner = list(effects) + [h.effect for h in bundle]
+            pred = self.pred.predict(inner, joints)
+            tried = [self.fit(Hypothesis(c, joints), inner, pred) for c in todo]
+            good = [h for h in tried if self.passes(h)]
+            if not good:
+                break
+            pick = max(good, key=lambda h: h.hold_gain)
+            bundle.append(pick)
+            todo = [c for c in todo if c.effect != pick.candidate.effect]
+        if len(bundle) > 1:
+            for i, h in enumerate(list(bundle)):
+                others = list(effects) + [x.effect for k, x in enumerate(bundle) if k != i]
+                nh = self.fit(Hypothesis(h.candidate, h.joints), others, self.pred.predict(others, joints))
+                if not self.passes(nh):         # a term the others make redundant: not taken
+                    return bundle[:1]
+                bundle[i] = nh
+            # the bundle's gain over the base of this round, on every joint it touches
+            b0, n0 = self._sse(base_pred, joints, 'hold')
+            after = self.pred.predict(list(effects) + [h.effect for h in bundle], joints)
+            b1, _ = self._sse(after, joints, 'hold')
+            bundle[0].bundle_gain = b0 - b1
+        return bundle
 
     def _pick_for_fit(self, hyps: list[Hypothesis]) -> list[Hypothesis]:
         """The best screened hypotheses, at most two per effect, ``n_fit`` in all."""

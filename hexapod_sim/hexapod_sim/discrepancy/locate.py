@@ -257,4 +257,7 @@ REVEALED_BY = {
     'compliance_deadband': 'a steady hold',
     'readout_delay': 'fast motion',
     'mass_error': 'a femur or tibia under changing gravity load',
+    'punch': 'small position errors (a hold under load, the end of a move)',
+    'motor_damping': 'fast motion',
+    'goal_latency': 'goals that change quickly',
 }

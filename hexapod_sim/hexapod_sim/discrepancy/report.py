@@ -38,7 +38,8 @@ def to_json(a: Analysis, bag: str | None = None) -> dict:
         'effects': [{'effect': f.effect.effect, 'joints': list(f.effect.joints),
                      'params': {k: float(v) for k, v in f.effect.params.items()},
                      'heldout_rmse_ticks_before': _f(f.heldout_rmse_ticks_before),
-                     'heldout_rmse_ticks_after': _f(f.heldout_rmse_ticks_after)} for f in a.effects],
+                     'heldout_rmse_ticks_after': _f(f.heldout_rmse_ticks_after),
+                     'servo_law': BY_NAME[f.effect.effect].servo_law} for f in a.effects],
         'cannot_show': {name: list(js) for name, js in a.blind.items()},
         'glitches': [{'topic': g.topic, 'joint': g.joint, 't': _f(g.t_s), 'kind': g.kind, 'detail': g.detail}
                      for g in a.glitches],
@@ -74,7 +75,10 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
     for f in a.effects:
         c = BY_NAME[f.effect.effect]
         value = next(iter(f.effect.params.values()))
-        subject = f.scope if f.scope != 'the whole robot' else 'every joint (the whole robot)'
+        if c.servo_law:
+            subject = 'the servo law (the firmware of every servo)'
+        else:
+            subject = f.scope if f.scope != 'the whole robot' else 'every joint (the whole robot)'
         lines.append(f'{subject}: the simulation left out {c.describe(value)}; it shows '
                      f'{CONDITION_WORDS.get(f.condition, f.condition)}; held-out RMS error '
                      f'{f.heldout_rmse_ticks_before:.2f} -> {f.heldout_rmse_ticks_after:.2f} ticks.')

@@ -3,7 +3,10 @@
 Timing convention (the project's servo contract): the firmware runs at integer multiples of the
 control period (1 ms); a goal written at ``t`` takes effect at the first firmware tick at or
 after ``t``; a read reports the position at its stamp (the start of the read transaction), minus
-any readout delay. Femur and tibia of a leg are replayed together through the two-link
+any readout delay. A goal latency (a servo-law effect: every goal acts that much later) moves the
+whole response of a free leg later by the same time, so it is predicted the same way, as a
+shift of the prediction at the reads: the replay cannot tell it from a readout delay of every joint.
+Femur and tibia of a leg are replayed together through the two-link
 :class:`~hexapod_model.swing_model.LegModel`; the coxa through the 1-DOF
 :class:`~hexapod_model.swing_model.CoxaModel` (whole leg's inertia about the vertical axis, no
 gravity) at the leg's typical femur/tibia pose while the coxa moves.
@@ -214,7 +217,8 @@ class Replay:
     def sample(self, robot: Robot, j: str, per_seg, col: int) -> np.ndarray:
         """Predicted ticks at the reads of ``j`` from per-segment rollouts (column ``col``), with its readout delay."""
         r = self.reads[j]
-        delay = robot.joint_effects(j).readout_delay_s
+        e = robot.joint_effects(j)
+        delay = e.readout_delay_s + e.goal_latency_s
         pred = np.empty(len(r.t_s))
         for i, (k0, q) in enumerate(per_seg):
             m = r.segment == i
