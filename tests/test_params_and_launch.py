@@ -96,7 +96,7 @@ BAD_START = {
     'driver_node': ('fault_policy:=hard', "parameter fault_policy: must be one of limp, recover, got 'hard'"),
     'sim_node': ('terrain:=moon', "parameter terrain: must be one of flat, blocks, stairs, rough, mockup, got 'moon'"),
     'model_node': ('robot_overlays:=[7]', 'parameter robot_overlays: must be a list of strings'),
-    'locomotion_node': ('t_des_s:=-0.5', 'parameter t_des_s: must be a finite number > 0, got -0.5'),
+    'locomotion_node': ('t_des_s:=-0.5', 'parameter t_des_s: must be a finite number in (0, 10], got -0.5'),
 }
 
 
@@ -136,6 +136,19 @@ def test_the_composed_robot_refuses_a_bad_locomotion_parameter_in_one_line():
     assert r.returncode == 1, (r.stdout, r.stderr)
     assert lines == [f'robot: {line}'], r.stderr
     assert r.stdout.strip() == '' and 'Traceback' not in r.stderr
+
+
+@pytest.mark.parametrize('exe', ['robot', 'locomotion_node'])
+def test_a_huge_duration_is_refused_up_front_with_its_range(exe):
+    """t_des_s:=1e9 used to be accepted and the controller died at the first /cmd_vel; the schema bounds
+    every gait-cycle duration, so the node refuses it in one line naming the value and the range."""
+    exe_path = install_prefix('hexapod_locomotion') / 'lib' / 'hexapod_locomotion' / exe
+    r = subprocess.run([str(exe_path), '--ros-args', '-p', 't_des_s:=1e9'],
+                       env=dict(node_env(), ROS_DOMAIN_ID='26'), capture_output=True, text=True, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    assert lines == [f'{exe}: parameter t_des_s: must be a finite number in (0, 10], got 1e+09'], r.stderr
+    assert 'Traceback' not in r.stdout + r.stderr
 
 
 @pytest.mark.parametrize('package, exe', [('hexapod_sim', 'sim_node'), ('hexapod_locomotion', 'robot')])

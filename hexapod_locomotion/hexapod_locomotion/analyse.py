@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from hexapod_sim.bagio import BagError, BagReader, BagWarning
-from hexapod_model.cli_common import add_no_progress_option, make_parser, output_file, plot_extensions
+from hexapod_model.cli_common import (add_no_progress_option, interrupted, make_parser, open_for_writing, output_file,
+                                      plot_extensions)
 from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, POWER, SIM_TRUTH_POSE,
                                    SWING_DOWN, stamp_seconds, topic_key)
 from hexapod_model.description import LEGS, DescriptionError, joint_name, load_robot, parse_joint_name
@@ -327,11 +328,19 @@ def report_lines(r: dict, json_path: str | None = None) -> list[str]:
 def main(argv=None) -> int:
     ap = make_parser('analyse', __doc__)
     ap.add_argument('bag', help='rosbag2 directory or .mcap file')
-    ap.add_argument('--json', metavar='FILE', type=output_file(('.json',)), help='write the full analysis as JSON')
-    ap.add_argument('--plot', metavar='PNG', type=output_file(plot_extensions),
+    ap.add_argument('--json', metavar='FILE', type=output_file(('.json',), create_parent=True),
+                    help='write the full analysis as JSON (its folder is created)')
+    ap.add_argument('--plot', metavar='PNG', type=output_file(plot_extensions, create_parent=True),
                     help='plot measured error, both thresholds and both detectors\' stops of the first swing-downs')
     add_no_progress_option(ap)
     args = ap.parse_args(argv)
+    try:
+        return _analyse(ap, args)
+    except KeyboardInterrupt:
+        return interrupted(ap.prog, 'nothing written')
+
+
+def _analyse(ap, args) -> int:
     try:
         r = rerun_detectors(args.bag, progress=args.progress)
     except (BagError, AnalysisError, DetectorError) as exc:
@@ -342,10 +351,10 @@ def main(argv=None) -> int:
     for line in report_lines(r, args.json):
         print(line)
     if args.plot:
-        plot(r, Path(args.plot))
+        plot(r, open_for_writing(args.plot))
         print(f'plot: {args.plot}')
     if args.json:
-        Path(args.json).write_text(json.dumps({k: v for k, v in r.items() if k != '_traces'}, indent=1))
+        open_for_writing(args.json).write_text(json.dumps({k: v for k, v in r.items() if k != '_traces'}, indent=1))
         print(f'JSON: {args.json}')
     return 0
 

@@ -12,8 +12,9 @@ import sys
 import time
 from pathlib import Path
 
-from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, fail, finite_float, make_parser,
-                                      nonnegative_int, output_file, port_number, positive_float)
+from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, fail, finite_float, interrupted,
+                                      make_parser, nonnegative_int, output_file, port_number, positive_float,
+                                      positive_float_at_most)
 from hexapod_sim.terrain import MOCKUP_COURSE_END_M
 
 from .trial_runner import TrialConfig, run_trial
@@ -50,12 +51,14 @@ def build_parser():
     from hexapod_sim.render import VIDEO_EXTENSIONS
     from hexapod_sim.terrain import MOCKUP_BLOCKS_X_M, MOCKUP_STAIRS_X_M, TERRAINS
 
+    from .controller import MAX_STEP_S
     from .detector import DETECTOR_KINDS
     from .gait import load_gaits
     ap = make_parser('demo', __doc__)
     ap.add_argument('--gait', default='tripod', choices=sorted(load_gaits()), help='gait (data/gaits.yaml)')
     ap.add_argument('--detector', default='adaptive', choices=DETECTOR_KINDS, help='ground detector')
-    ap.add_argument('--t-des', type=positive_float, default=1.0, help='swing-down duration t_des [s]')
+    ap.add_argument('--t-des', type=positive_float_at_most(MAX_STEP_S), default=1.0,
+                    help=f'swing-down duration t_des [s], at most {MAX_STEP_S:g}')
     ap.add_argument('--terrain', default='mockup', choices=list(TERRAINS), help='terrain')
     ap.add_argument('--seed', type=nonnegative_int, default=0, help='seed of the random terrain parts')
     ap.add_argument('--start-x', type=finite_float, default=0.0,
@@ -137,6 +140,14 @@ def main(argv=None) -> int:
 
     try:
         res = run_trial(cfg, progress=progress, on_video_write=on_video, live=live)
+    except KeyboardInterrupt:         # the trial closed its bag (and wrote the GIF so far) on the way out
+        bar.close()
+        if bag and Path(bag).is_dir() and not any(Path(bag).iterdir()):
+            Path(bag).rmdir()         # stopped before the recording began: no empty bag folder left
+            bag = None
+        kept = [f'bag {bag} closed' if bag else '', f'video {args.video}' if args.video and Path(args.video).is_file() else '']
+        kept = [k for k in kept if k]
+        return interrupted(ap.prog, f'{" and ".join(kept)}, with the walk so far' if kept else 'nothing recorded')
     finally:
         if live is not None:
             live.close()

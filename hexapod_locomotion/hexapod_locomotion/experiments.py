@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.cli_common import add_no_progress_option, make_parser, output_directory, positive_float, positive_int
+from hexapod_model.cli_common import (add_no_progress_option, interrupted, make_parser, output_directory, positive_float,
+                                      positive_int)
 from hexapod_model.executor import ExecutorError, JobsInterrupted, add_executor_options, map_jobs
 from hexapod_sim.terrain import MOCKUP_COURSE_END_M
 
@@ -360,9 +361,6 @@ def main(argv=None) -> int:
         return _keep_interrupted(ap.prog, args, out, report, exc)
 
 
-EXIT_INTERRUPTED = 130      # 128 + SIGINT, as a shell reports a program stopped by Ctrl-C
-
-
 def _json_path(args, out: Path) -> Path:
     return Path(args.json) if args.json else out / f'{args.which}.json'
 
@@ -374,8 +372,7 @@ def _keep_interrupted(prog: str, args, out: Path, report: dict, exc: KeyboardInt
     stages = [k for k in ('trials_results', 'free_swing', 'fig12') if k in report]
     trials = len(report.get('trials_results', [])) + len(report.get('fig12', [])) + len(partial)
     if not stages and not partial:
-        print(f'{prog}: interrupted (Ctrl-C) before any trial finished; nothing written', file=sys.stderr, flush=True)
-        return EXIT_INTERRUPTED
+        return interrupted(prog, 'no trial had finished, nothing written')
     report['interrupted'] = True
     if partial:
         report['interrupted_stage'] = {'stage': getattr(exc, 'desc', ''), 'finished': len(partial),
@@ -387,8 +384,7 @@ def _keep_interrupted(prog: str, args, out: Path, report: dict, exc: KeyboardInt
     what = f'{trials} finished trial(s)' + (f' ({len(partial)} of {len(exc.results)} {exc.desc})' if partial else '')
     if 'free_swing' in report:
         what += ' and the free-swing table'
-    print(f'{prog}: interrupted (Ctrl-C): kept {what} in {path}', file=sys.stderr, flush=True)
-    return EXIT_INTERRUPTED
+    return interrupted(prog, f'kept {what} in {path}')
 
 
 def _run(args, out: Path, report: dict) -> int:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from hexapod_model.param_schema import NodeSpec, RobotSource, param
 
-from .controller import LocomotionParams
+from .controller import MAX_STEP_S, LocomotionParams
 from .detector import DETECTOR_KINDS, DetectorConfig
 from .gait import load_gaits
 
@@ -34,7 +34,7 @@ class LocomotionNodeParams:
     fixed_threshold_tick: float = param(_DET.fixed_threshold_tick, 'baseline threshold [ticks] of the fixed '
                                         'detector', min=0.0)
     t_des_s: float = param(_GAIT.t_des_s, 'swing-down duration [s]; shorter is faster but hits the ground harder',
-                           min=0.0, min_exclusive=True)
+                           min=0.0, min_exclusive=True, max=MAX_STEP_S)
     t_com_s: float = param(0.0, 'duration of one bus read [s]; 0 = from the robot description', min=0.0)
     lift_m: float = param(_GAIT.lift_m, 'swing-up height [m]', min=0.0)
     ground_depth_m: float = param(_GAIT.ground_depth_m, 'theta_fin this far below the nominal ground [m]; deeper '
@@ -52,15 +52,15 @@ class LocomotionNodeParams:
                                      'large and the swing-down is slow all the way', min=0.0)
     fin_dwell_s: float = param(_GAIT.fin_dwell_s, 'keep reading a leg whose goal reached theta_fin this long [s] '
                                'before giving up on ground (0 = Algorithm 1); too long delays the next phase when '
-                               'there is no ground', min=0.0)
+                               'there is no ground', min=0.0, max=MAX_STEP_S)
     t_swing_up_s: float = param(_GAIT.t_swing_up_s, 'swing-up duration [s]; shorter is faster but jerks the body',
-                                min=0.0, min_exclusive=True)
+                                min=0.0, min_exclusive=True, max=MAX_STEP_S)
     t_swing_forward_s: float = param(_GAIT.t_swing_forward_s, 'swing-forward duration [s]; shorter is faster but the '
-                                     'leg may not settle before the swing-down', min=0.0, min_exclusive=True)
+                                     'leg may not settle before the swing-down', min=0.0, min_exclusive=True, max=MAX_STEP_S)
     t_settle_s: float = param(_GAIT.t_settle_s, 'pause before the swing-down [s]; too short and a model started at '
-                              'rest (start_in_motion false) mispredicts the start', min=0.0)
+                              'rest (start_in_motion false) mispredicts the start', min=0.0, max=MAX_STEP_S)
     t_level_s: float = param(_GAIT.t_level_s, 'body leveling and forward motion duration [s]; shorter is faster but '
-                             'loads the servos harder', min=0.0, min_exclusive=True)
+                             'loads the servos harder', min=0.0, min_exclusive=True, max=MAX_STEP_S)
     overlap_transfer: bool = param(_GAIT.overlap_transfer, 'gait-cycle structure: true = the body leveling after a '
                                    'swing-down runs while the next group swings up and forward (the phase takes '
                                    'max(t_level_s, t_swing_up_s + t_swing_forward_s) besides settle and swing-down); '

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.cli_common import add_no_progress_option, make_parser, output_directory, positive_float, positive_int
+from hexapod_model.cli_common import (add_no_progress_option, interrupted, make_parser, output_directory, positive_float,
+                                      positive_int)
 from hexapod_model.executor import ExecutorError, JobsInterrupted, add_executor_options, map_jobs
 from hexapod_sim.terrain import MOCKUP_COURSE_END_M
 
@@ -226,17 +227,14 @@ def main(argv=None) -> int:
         return 1
     except JobsInterrupted as exc:
         if not exc.finished:
-            print(f'{ap.prog}: interrupted (Ctrl-C) before any trial finished; nothing written', file=sys.stderr)
-            return 130
+            return interrupted(ap.prog, 'no trial had finished, nothing written')
         path = Path(args.json) if args.json else out / f'sweep_{args.param}.json'
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps({'which': 'sweep', 'param': args.param, 'values': values, 'trials': args.trials,
                                     'interrupted': True, 'finished': exc.finished, 'of': len(cfgs),
                                     'trials_results': [{k: v for k, v in r.items() if k != 'events'}
                                                        for r in exc.finished_results()]}, indent=1))
-        print(f'{ap.prog}: interrupted (Ctrl-C): kept {exc.finished} of {len(cfgs)} finished trial(s) in {path}',
-              file=sys.stderr)
-        return 130
+        return interrupted(ap.prog, f'kept {exc.finished} of {len(cfgs)} finished trial(s) in {path}')
     rows = summarize(args.param, values, results)
     print(format_table(args.param, rows))
     out.mkdir(parents=True, exist_ok=True)

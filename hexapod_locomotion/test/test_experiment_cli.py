@@ -117,7 +117,7 @@ def test_ctrl_c_keeps_and_names_the_finished_trials(tmp_path):
     assert took < STOP_BOUND_S, f'took {took:.1f} s to stop'
     assert run.proc.returncode == 130 and 'Traceback' not in err, err
     lines = run.last_lines()
-    assert len(lines) == 1 and 'interrupted (Ctrl-C): kept ' in lines[0] and str(out / 'table4.json') in lines[0], lines
+    assert len(lines) == 1 and 'interrupted (Ctrl-C); kept ' in lines[0] and str(out / 'table4.json') in lines[0], lines
     report = json.loads((out / 'table4.json').read_text())
     kept = report['interrupted_stage_results']
     assert report['interrupted'] and 1 <= len(kept) < 18

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 import tempfile
 from pathlib import Path
 from typing import Callable, Iterable
@@ -84,6 +85,16 @@ def positive_float(text: str) -> float:
     if not (math.isfinite(v) and v > 0):
         raise argparse.ArgumentTypeError(f'must be finite and > 0, got {text}')
     return v
+
+
+def positive_float_at_most(limit: float) -> Callable[[str], float]:
+    """argparse type: a finite number in (0, limit]."""
+    def check(text: str) -> float:
+        v = _float(text)
+        if not (math.isfinite(v) and 0 < v <= limit):
+            raise argparse.ArgumentTypeError(f'must be in (0, {limit:g}], got {text}')
+        return v
+    return check
 
 
 def nonnegative_float(text: str) -> float:
@@ -200,11 +211,13 @@ def output_directory(text: str) -> str:
     return text
 
 
-def output_file(extensions: Iterable[str] | Callable[[], Iterable[str]] | None = None):
+def output_file(extensions: Iterable[str] | Callable[[], Iterable[str]] | None = None, create_parent: bool = False):
     """argparse type: a file to write, in an existing directory, with one of ``extensions``.
 
     ``extensions`` may be a callable (e.g. matplotlib's registry, imported only when the option is
     given). Checked while parsing, so a run is not lost to a typo in an output name at its end.
+    ``create_parent``: the directory may be missing (the tool makes it with :func:`open_for_writing`
+    when it writes the file); its nearest existing ancestor must take new folders.
     """
     def check(text: str) -> str:
         p = Path(text)
@@ -216,6 +229,11 @@ def output_file(extensions: Iterable[str] | Callable[[], Iterable[str]] | None =
         if p.is_dir():
             raise argparse.ArgumentTypeError(f'{text} is a directory, expected a file name')
         parent = p.parent if str(p.parent) else Path('.')
+        if create_parent:
+            while not parent.exists():
+                parent = parent.parent if str(parent.parent) not in ('', str(parent)) else Path('.')
+            if not parent.is_dir():
+                raise argparse.ArgumentTypeError(f'{text}: {parent} is a file, expected a folder')
         if not parent.is_dir():
             raise argparse.ArgumentTypeError(f'{text}: directory {parent} does not exist')
         why = _cannot_create_in(parent)
@@ -223,6 +241,22 @@ def output_file(extensions: Iterable[str] | Callable[[], Iterable[str]] | None =
             raise argparse.ArgumentTypeError(f'{text}: directory {parent} is not writable: {why}')
         return text
     return check
+
+
+def open_for_writing(path: str | Path) -> Path:
+    """``path`` with its parent folders made (an :func:`output_file` with ``create_parent``)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+EXIT_INTERRUPTED = 130      # 128 + SIGINT, as a shell reports a program stopped by Ctrl-C
+
+
+def interrupted(prog: str, kept: str = '') -> int:
+    """Ctrl-C in a tool: one line (what was kept, if anything) instead of a traceback; the exit code."""
+    print(f'{prog}: interrupted (Ctrl-C)' + (f'; {kept}' if kept else ''), file=sys.stderr, flush=True)
+    return EXIT_INTERRUPTED
 
 
 def plot_extensions() -> tuple[str, ...]:
