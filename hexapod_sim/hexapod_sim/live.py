@@ -25,6 +25,10 @@ LIVE_TOPICS = (contract.ROBOT_DESCRIPTION, contract.TF_STATIC, contract.TF, cont
                contract.GROUND_DETECTION, contract.SWING_DOWN, contract.DIAGNOSTICS, contract.SIM_TRUTH_POSE,
                contract.SIM_TRUTH_CONTACTS, contract.IMU, contract.POWER)
 LATCHED = (contract.ROBOT_DESCRIPTION, contract.TF_STATIC)
+# Channels carry the names a bag stores (absolute: '/joint_states', '/robot_description'), whatever
+# namespace the nodes run in, so a live session and a recording open with the same layout.
+_LIVE = {contract.bag_topic(t) for t in LIVE_TOPICS}
+_LATCHED = {contract.bag_topic(t) for t in LATCHED}
 
 
 class LiveViewError(RuntimeError):
@@ -52,7 +56,7 @@ class LiveView:
 
         class Listener(foxglove.ServerListener):
             def on_subscribe(self, client, channel) -> None:   # a latched topic's last message again
-                if channel.topic in LATCHED:
+                if channel.topic in _LATCHED:
                     with view._lock:
                         view._resend.add(channel.topic)
 
@@ -71,6 +75,7 @@ class LiveView:
         return f'ws://{HOST}:{self.port}'
 
     def _channel(self, topic: str, msg_type: str):
+        topic = contract.bag_topic(topic)
         ch = self._channels.get(topic)
         if ch is None:
             full = normalize_type_name(msg_type)
@@ -80,12 +85,14 @@ class LiveView:
         return ch
 
     def log(self, topic: str, msg_type: str, cdr: bytes, t_ns: int) -> None:
-        """Send one CDR-encoded message (topics outside :data:`LIVE_TOPICS` are not served)."""
-        if topic not in LIVE_TOPICS:
+        """Send one CDR-encoded message on the bag's name of ``topic`` (topics outside
+        :data:`LIVE_TOPICS` are not served)."""
+        topic = contract.bag_topic(topic)
+        if topic not in _LIVE:
             return
         with self._lock:
             ch = self._channel(topic, msg_type)
-            if topic in LATCHED:
+            if topic in _LATCHED:
                 self._latched[topic] = (msg_type, cdr, t_ns)
             resend = [self._latched[t] + (t,) for t in self._resend if t in self._latched]
             self._resend.clear()

@@ -28,8 +28,13 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E
 from hexapod_sim.live import LiveView, LiveViewError  # noqa: E402
 from hexapod_sim.recorder import Recorder  # noqa: E402
 
-WANTED = (contract.ROBOT_DESCRIPTION, contract.TF_STATIC, contract.TF, contract.JOINT_STATES,
-          contract.GROUND_DETECTION)
+def bag_topic(name: str) -> str:
+    return contract.bag_topic(name)
+
+
+# the live channels carry the bags' (and the README's) absolute names
+WANTED = tuple(bag_topic(t) for t in (contract.ROBOT_DESCRIPTION, contract.TF_STATIC, contract.TF,
+                                      contract.JOINT_STATES, contract.GROUND_DETECTION))
 
 
 class Client:
@@ -92,11 +97,11 @@ class Client:
 
 
 def check_robot_and_tf(robot, client):
-    (_, desc), *_ = client.decode(contract.ROBOT_DESCRIPTION)
+    (_, desc), *_ = client.decode(bag_topic(contract.ROBOT_DESCRIPTION))
     assert desc.data == urdf_xml(robot)
     fixed = {tr.child_frame_id: (tr.header.frame_id, matrix_of(tr.transform))
-             for _, msg in client.decode(contract.TF_STATIC) for tr in msg.transforms}
-    _, last = client.decode(contract.TF)[-1]
+             for _, msg in client.decode(bag_topic(contract.TF_STATIC)) for tr in msg.transforms}
+    _, last = client.decode(bag_topic(contract.TF))[-1]
     tree = {tr.child_frame_id: (tr.header.frame_id, matrix_of(tr.transform)) for tr in last.transforms}
     tree.update(fixed)
 
@@ -135,10 +140,13 @@ def test_recorder_feeds_the_live_view_and_a_client_receives_each_channel():
     for leg in LEGS:
         theta = angles[[ALL_JOINTS.index(f'leg{leg}_{r}') for r in ('coxa', 'femur', 'tibia')]]
         np.testing.assert_allclose(pose(f'leg{leg}_foot', 'base_link'), leg_frames(robot, leg, theta)[-1], atol=1e-12)
-    (_, js), *_ = client.decode(contract.JOINT_STATES)
+    (_, js), *_ = client.decode(bag_topic(contract.JOINT_STATES))
     assert list(js.name) == ['leg1_femur'] and js.position[0] == pytest.approx(angles[1])
-    (_, gd), *_ = client.decode(contract.GROUND_DETECTION)
+    (_, gd), *_ = client.decode(bag_topic(contract.GROUND_DETECTION))
     assert gd.leg == 1 and gd.stopped and gd.err_tick == 4.0
+    from hexapod_sim.live import LIVE_TOPICS
+    assert {c['topic'] for c in client.channels.values()} == {bag_topic(t) for t in LIVE_TOPICS}
+    assert '/ground_detection' in {c['topic'] for c in client.channels.values()}
 
 
 def test_port_in_use_is_one_clear_error():
@@ -185,21 +193,28 @@ def test_demo_foxglove_serves_the_walk():
     assert proc.returncode == 0, ''.join(lines)
     tree, pose = check_robot_and_tf(robot, client)
     assert tree['base_link'][0] == 'world'                 # the body pose of the sim's truth
-    assert client.decode(contract.GROUND_DETECTION)[0][1].detector == 'adaptive'
+    assert client.decode(bag_topic(contract.GROUND_DETECTION))[0][1].detector == 'adaptive'
 
 
-def test_sim_node_parameter_serves_the_live_view():
+@pytest.mark.parametrize('namespace', [None, '/hexa'])
+def test_sim_node_parameter_serves_the_live_view(namespace):
+    """The channels have the bags' absolute names also when the node runs in a namespace."""
     robot = load_robot()
+    ns = ['-r', f'__ns:={namespace}'] if namespace else []
     proc = subprocess.Popen([sys.executable, '-m', 'hexapod_sim.sim_node', '--ros-args', '-p', 'foxglove:=true',
-                             '-p', 'foxglove_port:=0', '-p', 'truth_rate_hz:=100.0'],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=_env(91))
+                             '-p', 'foxglove_port:=0', '-p', 'truth_rate_hz:=100.0', *ns],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=_env(92 if namespace else 91))
     try:
         url, lines = _url_from(proc, r'Foxglove live view on (ws://127\.0\.0\.1:\d+)')
         # no controller runs: the sim reads every joint in turn; ground detection comes from a controller
-        client = Client(url, wanted=set(WANTED) - {contract.GROUND_DETECTION}, timeout=60.0)
+        client = Client(url, wanted=set(WANTED) - {bag_topic(contract.GROUND_DETECTION)}, timeout=60.0)
         client.wait()
     finally:
         proc.send_signal(2)
         proc.wait(timeout=30)
     assert proc.returncode == 0, ''.join(lines)
     check_robot_and_tf(robot, client)
+    topics = {c['topic'] for c in client.channels.values()}
+    assert {'/robot_description', '/joint_states', '/ground_detection', '/tf', '/tf_static'} <= topics, topics
+    assert all(t.startswith('/') and not t.startswith('/hexa') for t in topics), topics
