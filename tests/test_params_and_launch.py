@@ -114,8 +114,8 @@ def test_each_node_refuses_a_bad_start_value_in_one_line(exe):
 
 
 def test_locomotion_node_refuses_a_negative_dwell_margin_in_one_line():
-    """The improved touchdown's dwell margin (issue 16) is checked by the running node as its other
-    parameters are: one line naming it, exit 1, before the node does anything."""
+    """The improved touchdown's dwell margin (dwell_epsilon_tick) is checked by the running node as
+    its other parameters are: one line naming it, exit 1, before the node does anything."""
     exe_path = install_prefix('hexapod_locomotion') / 'lib' / 'hexapod_locomotion' / 'locomotion_node'
     r = subprocess.run([str(exe_path), '--ros-args', '-p', 'dwell_epsilon_tick:=-1.0'],
                        env=dict(node_env(), ROS_DOMAIN_ID='29'), capture_output=True, text=True, timeout=120)
@@ -136,6 +136,51 @@ def test_the_composed_robot_refuses_a_bad_locomotion_parameter_in_one_line():
     assert r.returncode == 1, (r.stdout, r.stderr)
     assert lines == [f'robot: {line}'], r.stderr
     assert r.stdout.strip() == '' and 'Traceback' not in r.stderr
+
+
+UNKNOWN = [('hexapod_sim', 'sim_node', 'sim_node: parameter terain: no such parameter (did you mean terrain?)'),
+           ('hexapod_locomotion', 'robot', 'robot: parameter terain: no such parameter (did you mean terrain?)'),
+           ('hexapod_locomotion', 'locomotion_node', 'locomotion_node: parameter terain: no such parameter'),
+           ('hexapod_model', 'model_node', 'model_node: parameter terain: no such parameter'),
+           ('hexapod_model', 'robot_state', 'robot_state: parameter terain: no such parameter'),
+           ('hexapod_driver', 'driver_node', '[hexapod_driver] parameter terain: no such parameter')]
+
+
+@pytest.mark.parametrize('package, exe, line', UNKNOWN, ids=[u[1] for u in UNKNOWN])
+def test_every_node_refuses_a_parameter_it_does_not_know(package, exe, line, tmp_path):
+    """A misspelled parameter used to be ignored (the robot walked on flat ground): each node refuses
+    it in one line naming it and the nearest known name, exit 1, before anything starts."""
+    r = subprocess.run([str(REPO / 'hexapod'), 'run', package, exe, '--ros-args', '-p', 'terain:=mockup'],
+                       env=dict(node_env(), ROS_DOMAIN_ID='25'), capture_output=True, text=True, timeout=120,
+                       cwd=tmp_path, stdin=subprocess.DEVNULL)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    assert len(lines) == 1 and lines[0].startswith(line), r.stderr
+    assert 'Traceback' not in r.stdout + r.stderr and list(tmp_path.iterdir()) == []
+
+
+def test_the_composed_robot_refuses_a_parameter_without_effect_in_its_mode(tmp_path):
+    """record is the sim node's: with hardware:=driver it would write nothing, silently."""
+    exe_path = install_prefix('hexapod_locomotion') / 'lib' / 'hexapod_locomotion' / 'robot'
+    r = subprocess.run([str(exe_path), '--ros-args', '-p', 'hardware:=driver', '-p', f'record:={tmp_path / "b"}'],
+                       env=dict(node_env(), ROS_DOMAIN_ID='24'), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    assert r.stderr.strip().splitlines() == [
+        'robot: parameter record: a sim_node parameter, no effect with hardware:=driver'], r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_composed_robot_refuses_a_file_entry_its_node_does_not_declare(tmp_path):
+    """A parameter file addresses each node by name: an entry its node does not declare is refused,
+    also when another composed node declares that name."""
+    f = tmp_path / 'p.yaml'
+    f.write_text('model_node:\n  ros__parameters:\n    gait: tetrapod\n')
+    exe_path = install_prefix('hexapod_locomotion') / 'lib' / 'hexapod_locomotion' / 'robot'
+    r = subprocess.run([str(exe_path), '--ros-args', '--params-file', str(f)],
+                       env=dict(node_env(), ROS_DOMAIN_ID='24'), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    assert r.stderr.strip().splitlines() == ['robot: parameter gait: model_node has no such parameter (--help lists them)'], \
+        r.stderr
 
 
 @pytest.mark.parametrize('exe', ['robot', 'locomotion_node'])

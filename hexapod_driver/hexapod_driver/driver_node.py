@@ -34,7 +34,7 @@ from hexapod_model import contract, diagnostics
 from hexapod_model.bus import BusError
 from hexapod_model.cli_common import prog_name
 from hexapod_model.description import ALL_JOINTS, DescriptionError
-from hexapod_model.node_params import NodeParams, init_node_process, node_command_line
+from hexapod_model.node_params import NodeParams, init_node_process, node_command_line, refuse_unknown_parameters
 from hexapod_model.param_schema import ParameterError, RobotSource, help_lines
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoStatus
 from hexapod_msgs.srv import SetReadSchedule
@@ -348,6 +348,7 @@ def main(args=None) -> int:
     rc = EXIT_OK
     executor = SingleThreadedExecutor()
     try:
+        refuse_unknown_parameters(NODE.node_name, NODE.names())      # before the device is opened
         node = DriverNode()
         executor.add_node(node)
         while node.exit_code is None and node.context.ok():

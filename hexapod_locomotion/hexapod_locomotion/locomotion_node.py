@@ -203,7 +203,7 @@ def _spin(node: LocomotionNode) -> None:
 
 def main(args=None):
     run_node('locomotion_node', LocomotionNode, node_help('locomotion_node', __doc__, NODE.schemas), args,
-             errors=(DescriptionError, GaitError, DetectorError, LocomotionError), spin=_spin)
+             errors=(DescriptionError, GaitError, DetectorError, LocomotionError), spin=_spin, spec=NODE)
 
 
 if __name__ == '__main__':

@@ -49,6 +49,32 @@ def _hardware(context) -> str:
     return _declared(context, 'robot', ComposedParams).hardware
 
 
+def _check_parameter_names(context, hardware: str) -> None:
+    """Refuse a parameter no composed node declares (a typo would run on the default), and one of the
+    other bus master's (``record`` with ``hardware:=driver``: it would do nothing), before any node
+    starts. ``-p`` reaches every node; a parameter file's entries addressed to one node must be its own."""
+    from hexapod_driver.config import NODE as DRIVER
+    from hexapod_model.node_params import parameters_given, unknown_parameter
+    from hexapod_model.param_schema import MODEL_NODE, ParameterError, specs
+    from hexapod_sim.params import NODE as SIM
+
+    from .params import NODE as LOCOMOTION
+    master, other = (DRIVER, SIM) if hardware == 'driver' else (SIM, DRIVER)
+    members = (master, MODEL_NODE, LOCOMOTION)
+    known = set(specs(ComposedParams)).union(*(m.names() for m in members))
+    elsewhere = {n: f'a {other.executable} parameter, no effect with hardware:={hardware}'
+                 for n in other.names() if n not in known}
+    given = parameters_given('robot', context)
+    exc = unknown_parameter(given, known, elsewhere)
+    if exc is not None:
+        raise exc
+    for m in members:
+        exc = unknown_parameter(parameters_given(m.node_name, context) - given, m.names(),
+                                what=f'{m.node_name} has no such parameter')
+        if exc is not None:
+            raise exc
+
+
 def _check_locomotion_parameters(context) -> None:
     """Refuse a bad locomotion_node parameter before any node starts (the bus master's and the model
     node's start-up lines would come first)."""
@@ -92,6 +118,7 @@ def main(args=None) -> None:
     try:
         with stopping_cleanly('robot', (DescriptionError, GaitError, DetectorError, LocomotionError, SimError, BagError)):
             hardware = _hardware(rclpy.get_default_context())
+            _check_parameter_names(rclpy.get_default_context(), hardware)
             _check_locomotion_parameters(rclpy.get_default_context())
             master, bus, cleanup = _bus_master(hardware)
             nodes.append(master)

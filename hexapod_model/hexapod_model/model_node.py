@@ -59,7 +59,7 @@ class ModelNode(Node):
 
 def main(args=None):
     run_node('model_node', ModelNode, node_help('model_node', __doc__, MODEL_NODE.schemas), args,
-             errors=(DescriptionError,))
+             errors=(DescriptionError,), spec=MODEL_NODE)
 
 
 if __name__ == '__main__':

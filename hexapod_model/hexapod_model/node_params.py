@@ -150,6 +150,47 @@ def node_command_line(argv: list[str] | None, exe: str, help_text: Callable[[], 
     return None
 
 
+ROS_OWN_PARAMETERS = ('use_sim_time', 'start_type_description_service')   # rclpy declares these on every node
+
+
+def parameters_given(node_name: str, context=None) -> set[str]:
+    """The names of the parameters the command line and parameter files give a node called
+    ``node_name`` (``-p`` for every node, a file's entries addressed to it or to ``/**``), read from a
+    short-lived node of that name before the real one starts."""
+    from rclpy.node import Node
+    probe = Node(node_name, context=context, start_parameter_services=False, enable_rosout=False)
+    try:
+        return set(getattr(probe, '_parameter_overrides', None) or {})
+    finally:
+        probe.destroy_node()
+
+
+def unknown_parameter(given, known, elsewhere: Mapping[str, str] | None = None,
+                      what: str = 'no such parameter') -> ParameterError | None:
+    """The refusal of the first name in ``given`` that is not in ``known`` (None: all known): it names
+    the nearest known name, or the node that would take it (``elsewhere``: name -> why it has no effect
+    here). QoS overrides (``qos_overrides.*``) are ROS's own."""
+    import difflib
+    known = set(known) | set(ROS_OWN_PARAMETERS)
+    for name in sorted(given):
+        if name in known or name.startswith('qos_overrides.'):
+            continue
+        if elsewhere and name in elsewhere:
+            return ParameterError(name, elsewhere[name])
+        close = difflib.get_close_matches(name, sorted(known), n=1)
+        return ParameterError(name, what + (f' (did you mean {close[0]}?)' if close else
+                                                           ' (--help lists them)'))
+    return None
+
+
+def refuse_unknown_parameters(node_name: str, known, context=None) -> None:
+    """Raise :class:`ParameterError` for a parameter given to ``node_name`` that it does not declare
+    (rclpy would ignore it: a typo such as ``terain:=mockup`` would run on the default)."""
+    exc = unknown_parameter(parameters_given(node_name, context), known)
+    if exc is not None:
+        raise exc
+
+
 def report(node_name: str, exc: ParameterError) -> int:
     """Print the one line for a refused start value; the exit code to use."""
     print(f'{node_name}: {exc}', file=sys.stderr, flush=True)
@@ -246,14 +287,15 @@ def stopping_cleanly(exe: str, errors: tuple = (), error_exit: int = 2):
 
 def run_node(exe: str, make_node: Callable[[], Any], help_text: Callable[[], str], args: list[str] | None = None,
              errors: tuple = (), error_exit: int = 2, close: Callable[[Any], None] | None = None,
-             spin: Callable[[Any], None] = spin_until_shutdown) -> None:
+             spin: Callable[[Any], None] = spin_until_shutdown, spec=None) -> None:
     """``main`` of a node executable that serves until Ctrl-C or SIGTERM.
 
     ``--help`` prints ``help_text()`` and starts nothing; arguments rclpy would ignore or cannot
     parse are refused in one line (:func:`node_command_line`, :func:`init_node_process`); stops and
     errors as :func:`stopping_cleanly`. At the end ``close(node)`` (the node's own cleanup), the
     node is destroyed and rclpy shut down. ``spin(node)`` serves it (default
-    :func:`spin_until_shutdown`)."""
+    :func:`spin_until_shutdown`). ``spec`` (the node's :class:`~hexapod_model.param_schema.NodeSpec`):
+    a parameter it does not declare is refused before the node starts."""
     import rclpy
     rc = node_command_line(None if args is None else list(args)[1:], exe, help_text)
     if rc is not None:
@@ -262,6 +304,8 @@ def run_node(exe: str, make_node: Callable[[], Any], help_text: Callable[[], str
     node = None
     try:
         with stopping_cleanly(exe, errors, error_exit):
+            if spec is not None:
+                refuse_unknown_parameters(spec.node_name, spec.names())
             node = make_node()
             spin(node)
     finally:

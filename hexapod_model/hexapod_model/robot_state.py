@@ -80,7 +80,8 @@ class RobotStateNode(Node):
 
 def main(args=None):
     run_node('robot_state', RobotStateNode,
-             node_help('robot_state', __doc__, ROBOT_STATE_NODE.schemas), args, errors=(DescriptionError,))
+             node_help('robot_state', __doc__, ROBOT_STATE_NODE.schemas), args, errors=(DescriptionError,),
+             spec=ROBOT_STATE_NODE)
 
 
 if __name__ == '__main__':

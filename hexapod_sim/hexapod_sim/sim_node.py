@@ -403,7 +403,8 @@ def _error_text(bits: int, enabled: bool) -> str:
 
 def main(args=None) -> None:
     run_node('sim_node', SimNode, node_help('sim_node', __doc__, NODE.schemas), args,
-             errors=(DescriptionError, SimError, BagError), error_exit=EXIT_BAD_PARAMETER, close=SimNode.close)
+             errors=(DescriptionError, SimError, BagError), error_exit=EXIT_BAD_PARAMETER, close=SimNode.close,
+             spec=NODE)
 
 
 if __name__ == '__main__':
