@@ -17,14 +17,19 @@ from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option
                                       positive_float_at_most)
 from hexapod_sim.terrain import MOCKUP_COURSE_END_M
 
+from .metrics import COT_WINDOW_S
 from .trial_runner import TrialConfig, run_trial
+
+# The walk's time limit counts from the stand-up; the first swing-down comes within about a second.
+STAND_UP_MARGIN_S = 1.0
 
 
 def summary_lines(res) -> list[str]:
     lines = []
     status = 'reached the end of the course' if res.reached_course_end else (
         'FELL' if res.fell else 'stopped at the time limit')
-    lines.append(f'walked {res.distance_m:.2f} m in {res.sim_time_s:.1f} s of simulated time ({status}), '
+    distance = res.distance_m if round(res.distance_m, 2) != 0 else 0.0      # never '-0.00 m'
+    lines.append(f'walked {distance:.2f} m in {res.sim_time_s:.1f} s of simulated time ({status}), '
                  f'{res.phases} swing-down phases')
     if res.cot:
         lines.append(f'speed {res.cot["speed_mps"]:.3f} m/s, mean power {res.cot["power_w"]:.1f} W, '
@@ -124,6 +129,10 @@ def main(argv=None) -> int:
     print(f'hexapod demo: {cfg.gait} gait, {cfg.detector} ground detection, t_des={cfg.t_des_s} s, '
           f'terrain "{cfg.terrain}" (seed {cfg.seed}), simulated AX-12A bus with T_com='
           f'{"description default" if cfg.t_com_s is None else cfg.t_com_s}', flush=True)
+    if args.duration < COT_WINDOW_S + STAND_UP_MARGIN_S:
+        print(f'note: the cost of transport (Eq. 18) needs {COT_WINDOW_S:g} s of walking from the first swing-down; '
+              f'--duration {args.duration:g} leaves less, so it will not be computed (use --duration '
+              f'{COT_WINDOW_S + STAND_UP_MARGIN_S:g} or more)', flush=True)
     from tqdm import tqdm
     total = round(max(args.course_end - args.start_x, 0.01), 2)
     bar = tqdm(total=total, unit='m', desc='walking', file=sys.stderr, mininterval=1.0, disable=not args.progress,

@@ -42,7 +42,7 @@ DETECTORS = ('fixed', 'adaptive')
 VARIANTS = ('fixed', 'adaptive', 'improved')
 IMPROVED_APPROACH_RATE = 0.5
 # The improved touchdown's dwell at theta_fin and the Eq. 17 margin in it (DetectorConfig.dwell_epsilon_tick).
-# Issue 16, 10 trials of 60 s per cell on the mockup: 50 ms with Eq. 17's 3 ticks missed 0.7-2.1 % of
+# Measured with table4 on the mockup, 10 trials of 60 s per cell: 50 ms with Eq. 17's 3 ticks missed 0.7-2.1 % of
 # the contacts per cell; with 1 tick 0.2-1.5 % (tripod t_des 1 s: 16 of 1080); 80 ms with 1 tick
 # 0.2-0.9 % (tripod 1 s: 9 of 1089). 0.5 ticks in 50 ms missed 6 of 1086 there but stopped more free legs
 # at theta_fin (12 against 9 premature stops): too close to the servo's one-tick resolution.
@@ -139,8 +139,29 @@ def summarize_table4(results: list[dict]) -> list[dict]:
                              'swing_downs': swings,
                              'body_rise_mm': float(np.mean(rise)) * 1e3 if rise else None,
                              'delay_beyond_floor_periods': float(np.mean(beyond)) if beyond else None,
-                             'paper_cot': paper[0], 'paper_speed_mps': paper[1]})
+                             'paper_cot': paper[0], 'paper_speed_mps': paper[1],
+                             'cot_missing': _cot_missing(rs)})
     return rows
+
+
+def _cot_missing(results: list[dict]) -> str | None:
+    """Why no trial of a cell has a cost of transport (its first trial's reason), or None."""
+    if any(r['cot'] for r in results):
+        return None
+    why = [w.removeprefix('CoT not computed: ') for r in results for w in r.get('warnings', [])
+           if w.startswith('CoT not computed: ')]
+    return why[0] if why else 'no trial computed it'
+
+
+def cot_note(rows: list[dict]) -> str | None:
+    """One line explaining the cells whose CoT and speed are '-', or None."""
+    missing = [r for r in rows if r.get('cot_missing')]
+    if not missing:
+        return None
+    from .metrics import COT_WINDOW_S
+    return (f'CoT and speed -: {len(missing)} cell(s) without one {COT_WINDOW_S:g} s window of Eq. 18 '
+            f'(e.g. {missing[0]["gait"]} {missing[0]["t_des_s"]:g} {missing[0]["detector"]}: {missing[0]["cot_missing"]}); '
+            f'give --duration {COT_WINDOW_S + 1:g} or more')
 
 
 def format_table4(rows: list[dict]) -> str:
@@ -154,6 +175,9 @@ def format_table4(rows: list[dict]) -> str:
                      f'{f(r["speed_mps"], "6.3f")} {r["paper_speed_mps"]:6.3f} | {r["falls"]:5d} {r["premature_stops"]:5d} '
                      f'{r["missed_contacts"]:6d} {f(r["peak_femur_torque_nm"], "6.2f")} {f(r["body_rise_mm"], "5.1f")} '
                      f'{f(r["delay_beyond_floor_periods"], "6.1f")}')
+    note = cot_note(rows)
+    if note:
+        lines.append(note)
     for v in ('adaptive', 'improved'):
         wins = 0
         cells = 0

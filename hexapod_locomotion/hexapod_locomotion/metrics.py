@@ -30,6 +30,9 @@ class MetricsError(ValueError):
     """Not enough data to compute an indicator (the message says which)."""
 
 
+COT_WINDOW_S = 10.0          # Eq. 18's averaging window (Sec. 8.3): a walk needs one whole window
+
+
 def windowed_speed_and_power(t_s, xy_m, t_power_s, power_w, window_s: float = 10.0, start_s: float | None = None):
     """Per-window speed [m/s] (displacement over the window / window) and mean power [W].
 
@@ -45,7 +48,8 @@ def windowed_speed_and_power(t_s, xy_m, t_power_s, power_w, window_s: float = 10
         raise MetricsError('need at least two pose and two power samples')
     start = t[0] if start_s is None else float(start_s)
     if t[-1] - start < window_s - 1e-9:
-        raise MetricsError(f'walk lasted {max(t[-1] - start, 0.0):.1f} s, shorter than one {window_s:.0f} s window')
+        raise MetricsError(f'the walk lasted {max(t[-1] - start, 0.0):.1f} s from its first swing-down, shorter than '
+                           f'one {window_s:g} s window')
     speeds, powers = [], []
     while start + window_s <= t[-1] + 1e-9:
         end = start + window_s

@@ -20,6 +20,7 @@ import importlib
 import statistics
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -30,7 +31,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import remove_ros_args
 
 from hexapod_model import contract
-from hexapod_sim.bagio import BagError, BagReader, type_hash
+from hexapod_sim.bagio import BagError, BagReader, BagWarning, type_hash
 
 try:
     from tqdm import tqdm
@@ -273,7 +274,9 @@ def main(args=None) -> int:
         return 2
     opts = parser.parse_args(argv)
     try:
-        reader = BagReader(opts.bag)
+        with warnings.catch_warnings():         # each problem is printed once, below
+            warnings.simplefilter('ignore', BagWarning)
+            reader = BagReader(opts.bag)
     except BagError as exc:
         print(f'{parser.prog}: error: {exc}', file=sys.stderr)
         return 2

@@ -220,6 +220,7 @@ def test_cli_unknown_type_and_truncated_bag(tmp_path):
     res = run_cli(bag, '--rate', '10')
     assert res.returncode == 0, res.stderr
     assert 'truncated' in res.stderr and f"'/joint_states': {recovered}" in res.stdout
+    assert res.stderr.count('truncated') == 1, res.stderr          # the warning once, not also as a Python warning
 
 
 def test_cli_garbage_and_bad_options(tmp_path):
