@@ -49,7 +49,7 @@ class LocomotionParams:
     t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
     # Transfer phases (node parameters too). With the overlapped transfer (overlap_transfer) the
     # leveling runs beside the next swing-up + swing-forward, so a phase is max(0.3, 0.1 + 0.2) s +
-    # settle + swing-down; issue 16, table4 trials on the mockup: with the gaits' strides (9 / 10 /
+    # settle + swing-down. Measured with table4 on the mockup: with the gaits' strides (9 / 10 /
     # 12 cm) tripod, tetrapod and pentapod at t_des 1 s walk at or above the paper's speeds (in
     # sequence, 0.15 / 0.25 / 0.1 / 0.3 s and 7 cm: 63-77 %). Faster transfers (0.07 / 0.13 / 0.2 s)
     # made the pentapod slower on the blocks (missed contacts, feet on block edges).
@@ -57,7 +57,7 @@ class LocomotionParams:
     t_swing_forward_s: float = 0.2
     t_level_s: float = 0.3
     # Pause after the swing-forward before the swing-down. The model starts in the leg's motion
-    # (start_in_motion), so the legs need not come to rest; issue 16, pentapod on the mockup (10 trials
+    # (start_in_motion), so the legs need not come to rest. Pentapod on the mockup (10 trials
     # of 60 s): 0.1 s walked 0.026 / 0.018 m/s at t_des 0.5 / 1 s, 0.05 s 0.028 / 0.019 (the paper:
     # 0.028 / 0.017); none at all 0.030 / 0.019, but the improved touchdown then missed 1.2 % of its
     # contacts at t_des 1 s (0.2-0.4 % with 0.05 s).
@@ -90,7 +90,7 @@ class LocomotionParams:
     # contact) before it stops at theta_fin: a contact late in a slow approach grows its error by a
     # small step per period and can reach theta_fin before it crosses Eq. 17. 0 = Algorithm 1.
     fin_dwell_s: float = 0.0
-    # Gait-cycle structure (issue 16). False = the sequence of Fig. 4 as drawn: swing-up, swing-forward,
+    # Gait-cycle structure. False = the sequence of Fig. 4 as drawn: swing-up, swing-forward,
     # settle, swing-down, then body leveling with every foot down. True = the leveling after a
     # swing-down runs while the next group swings up and forward: the legs that support the next swing
     # level the body and move it forward, the next group lifts its feet from their footholds and
@@ -102,7 +102,7 @@ class LocomotionParams:
     # paper's robot waited for its legs). True = in the leg's motion: the same leg model, run over the
     # goals written since the swing-up began, gives each leg's (femur, tibia) speed at the swing-down
     # start. A leg still moving there lags differently from one at rest, and a model started at rest
-    # stops it in the air. Issue 16, table4 (10 trials of 60 s per cell): with the 12 cm pentapod
+    # stops it in the air. Measured with table4 (10 trials of 60 s per cell): with the 12 cm pentapod
     # stride, 0.1 s of settle leaves the legs moving, 28 / 25 premature stops at t_des 0.5 / 1 s
     # started at rest, 4 / 2 started in motion; without any settle, free swings on flat ground:
     # 34 -> 0 (pentapod, t_des 0.5 s).
@@ -505,7 +505,7 @@ class GaitController:
         then waits over that spot at the nominal ground's height (in the air over a step-down) until it
         swings again. Centring the body on the five feet instead moved it back by about a sixth of a
         front foot's reach (4 cm) whenever a front leg found a step-down, and the feet swung later were
-        placed from that body: issue 16, pentapod at t_des 0.5 s on the mockup's blocks (5 seeds),
+        placed from that body: pentapod at t_des 0.5 s on the mockup's blocks (5 seeds),
         14-18 mm of progress per phase against 20-21 mm with all six feet. A leg left hanging at
         theta_fin (tried first: 0.023 -> 0.026 m/s, 10 trials of 60 s) pulled later levelings down
         towards it, out of the legs' reach: a tripod with the fixed detector fell, tetrapod walks stalled.

@@ -46,8 +46,8 @@ class DetectorConfig:
     # Eq. 17 margin while a leg dwells at theta_fin (SwingDownPhase fin_dwell_steps > 0, the improved
     # touchdown; Algorithm 1 has no dwell). The goal stands still there and the modelled leg settles
     # to rest, so the model needs no margin for the goal's motion: a contact at the end of a slow
-    # approach adds under epsilon_tick to the error and was missed (issue 16: most of the improved
-    # touchdown's missed contacts). Below about 1 tick the servo's own quantisation decides.
+    # approach adds under epsilon_tick to the error and was missed (most of the improved touchdown's
+    # missed contacts in the table4 trials). Below about 1 tick the servo's own quantisation decides.
     dwell_epsilon_tick: float = 3.0
     fixed_threshold_tick: float = 21.0   # baseline threshold of the earlier work
     min_descent_m: float = 0.004     # a detection before the foot has descended this much is suspect

@@ -180,7 +180,7 @@ def test_a_leg_without_ground_is_not_leveled_on_but_the_body_keeps_its_place(rob
 
 
 def test_overlapped_transfer_levels_while_the_next_group_swings(robot):
-    """Issue 16: with overlap_transfer the leveling after a swing-down runs beside the next group's
+    """With overlap_transfer the leveling after a swing-down runs beside the next group's
     swing-up and swing-forward. Every phase after the first is shorter by t_level_s + t_swing_up_s +
     t_swing_forward_s - max(t_level_s, t_swing_up_s + t_swing_forward_s); the swing-downs and the
     leveled pose are those of the sequential cycle; finish() carries out the last leveling."""

@@ -1,4 +1,4 @@
-"""Experiments on every executor (issue 18): Ray tasks give the process pool's results, and a sweep.
+"""Experiments on every executor: Ray tasks give the process pool's results, and a sweep.
 
 Short walks (2 s of simulated time) on the mockup: the point is the executor and the sweep plumbing,
 not the walking, which the locomotion tests cover. Ray runs a local instance with 2 CPUs and no

@@ -5,7 +5,7 @@ add a 3D panel: the robot model comes from ``/robot_description`` (URDF), its po
 and ``/tf_static``; plots and the raw messages panel show ``/joint_states`` and the
 ground-detection telemetry ``/ground_detection``. Messages are sent with the schemas and CDR
 bytes of the recording (``ros2msg`` / ``cdr``, exactly what :class:`hexapod_sim.recorder.Recorder`
-writes), so a live session and a bag look the same in Foxglove.
+writes), so the live view and a bag look the same in Foxglove.
 
 The server binds 127.0.0.1 only. Latched topics (``/robot_description``, ``/tf_static``) are
 sent again to every client that subscribes to them, as a transient-local publisher would.
@@ -26,7 +26,7 @@ LIVE_TOPICS = (contract.ROBOT_DESCRIPTION, contract.TF_STATIC, contract.TF, cont
                contract.SIM_TRUTH_CONTACTS, contract.IMU, contract.POWER)
 LATCHED = (contract.ROBOT_DESCRIPTION, contract.TF_STATIC)
 # Channels carry the names a bag stores (absolute: '/joint_states', '/robot_description'), whatever
-# namespace the nodes run in, so a live session and a recording open with the same layout.
+# namespace the nodes run in, so the live view and a recording open with the same layout.
 _LIVE = {contract.bag_topic(t) for t in LIVE_TOPICS}
 _LATCHED = {contract.bag_topic(t) for t in LATCHED}
 

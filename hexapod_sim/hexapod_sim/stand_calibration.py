@@ -1,7 +1,7 @@
 """Run the stand calibration routine on the robot through the driver and write the contract bag.
 
 Put the robot on a stand (trunk fixed, feet free: no leg may touch anything). The routine
-(hexapod_model/calibration.py, about one minute at --speed-scale 1) moves every joint through
+(hexapod_sim/calibration.py, about one minute at --speed-scale 1) moves every joint through
 the conditions in which the discrepancy tool's candidate effects show, reading the moving joints
 as fast as the bus allows; the recording is written as a contract bag for
 `./hexapod discrepancy BAG`. The driver verifies and configures all servos first and turns the
