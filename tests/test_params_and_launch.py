@@ -153,7 +153,10 @@ def test_every_node_refuses_a_parameter_it_does_not_know(package, exe, line, tmp
     r = subprocess.run([str(REPO / 'hexapod'), 'run', package, exe, '--ros-args', '-p', 'terain:=mockup'],
                        env=dict(node_env(), ROS_DOMAIN_ID='25'), capture_output=True, text=True, timeout=120,
                        cwd=tmp_path, stdin=subprocess.DEVNULL)
-    lines = r.stderr.strip().splitlines()
+    # the node's own lines (./hexapod may first bring the workspace up to date: its '[hexapod] ...' and
+    # colcon's lines come before)
+    setup = ('[hexapod] ', 'Starting >>> ', 'Finished <<< ', 'Summary: ')
+    lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip() and not ln.startswith(setup)]
     assert r.returncode == 1, (r.stdout, r.stderr)
     assert len(lines) == 1 and lines[0].startswith(line), r.stderr
     assert 'Traceback' not in r.stdout + r.stderr and list(tmp_path.iterdir()) == []
