@@ -35,6 +35,10 @@ SINGLE = [
     ('compliance_deadband', ('leg2_coxa',), 2.0, ('coxa',)),
     ('readout_delay', ('leg2_tibia',), 0.005, ('tibia',)),
     ('mass_error', LEG2, 0.06, ('femur', 'tibia')),
+    # the servo law: on every analysed joint (here the one leg's three)
+    ('punch', LEG2, 0.05, ('coxa', 'femur', 'tibia')),
+    ('motor_damping', LEG2, 1.2, ('coxa', 'femur', 'tibia')),
+    ('goal_latency', LEG2, 0.002, ('coxa', 'femur', 'tibia')),
 ]
 
 
@@ -111,12 +115,14 @@ def test_two_effects_at_once_are_both_found(robot):
     rec = model_recording(robot.with_effects(truth), calibration_plan(robot, legs=legs, phases=('tibia', 'coxa')))
     a = analyse(rec, robot, workers=1)
     got = {f.effect.effect: f for f in a.effects}
-    assert set(got) == {'backlash', 'readout_delay'}, text_report(a)
+    # a readout delay of every joint is, to the replay, the servo law's goal latency: named as that
+    assert set(got) == {'backlash', 'goal_latency'}, text_report(a)
     assert got['backlash'].effect.joints == ('leg3_tibia',)
     assert got['backlash'].effect.params['width_rad'] == pytest.approx(math.radians(1.2), rel=0.15)
-    assert set(got['readout_delay'].effect.joints) == set(every)
-    assert got['readout_delay'].effect.params['delay_s'] == pytest.approx(0.004, rel=0.1)
-    assert got['readout_delay'].scope == 'the whole robot'
+    assert set(got['goal_latency'].effect.joints) == set(every)
+    assert got['goal_latency'].effect.params['delay_s'] == pytest.approx(0.004, rel=0.1)
+    assert got['goal_latency'].scope == 'the whole robot'
+    assert 'the servo law' in text_report(a)
     doc = to_json(a)
     assert [e['effect'] for e in doc['effects']] == [f.effect.effect for f in a.effects]
     for e in doc['effects']:

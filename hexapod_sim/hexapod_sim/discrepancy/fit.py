@@ -101,8 +101,8 @@ def _units(c: Candidate, joints) -> list[tuple[str, tuple[str, ...]]]:
     """The smallest sets of ``joints`` candidate ``c`` is put on, each with a key joint: single joints;
     a payload's legs; the servo law's whole robot (it is the same firmware on every servo)."""
     joints = tuple(joints)
-    if c.servo_law:
-        return [(joints[0], joints)] if joints else []
+    if c.servo_law:             # on a single joint a servo-law term is that joint's own effect
+        return [(joints[0], joints)] if len(joints) > 1 else []
     if c.leg_only:
         return [(leg_joints(leg)[0], tuple(j for j in leg_joints(leg) if j in joints))
                 for leg in sorted({parse_joint_name(j)[0] for j in joints})]
@@ -390,7 +390,8 @@ class Namer:
         for name in self.s.candidates:
             c = BY_NAME[name]
             if c.servo_law:               # the same firmware on every servo: the whole robot only
-                out.append(Hypothesis(c, tuple(joints)))
+                if len(joints) > 1:
+                    out.append(Hypothesis(c, tuple(joints)))
                 continue
             if not c.leg_only:
                 out.extend(Hypothesis(c, (j,)) for j in joints)
@@ -403,8 +404,8 @@ class Namer:
         # on every analysed joint, viscous damping is the motor damping and a readout delay the goal
         # latency of the servo law: the servo law's candidate is the one named
         every = set(joints)
-        out = [h for h in out if not (set(h.joints) == every and ROBOT_WIDE_AS.get(h.candidate.effect)
-                                      in self.s.candidates)]
+        out = [h for h in out if not (len(every) > 1 and set(h.joints) == every
+                                      and ROBOT_WIDE_AS.get(h.candidate.effect) in self.s.candidates)]
         # drop duplicates (a leg with one analysed joint equals the joint hypothesis)
         seen, uniq = set(), []
         for h in out:
@@ -421,16 +422,19 @@ class Namer:
 
         Strongly nonlinear effects (stick-slip, play, dead-band, saturation) are probed at half,
         one and two times their typical magnitude and the best probe counts. Signatures are only
-        computed on joints whose fitting residual is above ``screen_floor_ticks`` (elsewhere there
+        computed on joints whose fitting or held-out residual is above ``screen_floor_ticks`` (elsewhere there
         is nothing to explain; their share of a hypothesis counts as zero here and is judged by
         the exact fit).
         """
         joints = self.rep.joints
         active = set()
         for j in joints:
-            r = (self.meas[j] - base_pred[j])[self.split.fit[j]]
-            if len(r) and math.sqrt(float(r @ r) / len(r)) > self.s.screen_floor_ticks:
-                active.add(j)
+            # above the floor on the fitting or the held-out reads (which the screen predicts the gain
+            # on): a break-away that shows in a few holds can fall in held-out blocks only
+            for mask in (self.split.fit[j], self.split.hold[j]):
+                r = (self.meas[j] - base_pred[j])[mask]
+                if len(r) and math.sqrt(float(r @ r) / len(r)) > self.s.screen_floor_ticks:
+                    active.add(j)
         sig: dict[tuple, dict[str, np.ndarray]] = {}
         for name in self.s.candidates:
             c = BY_NAME[name]
@@ -619,6 +623,16 @@ class Namer:
             if not ok:
                 break
             best = max(ok, key=lambda h: h.hold_gain)
+            if best.candidate.servo_law:
+                # a servo-law term whose joint-effect twin on fewer joints gains nearly as much: the
+                # others do not show it, so it is that joint effect (a readout delay of one tibia)
+                twin = {v: k for k, v in ROBOT_WIDE_AS.items()}.get(best.candidate.effect)
+                for h in sorted(ok, key=lambda h: len(h.joints)):
+                    if (h.candidate.effect == twin and set(h.joints) < set(best.joints)
+                            and h.hold_gain >= self.s.parsimony * best.hold_gain
+                            and not self._extra_joints_confirm(best, h)):
+                        best = h
+                        break
             bundle = self._servo_law_bundle(effects, base_pred, ok)
             if len(bundle) > 1 and _gain(bundle) > best.hold_gain:
                 for h in bundle:
