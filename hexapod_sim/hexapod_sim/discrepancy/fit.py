@@ -306,6 +306,9 @@ class FitSettings:
     min_drop_ticks: float = 0.03     # and at least this absolute drop
     walk_min_drop_ticks: float = 0.15  # on a walk (fewer, shorter free spans: small dents are not effects)
     min_explained: float = 0.5       # and explain this share of the held-out variance above tick rounding
+    # with every named effect in place, each must still explain this share of its joints' held-out excess
+    # over rounding; below it, it is the nearest candidate to physics the library lacks: not named
+    min_final_explained: float = 0.75
     # and lower the held-out squared error by this much [tick^2] in all: 120 reads' worth of rounding
     # variance, so a few held-out reads cannot confirm an effect alone (a 0.01 N m s/rad damping on
     # one coxa of a walk, 17 reads 0.52 -> 0.30 ticks: 3 tick^2; true effects on the walk bench: >= 62)
