@@ -325,8 +325,8 @@ class FitSettings:
 
 
 def _gain(bundle: list[Hypothesis]) -> float:
-    """Held-out gain [tick^2] of a servo-law bundle taken together (:meth:`Namer._servo_law_bundle`)."""
-    return bundle[0].bundle_gain if len(bundle) > 1 else bundle[0].hold_gain
+    """Held-out gain [tick^2] of servo-law terms taken together (:meth:`Namer._servo_law_bundle`)."""
+    return bundle[0].bundle_gain
 
 
 class Namer:
@@ -637,7 +637,7 @@ class Namer:
                         best = h
                         break
             bundle = self._servo_law_bundle(effects, base_pred, ok)
-            if len(bundle) > 1 and _gain(bundle) > best.hold_gain:
+            if bundle and (len(bundle) > 1 or best.candidate.servo_law) and _gain(bundle) >= best.hold_gain:
                 for h in bundle:
                     effects.append(h.effect)
                     accepted.append(h)
@@ -657,44 +657,81 @@ class Namer:
         return effects, accepted
 
     def _servo_law_bundle(self, effects, base_pred, ok: list[Hypothesis]) -> list[Hypothesis]:
-        """The servo-law terms that together explain the recording, starting from the best one accepted alone.
+        """The servo-law terms that together explain the recording, when one of them is accepted alone.
 
         Punch, motor damping and goal latency act on every servo at once and partly stand in for each
         other (more punch speeds a move up where more damping slows it down), so one of them alone can
-        lose to a joint effect that mimics their sum (a torque limit on the whole robot). Each other
-        term is fitted with the ones already taken in place and taken when it passes the acceptance
-        test; every term is then refitted once with the others in place. Returns the terms taken
-        (only the first when no other passes)."""
-        law = [h for h in ok if h.candidate.servo_law]
-        if not law:
+        lose to a joint effect that mimics their sum (a torque limit on the whole robot), and fitted one
+        after the other the first takes what belongs to the others (a walk with 1.15x damping, more punch
+        and a 1 ms goal latency: damping 1.07 alone, then no punch). So all of them are fitted at once
+        (Nelder-Mead on the fitting reads' squared error, from the terms accepted alone), and those that
+        pass the acceptance test with the others in place are taken (the rest dropped, the others
+        refitted). Returns them, or [] when no term was accepted alone.
+        """
+        alone = {h.candidate.effect: h for h in ok if h.candidate.servo_law}
+        if not alone:
             return []
-        bundle = [max(law, key=lambda h: h.hold_gain)]
         joints = tuple(self.rep.joints)
-        todo = [BY_NAME[n] for n in self.s.candidates
-                if BY_NAME[n].servo_law and n != bundle[0].candidate.effect]
-        while todo:
-            inner = list(effects) + [h.effect for h in bundle]
-            pred = self.pred.predict(inner, joints)
-            tried = [self.fit(Hypothesis(c, joints), inner, pred) for c in todo]
-            good = [h for h in tried if self.passes(h)]
-            if not good:
+        terms = [BY_NAME[n] for n in self.s.candidates if BY_NAME[n].servo_law]
+        while terms:
+            values = self._fit_together(effects, terms, alone)
+            bundle = [self._judge(Hypothesis(c, joints, value=v), effects,
+                                  [t.make(joints, values[k]) for k, t in enumerate(terms) if t is not c])
+                      for c, v in zip(terms, values)]
+            bad = [h for h in bundle if not self.passes(h)]
+            if not bad:
                 break
-            pick = max(good, key=lambda h: h.hold_gain)
-            bundle.append(pick)
-            todo = [c for c in todo if c.effect != pick.candidate.effect]
-        if len(bundle) > 1:
-            for i, h in enumerate(list(bundle)):
-                others = list(effects) + [x.effect for k, x in enumerate(bundle) if k != i]
-                nh = self.fit(Hypothesis(h.candidate, h.joints), others, self.pred.predict(others, joints))
-                if not self.passes(nh):         # a term the others make redundant: not taken
-                    return bundle[:1]
-                bundle[i] = nh
-            # the bundle's gain over the base of this round, on every joint it touches
-            b0, n0 = self._sse(base_pred, joints, 'hold')
-            after = self.pred.predict(list(effects) + [h.effect for h in bundle], joints)
-            b1, _ = self._sse(after, joints, 'hold')
-            bundle[0].bundle_gain = b0 - b1
+            worst = min(bad, key=lambda h: h.hold_gain)
+            terms = [c for c in terms if c is not worst.candidate]
+        else:
+            return []
+        b0, _ = self._sse(base_pred, joints, 'hold')
+        b1, _ = self._sse(self.pred.predict(list(effects) + [h.effect for h in bundle], joints), joints, 'hold')
+        bundle[0].bundle_gain = b0 - b1
         return bundle
+
+    def _fit_together(self, effects, terms, alone) -> list[float]:
+        """Parameters of servo-law ``terms`` fitted at once on every analysed joint (see above)."""
+        from scipy.optimize import minimize
+        joints = tuple(self.rep.joints)
+        # each parameter scaled by its typical size; nominal values (no term) at 0 except a ratio's 1
+        x0 = [(alone[c.effect].value if c.effect in alone else (1.0 if c.two_sided else 0.0)) for c in terms]
+        lo = [c.lo if c.two_sided else 0.0 for c in terms]
+        hi = [c.hi for c in terms]
+        scale = [abs(c.typical - (1.0 if c.two_sided else 0.0)) for c in terms]
+        cache: dict[tuple, float] = {}
+
+        def loss(z):
+            v = tuple(float(min(max(x0[k] + z[k] * scale[k], lo[k]), hi[k])) for k in range(len(terms)))
+            if v not in cache:
+                inner = [c.make(joints, x) for c, x in zip(terms, v)
+                         if x != (1.0 if c.two_sided else 0.0)]
+                cache[v] = self._sse(self.pred.predict(list(effects) + inner, joints), joints, 'fit')[0]
+            return cache[v]
+
+        res = minimize(loss, np.zeros(len(terms)), method='Nelder-Mead',
+                       options={'initial_simplex': np.vstack([np.zeros(len(terms)), 0.5 * np.eye(len(terms))]),
+                                'xatol': 0.02, 'fatol': 1.0, 'maxfev': 60 * len(terms)})
+        return [float(min(max(x0[k] + res.x[k] * scale[k], lo[k]), hi[k])) for k in range(len(terms))]
+
+    def _judge(self, h: Hypothesis, effects, others) -> Hypothesis:
+        """Fill in ``h``'s fitting and held-out errors at its value, with ``effects`` and ``others`` in place."""
+        inner = list(effects) + list(others)
+        aff = sorted(_affected(h.candidate.effect, h.joints) & set(self.rep.joints))
+        h.affected = tuple(aff)
+        base = self.pred.predict(inner, aff)
+        h.fit_sse_before, _ = self._sse(base, aff, 'fit')
+        h.hold_sse_before, h.n_hold = self._sse(base, aff, 'hold')
+        if not h.value > h.candidate.lo and not h.candidate.two_sided:
+            h.value = math.nan                       # the term is not there at all
+            return h
+        p = self.pred.predict(inner + [h.effect], aff)
+        h.fit_sse_after, _ = self._sse(p, aff, 'fit')
+        h.hold_sse_after, _ = self._sse(p, aff, 'hold')
+        for j in aff:
+            b, n = self._sse(base, (j,), 'hold')
+            h.hold_by_joint[j] = (b, self._sse(p, (j,), 'hold')[0], n)
+        return h
 
     def _pick_for_fit(self, hyps: list[Hypothesis]) -> list[Hypothesis]:
         """The best screened hypotheses, at most two per effect, ``n_fit`` in all."""
