@@ -448,9 +448,28 @@ def make_walk_demo(out_dir: Path, seed: int) -> None:
     joints = (tuple(joint_name(leg, r) for r in JOINT_ROLES) if name == 'mass_error'
               else (joint_name(leg, str(rng.choice(('femur', 'tibia')))),))
     case = Case('walk_demo', (_effect(rng, name, joints),), walk=('tripod', 'blocks'))
+    final, duration = _record_named_walk(case, out_dir, 'discrepancy_walk_demo')
+    _write_demo_truth(final, case, f'--make-walk-demo {out_dir} --seed {seed}', duration, 'walk demo bag')
+
+
+def make_servo_law_walk(out_dir: Path) -> None:
+    """A calibration walk (tripod, flat) of a plant whose servo firmware differs from the model's: 32 more
+    punch (register 48 at 64), 15 % more motor damping, goals one firmware tick later; truth beside it."""
+    robot = load_robot()
+    every = tuple(joint_name(leg, r) for leg in LEGS for r in JOINT_ROLES)
+    case = Case('servo_law_walk', (Effect('punch', every, {'extra_punch_nm': robot.servo.punch_nm}),
+                                   Effect('motor_damping', every, {'ratio': 1.15}),
+                                   Effect('goal_latency', every, {'delay_s': robot.servo.control_period_s})),
+                walk=('tripod', 'flat'))
+    final, duration = _record_named_walk(case, out_dir, 'servo_law_walk')
+    _write_demo_truth(final, case, f'--make-servo-law-walk {out_dir}', duration, 'servo-law walk bag')
+
+
+def _record_named_walk(case: Case, out_dir: Path, name: str) -> tuple[Path, float]:
+    """Record ``case``'s walk into ``out_dir/name`` (a rosbag2 directory named so, files and metadata too)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     bag, duration = record_walk(case, out_dir)
-    final = out_dir / 'discrepancy_walk_demo'
+    final = out_dir / name
     if final.exists():
         shutil.rmtree(final)
     bag.rename(final)
@@ -459,7 +478,7 @@ def make_walk_demo(out_dir: Path, seed: int) -> None:
             f.rename(final / f.name.replace(bag.name, final.name, 1))
     meta = final / 'metadata.yaml'
     meta.write_text(meta.read_text().replace(bag.name, final.name))
-    _write_demo_truth(final, case, f'--make-walk-demo {out_dir} --seed {seed}', duration, 'walk demo bag')
+    return final, duration
 
 
 def main(argv=None) -> int:
@@ -488,6 +507,9 @@ def main(argv=None) -> int:
     ap.set_defaults(jobs=1)      # one case at a time unless asked: the s/min figures are per core
     ap.add_argument('--make-walk-demo', metavar='DIR',
                     help='write the walk demo bag (tripod over the blocks, one hidden effect) and its truth into DIR')
+    ap.add_argument('--make-servo-law-walk', metavar='DIR',
+                    help='write a calibration walk of a plant whose servo law differs from the model\'s (more '
+                         'punch and motor damping, later goals) and its truth into DIR')
     add_no_progress_option(ap)
     args = ap.parse_args(argv)
     if args.reuse and not args.keep:
@@ -497,6 +519,9 @@ def main(argv=None) -> int:
         return 0
     if args.make_walk_demo:
         make_walk_demo(Path(args.make_walk_demo), args.seed)
+        return 0
+    if args.make_servo_law_walk:
+        make_servo_law_walk(Path(args.make_servo_law_walk))
         return 0
     cases = ((make_cases(args.seed, args.legs) if args.set in ('stand', 'all') else [])
              + (make_walk_cases(args.seed, args.walk_cycle) if args.set in ('walk', 'all') else []))

@@ -213,3 +213,23 @@ def test_an_imu_on_another_clock_is_not_used_and_said_so():
     assert bad is None and len(why) == 1 and 'another clock' in why[0].detail and why[0].topic == 'imu'
     from hexapod_sim.discrepancy.glitches import summary_line
     assert '1 clock' in summary_line(why)
+
+
+SERVO_LAW_BAG = BAG.parent / 'servo_law_walk'
+
+
+def test_a_walk_of_a_plant_with_another_servo_law_names_the_servo_law_and_no_joint_effect(robot):
+    """bags/servo_law_walk: a tripod calibration walk of a plant whose firmware has 32 more punch, 15 %
+    more motor damping and goals one tick later (truth in servo_law_walk.truth.yaml). The tool names the
+    servo law on the whole robot, no joint effect, and the fitted law brings every joint to tick rounding."""
+    if not SERVO_LAW_BAG.exists():
+        pytest.skip(f'{SERVO_LAW_BAG} not in this checkout')
+    a = analyse(load_recording(SERVO_LAW_BAG, robot), robot, workers=1)
+    found = {f.effect.effect: f for f in a.effects}
+    assert {'punch', 'motor_damping'} <= set(found) <= {'punch', 'motor_damping', 'goal_latency'}, found
+    assert all(len(f.effect.joints) == 18 for f in a.effects)
+    assert found['punch'].effect.params['extra_punch_nm'] == pytest.approx(robot.servo.punch_nm, rel=0.25)
+    assert found['motor_damping'].effect.params['ratio'] == pytest.approx(1.15, rel=0.03)
+    assert max(v.heldout_rmse_ticks_before for v in a.joints.values()) > 1.5      # the model without the law
+    assert max(v.heldout_rmse_ticks_after for v in a.joints.values()) < 0.5
+    assert a.unexplained == []
