@@ -67,6 +67,8 @@ def _base():
     (lambda d: d.update(effects=[{'effect': 'backlash', 'joints': ['leg1_femur'], 'params': {'w': 1}}]),
      "takes exactly \\['width_rad'\\]"),
     (lambda d: d['servo'].update(typo_key=1), "servo: unknown key 'typo_key'"),
+    (lambda d: d['servo'].update(punch=0), r'servo.punch: the AX-12A takes 32..1023'),
+    (lambda d: d['servo'].update(moving_speed=200), 'servo.moving_speed: the servo model has no speed control'),
 ])
 def test_bad_description_is_named(tmp_path, mutate, message):
     d = _base()

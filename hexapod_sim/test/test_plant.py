@@ -501,3 +501,23 @@ def test_emergency_stop_drops_the_robot_and_reset_restores(robot):
     assert sim.now() == 0.0 and sim.torque_enabled.all()
     assert sim.body_pose()[0][2] == pytest.approx(sim.scene.spawn_height_m)
     np.testing.assert_allclose(sim.temperatures_c(), 37.0)
+
+
+def test_a_goal_latency_makes_written_goals_act_that_many_firmware_ticks_later(robot):
+    """The servo-law effect goal_latency: the firmware takes a written goal only ``delay_s`` after the
+    first tick at or after the write (and a non-finite goal is still refused at the write)."""
+    r = robot.with_effects([Effect('goal_latency', ALL_JOINTS, {'delay_s': 0.002})])
+    late, now = HexapodSim(r, fixed_base=True), HexapodSim(robot, fixed_base=True)
+    goal = {'leg1_femur': 0.4}
+    for sim in (late, now):
+        sim.step(0.01)
+        sim.sync_write(goal)
+    i = ALL_JOINTS.index('leg1_femur')
+    g0 = late.goal_ticks()[i]
+    assert now.goal_ticks()[i] != g0                      # acts at the write's own tick
+    late.step(0.001)
+    assert late.goal_ticks()[i] == g0                     # one tick later: not yet
+    late.step(0.001)
+    assert late.goal_ticks()[i] == now.goal_ticks()[i]    # two ticks later: the goal acts
+    with pytest.raises(SimError):
+        late.sync_write({'leg1_femur': float('nan')})
