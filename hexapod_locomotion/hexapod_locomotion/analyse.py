@@ -1,9 +1,16 @@
 """./hexapod analyse BAG - offline re-evaluation of a recorded walk, without ROS running.
 
-For every swing-down in the bag (``/swing_down`` holds the inputs of Algorithm 1), the recorded
-femur reads (``/joint_states``) are fed through both detectors, adaptive (Eq. 17) and fixed, and
-each leg's stop is compared with what the recorded controller did (``/ground_detection``). The
-detector the recording ran with must reproduce the recorded decisions exactly. The other detector
+For every swing-down in the bag (``/swing_down`` holds the inputs of Algorithm 1), the femur reads
+the recorded controller decided on are fed through both detectors, adaptive (Eq. 17) and fixed, and
+each leg's stop is compared with what the recorded controller did (``/ground_detection``). Those
+reads are the ``/joint_states`` messages whose stamps ``/ground_detection`` names, in the order the
+controller took them (the j-th read of each leg belongs to step j): over DDS the bus master reads
+on its own schedule and the controller takes the newest read of each femur, so the bag's
+``/joint_states`` hold more reads than it used, and not always in Algorithm 1's order. A bag
+without a complete ``/ground_detection`` for a swing-down is replayed from all its ``/joint_states``
+in bus order; a swing-down whose reads are then out of Algorithm 1's order cannot be replayed,
+and the report says how many. The detector the recording ran with must reproduce the recorded
+decisions exactly. The other detector
 can only be judged up to the moment the recorded controller froze the leg (its later reads no
 longer show the motion that detector would have commanded); a stop it would have made after that
 is reported as "later". Cost of transport, speed and stability are added when the bag carries
@@ -74,6 +81,8 @@ def load_bag(path: str):
     if JOINT_STATES not in topics:
         raise AnalysisError(f'{path}: no /{JOINT_STATES} topic - there are no servo reads to analyse')
     swings, femur_reads, recorded = [], [], defaultdict(dict)
+    consumed = defaultdict(lambda: defaultdict(list))     # swing start -> leg -> stamps [ns] the controller read
+    femur_at = {}                                         # (leg, stamp [ns]) -> (femur angle, stamp [s])
     power, pose, imu, commands = [], [], [], []
     wanted = [t for t in (SWING_DOWN, JOINT_STATES, JOINT_COMMANDS, GROUND_DETECTION, POWER, SIM_TRUTH_POSE, IMU)
               if t in topics]
@@ -92,10 +101,12 @@ def load_bag(path: str):
                     continue
                 if role == 'femur':
                     femur_reads.append((stamp_seconds(msg.header.stamp), leg, float(pos)))
+                    femur_at[(leg, _ns(msg.header.stamp))] = (float(pos), stamp_seconds(msg.header.stamp))
         elif topic == JOINT_COMMANDS:
             commands.append((stamp_seconds(msg.header.stamp), frozenset(msg.name)))
         elif topic == GROUND_DETECTION:
             start = round(stamp_seconds(msg.swing_start), 6)
+            consumed[start][int(msg.leg)].append(_ns(msg.header.stamp))
             if msg.stopped and msg.leg not in recorded[start]:
                 recorded[start][msg.leg] = (stamp_seconds(msg.header.stamp) - stamp_seconds(msg.swing_start), int(msg.stop_reason))
         elif topic == POWER:
@@ -112,7 +123,31 @@ def load_bag(path: str):
     femur_reads.sort(key=lambda r: r[0])
     commands.sort(key=lambda c: c[0])
     return (swings, femur_reads, recorded, power, pose, imu, commands,
-            reader.warnings if hasattr(reader, 'warnings') else [])
+            reader.warnings if hasattr(reader, 'warnings') else [], (consumed, femur_at))
+
+
+def _ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def controller_reads(consumed: dict, femur_at: dict, legs) -> list | None:
+    """The femur reads ``(leg, theta_rad, stamp_s)`` the recorded controller decided on in one
+    swing-down, in Algorithm 1's order (step by step, each step's legs in ``legs`` order), from the
+    stamps its ``/ground_detection`` names and the angles of those reads in ``/joint_states``.
+    None when they do not make whole steps (a message lost) or a read is not in the bag."""
+    per_leg = {leg: sorted(set(consumed.get(leg, ()))) for leg in legs}
+    n = len(per_leg[legs[0]]) if legs else 0
+    if not n or any(len(v) != n for v in per_leg.values()):
+        return None
+    out = []
+    for k in range(n):
+        for leg in legs:
+            t_ns = per_leg[leg][k]
+            read = femur_at.get((leg, t_ns))
+            if read is None:
+                return None
+            out.append((leg, *read))            # the stamp as the controller computed it from the message
+    return out
 
 
 def swing_down_writes(commands, legs, t0: float, t_end: float) -> list[float]:
@@ -135,7 +170,7 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
     phase cut off by its time limit.
     """
     robot = robot or load_robot()
-    swings, femur_reads, recorded, power, pose, imu, commands, bag_warnings = load_bag(path)
+    swings, femur_reads, recorded, power, pose, imu, commands, bag_warnings, (consumed, femur_at) = load_bag(path)
     models = {leg: LegModel(robot, leg) for leg in LEGS}
     times = np.array([r[0] for r in femur_reads])
     verdicts: list[LegVerdict] = []
@@ -143,6 +178,7 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
     intervals = []
     problems: list[str] = []
     incomplete = []
+    out_of_order = []                   # swing-downs replayed from the bus's reads, which broke Algorithm 1's order
     from tqdm import tqdm
     for i, (t0, msg) in enumerate(tqdm(swings, desc='re-running the detectors', unit='swing-down',
                                        file=sys.stderr, disable=not progress, leave=False)):
@@ -153,8 +189,11 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
             incomplete.append({'swing_index': i, 't_start_s': t0, 'legs': list(legs),
                                'legs_with_a_decision': sorted(rec)})
             continue
-        lo, hi = np.searchsorted(times, t0 - 1e-9), np.searchsorted(times, t_end - 1e-9)
-        reads = [(leg, th, t) for t, leg, th in femur_reads[lo:hi] if leg in legs]
+        reads = controller_reads(consumed.get(round(t0, 6), {}), femur_at, legs)
+        taken = reads is not None
+        if not taken:               # no complete /ground_detection: every recorded read, in bus order
+            lo, hi = np.searchsorted(times, t0 - 1e-9), np.searchsorted(times, t_end - 1e-9)
+            reads = [(leg, th, t) for t, leg, th in femur_reads[lo:hi] if leg in legs]
         writes = swing_down_writes(commands, legs, t0, t_end)
         kind = msg.detector
         other = 'fixed' if kind == 'adaptive' else 'adaptive'
@@ -167,11 +206,13 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
                     (r.t_swing_s, r.err_tick, r.threshold_tick, r.stopped, r.stop_reason)))
             except DetectorError as exc:
                 problems.append(f'swing-down {i} at t={t0:.3f} s, {det} detector: {exc}')
+                if det == kind and 'out of Algorithm 1 order' in str(exc):
+                    out_of_order.append(i)
             res[det] = ph
             tr[det] = dict(rows)
-            if det == kind:
+            if det == kind and not taken:
                 # the recorded swing-down ended with the step in which its last leg stopped: the
-                # reads after it belong to the next phase (background reads), not to this one
+                # bus's reads after it belong to the next phase (background reads), not to this one
                 # (the step ends with the read of the last leg in bus order)
                 done = [ph.state[leg].stop_time_s + (len(legs) - 1 - slot) * ph.t_com_s
                         for slot, leg in enumerate(legs) if ph.state[leg].stopped]
@@ -204,7 +245,7 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
             if r_stop is not None:
                 intervals.append((t0, t0 + r_stop, leg))
     out: dict = {'bag': str(path), 'swing_downs': len(swings) - len(incomplete), 'legs_evaluated': len(verdicts),
-                 'incomplete_swing_downs': incomplete,
+                 'incomplete_swing_downs': incomplete, 'out_of_order_swing_downs': out_of_order,
                  'recorded_detector': sorted({v.recorded_detector for v in verdicts}),
                  'reproduced': sum(v.reproduced for v in verdicts),
                  'not_reproduced': [asdict(v) for v in verdicts if not v.reproduced],
@@ -301,6 +342,11 @@ def report_lines(r: dict, json_path: str | None = None) -> list[str]:
         lines.append(f'  the recording ends during the swing-down at t={inc["t_start_s"]:.2f} s (legs {inc["legs"]}, '
                      f'{len(inc["legs_with_a_decision"])} of {len(inc["legs"])} with a decision): incomplete, '
                      'left out of the counts')
+    bad = r.get('out_of_order_swing_downs', [])
+    if bad:
+        lines.append(f'  {len(bad)} of {r["swing_downs"]} swing-down phases cannot be replayed: the recorded reads are '
+                     'out of Algorithm 1 order and the bag does not say which reads the controller took '
+                     '(no complete /ground_detection); their decisions are not reproduced')
     differ = len(r['not_reproduced'])
     lines.append(f'  re-running the recorded detector reproduces {r["reproduced"]} of {r["legs_evaluated"]} decisions'
                  + ('' if not differ else f' ({differ} differ' + (f'; see {json_path})' if json_path else

@@ -10,6 +10,12 @@ thread and talks to a servo bus:
   hold Algorithm 1's cadence in real time (docs/architecture.md); it is exact lock-stepped.
 * composed with the driver or sim node in one process (``hexapod_locomotion robot``), through the
   bus object that node hands over: the controller then owns the bus as on the robot.
+
+Whatever the route, each read the controller decides on is checked against Algorithm 1's timing
+(:mod:`hexapod_locomotion.read_timing`): a read taken longer after the bus master published it
+than the Eq. 17 margin allows, or sampled before the read taken just before it, is one warning
+line at once (the first of each swing-down) and counted in ``/diagnostics``
+(``locomotion_node: read timing``, published with every phase report and every warning).
 """
 from __future__ import annotations
 
@@ -23,8 +29,9 @@ from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from hexapod_model import diagnostics
 from hexapod_model.bus import BusError
-from hexapod_model.contract import CMD_VEL, GROUND_DETECTION, SWING_DOWN, stamp_parts
+from hexapod_model.contract import CMD_VEL, DIAGNOSTICS, GROUND_DETECTION, SWING_DOWN, stamp_msg, stamp_parts
 from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
 from hexapod_model.node_params import NodeParams, node_help, run_node
 from hexapod_model.param_schema import RobotSource
@@ -33,6 +40,7 @@ from .controller import GaitController, LocomotionError, LocomotionParams, Veloc
 from .detector import DetectorConfig, DetectorError, swing_start_fields
 from .gait import GaitError, get_gait
 from .params import NODE, LocomotionNodeParams
+from .read_timing import ReadTiming
 from .ros_bus import RosBus
 
 class LocomotionNode(Node):
@@ -54,7 +62,11 @@ class LocomotionNode(Node):
         from geometry_msgs.msg import Twist
         self._LGD = LegGroundDetection
         self._SDS = SwingDownStart
-        self.det_pub = self.create_publisher(LegGroundDetection, GROUND_DETECTION, 50)
+        from diagnostic_msgs.msg import DiagnosticArray
+        # every read the controller decided on: a recording needs them all to replay the decisions
+        self.det_pub = self.create_publisher(LegGroundDetection, GROUND_DETECTION, 1000)
+        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        self.timing = ReadTiming(self.get_name())
         self.swing_pub = self.create_publisher(SwingDownStart, SWING_DOWN, 10)
         self.create_subscription(Twist, CMD_VEL, self._on_cmd, 10)
         self._cmd = VelocityCommand(p.default_vx, 0.0, 0.0)
@@ -102,6 +114,12 @@ class LocomotionNode(Node):
         return self._cmd
 
     def _publish_read(self, r) -> None:
+        # lock-stepped, the bus master waits for the goals: a read's age does not delay them
+        age = None if self.params.lockstep else getattr(self.bus, 'read_age_s', None)
+        warning = self.timing.on_read(r.leg, r.step, r.stamp_s, age)
+        if warning is not None:
+            self.get_logger().warning(warning)
+            self._publish_diagnostics()
         m = self._LGD()
         m.header.stamp.sec, m.header.stamp.nanosec = stamp_parts(r.stamp_s)
         m.header.frame_id = joint_name(r.leg, 'femur')
@@ -115,6 +133,7 @@ class LocomotionNode(Node):
     def _publish_swing_start(self, phase) -> None:
         # Algorithm 1 reads only the femurs of the swinging legs, in order (t_con = L * T_com)
         self.bus.set_schedule([joint_name(leg, 'femur') for leg in phase.legs])
+        self.timing.start_phase(phase)
         m = self._SDS()
         m.header.stamp.sec, m.header.stamp.nanosec = stamp_parts(phase.t_start_s)
         for k, v in swing_start_fields(phase).items():
@@ -127,6 +146,11 @@ class LocomotionNode(Node):
         self.get_logger().info(f'phase {rep.phase}: {legs}')
         for w in rep.warnings:
             self.get_logger().warning(w)
+        self._publish_diagnostics()
+
+    def _publish_diagnostics(self) -> None:
+        t = self._bus_time()
+        self.diag_pub.publish(diagnostics.diagnostic_array([self.timing.status()], stamp_msg(0.0 if t is None else t)))
 
     def _run(self) -> None:
         try:

@@ -15,6 +15,10 @@ locomotion node.
   (no use_sim_time needed). Between two reads the time runs on with the wall clock, for at most
   one read (``t_com_s``), so it never runs ahead of the master by more than that.
 * ``wait_until`` waits until that time passes ``t``.
+* ``read_age_s``: how long after the bus master published it the last read returned was taken
+  (the DDS source timestamp against this computer's system clock; None when the middleware gives
+  none). A backlog in the subscriber shows here: the locomotion node warns when it exceeds what
+  Algorithm 1 tolerates (:mod:`hexapod_locomotion.read_timing`).
 * ``lockstep``: the bus master (sim_node with ``lockstep:=true``) advances one read-schedule cycle
   per ``/joint_commands`` message; waiting and reading then publish empty commands to advance it,
   so a run does not depend on machine load. Every command is answered by exactly one cycle (the
@@ -55,7 +59,9 @@ class RosBus:
         self._now = -float('inf')   # bus time handed out last (never goes backwards)
         self._owed = 0              # lock-step: reads still to come for the commands sent so far
         self._cv = threading.Condition()
+        # joint -> (stamp, position, DDS source timestamp [ns]) of its latest reads
         self._latest: dict[str, collections.deque] = collections.defaultdict(lambda: collections.deque(maxlen=64))
+        self.read_age_s: float | None = None
         self._schedule: tuple[str, ...] = ()
         # deep queues: with a slow bus master (a loaded machine) a reliable writer's shallow history
         # would drop goals before they are acknowledged
@@ -69,12 +75,13 @@ class RosBus:
         self.stopped = threading.Event()
 
     # -- subscription callback (executor thread)
-    def _on_state(self, msg) -> None:
+    def _on_state(self, msg, info) -> None:
         t = stamp_seconds(msg.header.stamp)
+        src = info.get('source_timestamp', 0) if info else 0
         with self._cv:
             for i, name in enumerate(msg.name):
                 if i < len(msg.position):
-                    self._latest[name].append((t, float(msg.position[i])))
+                    self._latest[name].append((t, float(msg.position[i]), src))
             if self._newest is None or t > self._newest:
                 self._newest, self._newest_mono = t, time.monotonic()
             self._owed = max(0, self._owed - 1)
@@ -229,6 +236,7 @@ class RosBus:
                 if got is not None:
                     self._latest[joint].clear()
                     self._consumed[joint] = got[0]
+                    self.read_age_s = (time.time_ns() - got[2]) * 1e-9 if got[2] > 0 else None
                     return got[1], got[0]
                 if time.monotonic() > deadline:
                     raise BusError(f'no /joint_states reading of {joint} within {self.read_timeout_s} s '

@@ -20,9 +20,12 @@ the old schedule.
 ``record``: '' (off), 'auto' (``bags/sim_<UTC time>``), a name (``bags/<name>``) or a path: every
 topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag,
 with ``/robot_description``, ``/tf_static`` and ``/tf`` (hexapod_sim.recorder). The bag is written by
-a thread of its own (:class:`~hexapod_sim.recorder.RecorderThread`): publishing and recording a message
+a process of its own (:class:`~hexapod_sim.recorder.RecorderProcess`; with the Foxglove live view, by a
+thread of this node, :class:`~hexapod_sim.recorder.RecorderThread`): publishing and recording a message
 only enqueues it, so neither the controller's bus transactions nor the executor's callbacks wait for
-the bag; closing the node writes everything enqueued, then closes the bag.
+the bag, and the conversion and writing do not take this process's interpreter from the executor
+thread that steps the sim and answers the bus; closing the node writes everything enqueued, then
+closes the bag.
 
 ``/robot_description`` (std_msgs/String, transient local): the URDF of the description.
 ``foxglove:=true`` (``foxglove_port``, default 8765): a Foxglove WebSocket live view on 127.0.0.1
@@ -56,7 +59,7 @@ from .live import LiveView, LiveViewError
 from .params import NODE, SimParams
 from .local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from .bagio import BagError
-from .recorder import Recorder, RecorderThread, resolve_bag_dir
+from .recorder import Recorder, RecorderProcess, RecorderThread, resolve_bag_dir
 from .plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
 from .bus_master_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
                        TruthSample, truth_vector)
@@ -100,7 +103,11 @@ class SimNode(Node):
             self.get_logger().info(f'Foxglove live view on {self.live.url}')
         if p.record or self.live is not None:     # the live view gets what a bag would hold
             path = resolve_bag_dir(p.record) if p.record else None
-            self.recorder = RecorderThread(Recorder(path, robot=robot, live=self.live), on_error=self._recording_failed)
+            if self.live is None:       # the bag alone: written by a process of its own
+                self.recorder = RecorderProcess(path, robot=robot, on_error=self._recording_failed)
+            else:                       # the live view serves from this process
+                self.recorder = RecorderThread(Recorder(path, robot=robot, live=self.live),
+                                               on_error=self._recording_failed)
             if path is not None:
                 self.get_logger().info(f'recording to {path}')
 
@@ -219,8 +226,25 @@ class SimNode(Node):
         return response
 
     # ------------------------------------------------------------------ stepping
+    def _take_commands(self) -> None:
+        """Apply every /joint_commands message that has arrived, before the sim steps on.
+
+        The executor takes one message per subscription per turn of its loop, after the timers: on
+        a loaded machine each turn carries a long catch-up step, goals queued behind one another
+        and took effect up to 0.4 s after the controller wrote them (and later still with the
+        recording's subscriptions in the same executor), so Algorithm 1's model, which has each
+        goal act when written, no longer held and free legs stopped in the air."""
+        sub = self._cmd_sub
+        while True:
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            if taken is None:
+                return
+            self._command(taken[0])
+
     def _on_timer(self) -> None:
         with self._lock:
+            self._take_commands()
             if not self._anchored:
                 self._anchored = True
                 self.pacer.reanchor()

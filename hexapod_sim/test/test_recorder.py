@@ -258,3 +258,42 @@ def test_one_line_names_the_error_in_one_line():
     assert recorder.one_line(KeyError('name')) == "KeyError: 'name'"
     assert recorder.one_line(RuntimeError('first\nsecond')) == 'RuntimeError: first'
     assert recorder.one_line(ValueError()) == 'ValueError'
+
+
+def test_recorder_process_writes_what_the_recorder_writes_in_line(tmp_path):
+    """The sim node's recording process: the same calls give the same bag as the recorder in line,
+    close() writes everything enqueued before it, and the count is the bag's."""
+    with Recorder(tmp_path / 'inline') as rec:
+        for kind, args in _calls(1500):
+            if kind == 'write':
+                rec.write(*args)
+            elif rec.tf_due(args[0]):
+                rec.write_tf(*args)
+    child = recorder.RecorderProcess(tmp_path / 'child', max_queued=64)
+    for kind, args in _calls(1500):
+        (child.write if kind == 'write' else child.write_tf_if_due)(*args)
+    child.close()
+    child.close()                                      # idempotent
+    want = _raw(tmp_path / 'inline')
+    assert child.error is None and child.close_error is None
+    assert child.count == len(want)
+    assert _raw(tmp_path / 'child') == want
+    assert BagReader(tmp_path / 'child').complete
+
+
+def test_recorder_process_reports_a_failed_write_once_and_refuses_a_bad_place_in_one_line(tmp_path):
+    errors = []
+    rec = recorder.RecorderProcess(tmp_path / 'bad', tf_rate_hz=0, on_error=errors.append)
+    rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(0.0)}, 0.0)
+    rec.write('clock', 'std_msgs/msg/String', {'data': 'not a clock'}, 0.001)     # the topic has another type
+    rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(0.002)}, 0.002)
+    rec.close()
+    assert errors == [rec.error] == ['clock: topic /clock is recorded as rosgraph_msgs/msg/Clock, '
+                                     'cannot write std_msgs/msg/String on it']
+    assert rec.count == 1 and [m.t_ns for m in BagReader(tmp_path / 'bad').messages()] == [0]
+    (tmp_path / 'full').mkdir()
+    (tmp_path / 'full' / 'x').write_text('x')
+    from hexapod_sim.bagio import BagError
+    with pytest.raises(BagError, match='already exists and is not an empty directory') as exc:
+        recorder.RecorderProcess(tmp_path / 'full')
+    assert '\n' not in str(exc.value)
