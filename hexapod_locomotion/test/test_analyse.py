@@ -3,7 +3,7 @@ import pytest
 
 from hexapod_locomotion.analyse import AnalysisError, main, rerun_detectors
 from hexapod_locomotion.trial_runner import TrialConfig, run_trial
-from hexapod_sim.bagio import BagError, BagWriter
+from hexapod_sim.bagio import BagError, BagReader, BagWriter
 
 
 @pytest.fixture(scope='module')
@@ -191,3 +191,35 @@ def test_the_improved_touchdown_is_replayed_with_its_dwell_margin(tmp_path):
     assert phase_from_fields(robot, f, 0.0).config.dwell_epsilon_tick == 1.0
     old = {k: v for k, v in f.items() if k != 'dwell_epsilon_tick'}
     assert phase_from_fields(robot, old, 0.0).config.dwell_epsilon_tick == old['epsilon_tick'] == 3.0
+
+
+def test_a_bag_whose_reads_break_algorithm1_order_is_said_so(walk_bag, tmp_path, capsys):
+    """Without /ground_detection analyse can only replay the bus's /joint_states in bus order; with a
+    read missing there (the first swing-down's first femur read) the reads of that swing-down are out of
+    Algorithm 1's order: the report says how many swing-downs cannot be replayed, instead of counting
+    their decisions as differing without a word."""
+    from hexapod_model.contract import stamp_seconds
+    bag, _ = walk_bag
+    src = BagReader(str(bag))
+    swings = [m for m in src.messages(topics=['/swing_down'])]
+    t0, first_leg = stamp_seconds(swings[0][3].header.stamp), int(swings[0][3].legs[0])
+    out = tmp_path / 'no_gd'
+    dropped = False
+    with BagWriter(out) as w:
+        for topic, msg_type, t_ns, raw in src.messages(raw=True):
+            if topic == '/ground_detection':
+                continue
+            if topic == '/joint_states' and not dropped:
+                msg = next(iter(src.messages(topics=['/joint_states'], start_ns=t_ns, end_ns=t_ns + 1)))[3]
+                if list(msg.name) == [f'leg{first_leg}_femur'] and stamp_seconds(msg.header.stamp) >= t0:
+                    dropped = True
+                    continue
+            w.write(topic, msg_type, raw, t_ns)
+    assert dropped
+    r = rerun_detectors(str(out))
+    assert 0 in r['out_of_order_swing_downs']
+    assert main([str(out), '--no-progress']) == 0
+    said = [line for line in capsys.readouterr().out.splitlines() if 'cannot be replayed' in line]
+    assert said == [f'  {len(r["out_of_order_swing_downs"])} of {r["swing_downs"]} swing-down phases cannot be replayed: '
+                    'the recorded reads are out of Algorithm 1 order and the bag does not say which reads the '
+                    'controller took (no complete /ground_detection); their decisions are not reproduced']
