@@ -129,13 +129,13 @@ class SimNode(Node):
         self._cmd_sub = self.create_subscription(JointState, contract.JOINT_COMMANDS, self._on_command, qos)
         self._sched_sub = self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self._on_schedule, 10)
         self.create_service(SetReadSchedule, contract.SET_READ_SCHEDULE, self._on_set_schedule)
+        self._recorded_subs = []          # (subscription, topic): the controller's topics in the bag
         if self.recorder is not None:     # record the controller's topics too
-            self.create_subscription(LegGroundDetection, contract.GROUND_DETECTION,
-                                     lambda m: self._record(contract.GROUND_DETECTION, m, self.sim.now()), QOS_DEPTH)
-            self.create_subscription(SwingDownStart, contract.SWING_DOWN,
-                                     lambda m: self._record(contract.SWING_DOWN, m, self.sim.now()), 100)
-            self.create_subscription(Twist, contract.CMD_VEL,
-                                     lambda m: self._record(contract.CMD_VEL, m, self.sim.now()), 10)
+            for msg_type, topic, depth in ((LegGroundDetection, contract.GROUND_DETECTION, QOS_DEPTH),
+                                           (SwingDownStart, contract.SWING_DOWN, 100), (Twist, contract.CMD_VEL, 10)):
+                sub = self.create_subscription(msg_type, topic, lambda m, t=topic: self._record(t, m, self.sim.now()),
+                                               depth)
+                self._recorded_subs.append((sub, topic))
         self.create_service(Trigger, contract.EMERGENCY_STOP, self._on_estop)
         # lock-step advances in _on_command only: a timer would just wake the executor 500 times a second
         self._timer = None if self.lockstep else self.create_timer(TIMER_PERIOD_S, self._on_timer)
@@ -226,25 +226,26 @@ class SimNode(Node):
         return response
 
     # ------------------------------------------------------------------ stepping
-    def _take_commands(self) -> None:
-        """Apply every /joint_commands message that has arrived, before the sim steps on.
+    def _take_pending(self) -> None:
+        """Apply every /joint_commands message that has arrived, before the sim steps on, and record
+        every message of the controller's topics that has arrived.
 
         The executor takes one message per subscription per turn of its loop, after the timers: on
         a loaded machine each turn carries a long catch-up step, goals queued behind one another
         and took effect up to 0.4 s after the controller wrote them (and later still with the
         recording's subscriptions in the same executor), so Algorithm 1's model, which has each
-        goal act when written, no longer held and free legs stopped in the air."""
-        sub = self._cmd_sub
-        while True:
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
-            if taken is None:
-                return
-            self._command(taken[0])
+        goal act when written, no longer held and free legs stopped in the air; and
+        /ground_detection (up to 660 messages a second) overflowed its queue, so the bag lacked
+        reads that ``analyse`` needs to replay the decisions."""
+        for msg in _pending(self._cmd_sub):
+            self._command(msg)
+        for sub, topic in self._recorded_subs:
+            for msg in _pending(sub):
+                self._record(topic, msg, self.sim.now())
 
     def _on_timer(self) -> None:
         with self._lock:
-            self._take_commands()
+            self._take_pending()
             if not self._anchored:
                 self._anchored = True
                 self.pacer.reanchor()
@@ -407,6 +408,16 @@ class SimNode(Node):
         if self.live is not None:
             self.live.close()
             self.live = None
+
+
+def _pending(sub):
+    """The messages waiting in ``sub``'s queue, taken now (what the executor would take one per turn)."""
+    while True:
+        with sub.handle:
+            taken = sub.handle.take_message(sub.msg_type, sub.raw)
+        if taken is None:
+            return
+        yield taken[0]
 
 
 def _type_name(msg) -> str:
