@@ -29,6 +29,12 @@ every leg (its three joints) and the whole robot (every analysed joint); a paylo
    added to the model, until nothing passes (``max_effects``).
 4. With several effects, every parameter is refitted once with the others in place.
 
+The servo law's terms (punch, motor damping, goal latency: :mod:`.effects`) are hypotheses on the
+whole robot only; when one passes alone in a round, all of them are fitted at once
+(:meth:`Namer._servo_law_bundle`), since fitted in turn the first takes what belongs to the others.
+The analysis then names an effect only where it explains most of its joints' excess over tick
+rounding with the others in place (``min_final_explained``; see :mod:`.analysis`).
+
 Noise-fitting is not rewarded: parameters never see the held-out reads, and a gain that the
 held-out reads do not confirm by a clear factor is not an effect. An empty result means "no
 missing physics found".
