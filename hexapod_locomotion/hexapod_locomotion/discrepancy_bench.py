@@ -68,7 +68,7 @@ RANGES = {
 }
 TOLERANCE = {'coulomb_friction': 0.25, 'static_friction': 0.25, 'viscous_damping': 0.25, 'backlash': 0.25,
              'compliance_deadband': 0.25, 'torque_saturation': 0.10, 'readout_delay': 0.10, 'mass_error': 0.10,
-             'punch': 0.25, 'motor_damping': 0.05, 'goal_latency': 0.10}
+             'punch': 0.25, 'motor_damping': 0.10, 'goal_latency': 0.10}   # motor_damping: of the whole ratio
 GOALS = {'right': 0.9, 'ratio': 1.5, 'seconds_per_minute': 60.0}
 
 

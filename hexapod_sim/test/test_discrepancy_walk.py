@@ -233,3 +233,12 @@ def test_a_walk_of_a_plant_with_another_servo_law_names_the_servo_law_and_no_joi
     assert max(v.heldout_rmse_ticks_before for v in a.joints.values()) > 1.5      # the model without the law
     assert max(v.heldout_rmse_ticks_after for v in a.joints.values()) < 0.5
     assert a.unexplained == []
+
+
+def test_legs_that_all_swing_at_once_are_a_stand_routine_not_a_gait():
+    from hexapod_sim.discrepancy.segments import _legs_swing_together
+    together = {leg: [(1.0, 2.0), (5.0, 6.0)] for leg in range(1, 7)}
+    tripod = {leg: ([(1.0, 2.0), (5.0, 6.0)] if leg in (1, 4, 5) else [(3.0, 4.0), (7.0, 8.0)]) for leg in range(1, 7)}
+    assert _legs_swing_together(together)
+    assert not _legs_swing_together(tripod)
+    assert not _legs_swing_together({3: [(1.0, 2.0)]})             # one leg: nothing to compare

@@ -204,8 +204,27 @@ def median_swing_up_s(phases: dict) -> float:
     return float(np.median(d)) if d else float('nan')
 
 
+def _legs_swing_together(swings: dict, step_s: float = 0.01, share: float = 0.8) -> bool:
+    """True if the legs' "swings" are one motion of every leg at once (more than ``share`` of the time
+    any leg swings, all of them do): the stand calibration routine, not a gait, which always keeps
+    legs on the ground. (A servo law unlike the model's sits the holding femurs off the prediction
+    as a body's weight does: on a stand, 32 more punch made the femur test call the routine a walk.)"""
+    legs = [spans for spans in swings.values() if spans]
+    if len(legs) < 2:
+        return False
+    t_end = max(b for spans in legs for _a, b in spans)
+    t = np.arange(0.0, t_end + step_s, step_s)
+    up = np.zeros((len(legs), len(t)), dtype=bool)
+    for i, spans in enumerate(legs):
+        for a, b in spans:
+            up[i] |= (t >= a) & (t <= b)
+    anyone = np.count_nonzero(up.any(axis=0))
+    return anyone > 0 and np.count_nonzero(up.all(axis=0)) > share * anyone
+
+
 def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.0, min_reads: int = 10) -> bool:
-    """True if femurs are pushed up outside their swing phases: the stance legs carry the body.
+    """True if femurs are pushed up outside their swing phases: the stance legs carry the body (and
+    the legs do not all swing at once, :func:`_legs_swing_together`).
 
     ``residual``: read - nominal free-leg prediction per joint (whole recording); ``swings``: the
     swing spans of :func:`swing_segments`. On a stand a femur fits the free-leg model as well
@@ -218,6 +237,8 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
     torque limit on a stand, also sits off the prediction between its motions; ``--mode walk``
     forces the choice).
     """
+    if _legs_swing_together(swings):
+        return False
     femurs = [j for j in replay.joints if j.endswith('_femur')]
     hits = 0
     for j in femurs:
