@@ -337,7 +337,23 @@ class Recorder:
         self.close()
 
 
-class RecorderThread:
+class _QueuedWrites:
+    """The writing side of a recorder that queues (:class:`RecorderThread`, :class:`RecorderProcess`):
+    both take messages and /tf requests through their own bounded queue, ``_put``."""
+
+    def _put(self, item) -> None:
+        raise NotImplementedError
+
+    def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
+        """:meth:`Recorder.write`, queued; dropped once closed or failed."""
+        self._put((topic, msg_type, msg, t_s))
+
+    def write_tf_if_due(self, t_s: float, joint_names, joint_angles, body_pose=None) -> None:
+        """:meth:`Recorder.write_tf`, queued, when a /tf is due at ``t_s`` (:meth:`Recorder.tf_due`)."""
+        self._put((None, joint_names, joint_angles, body_pose, t_s))
+
+
+class RecorderThread(_QueuedWrites):
     """A :class:`Recorder` written by a thread of its own, fed through a queue (thread safe).
 
     :meth:`write` and :meth:`write_tf_if_due` only enqueue (the message objects must not change
@@ -389,14 +405,6 @@ class RecorderThread:
                 return
             self._items.append(item)
             self._not_empty.notify()
-
-    def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
-        """:meth:`Recorder.write` from the writer thread; dropped once closed or failed."""
-        self._put((topic, msg_type, msg, t_s))
-
-    def write_tf_if_due(self, t_s: float, joint_names, joint_angles, body_pose=None) -> None:
-        """:meth:`Recorder.write_tf` from the writer thread when a /tf is due at ``t_s`` (:meth:`Recorder.tf_due`)."""
-        self._put((None, joint_names, joint_angles, body_pose, t_s))
 
     def _take(self) -> list:
         """Everything queued, in order (waits for some); empty once closed and drained."""
@@ -483,7 +491,7 @@ def _read_frame(stream):
     return pickle.loads(data)
 
 
-class RecorderProcess:
+class RecorderProcess(_QueuedWrites):
     """:class:`RecorderThread`'s interface with the :class:`Recorder` in a child process (thread safe).
 
     The child is a new interpreter (``python -c``, this interpreter's ``sys.path``) in a process
@@ -548,14 +556,6 @@ class RecorderProcess:
             self._items.append(item)
             if len(self._items) == SEND_BATCH:      # otherwise the sender takes them at its next period
                 self._not_empty.notify()
-
-    def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
-        """:meth:`Recorder.write` in the child; dropped once closed or failed."""
-        self._put((topic, msg_type, msg, t_s))
-
-    def write_tf_if_due(self, t_s: float, joint_names, joint_angles, body_pose=None) -> None:
-        """:meth:`Recorder.write_tf` in the child when a /tf is due at ``t_s``."""
-        self._put((None, joint_names, joint_angles, body_pose, t_s))
 
     def _send(self) -> None:
         try:
