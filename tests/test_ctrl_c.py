@@ -51,27 +51,31 @@ def test_demo_ctrl_c_keeps_a_readable_bag(tmp_path):
     assert reader.warnings == [], reader.warnings           # closed properly: no recovery needed
 
 
-def test_analyse_ctrl_c_is_one_line(monkeypatch, capsys, tmp_path):
-    from hexapod_locomotion import analyse
+def _tool(name):
+    """(main, module attribute its work goes through, arguments, what its one line ends with)."""
+    if name == 'analyse':
+        from hexapod_locomotion import analyse
+        return analyse, 'rerun_detectors', [str(ROOT / 'bags' / 'tripod_blocks_fixed'), '--json', 'a/r.json'], \
+            'analyse: interrupted (Ctrl-C); nothing written'
+    if name == 'discrepancy':
+        from hexapod_sim.discrepancy import cli
+        return cli, 'analyse', [str(ROOT / 'bags' / 'discrepancy_demo'), '--json', 'out/d.json'], \
+            'discrepancy: interrupted (Ctrl-C)'
+    from hexapod_locomotion import discrepancy_bench
+    return discrepancy_bench, 'run', ['--cases', 'clean', '--json', 'r.json'], \
+        'discrepancy_bench: interrupted (Ctrl-C); nothing written'
+
+
+@pytest.mark.parametrize('name', ['analyse', 'discrepancy', 'discrepancy_bench'])
+def test_ctrl_c_in_a_tool_is_one_line_and_leaves_nothing(monkeypatch, capsys, tmp_path, name):
+    module, attr, args, line = _tool(name)
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
-    monkeypatch.setattr(analyse, 'rerun_detectors', interrupted)
-    rc = analyse.main([str(ROOT / 'bags' / 'tripod_blocks_fixed'), '--json', str(tmp_path / 'a' / 'r.json')])
+    monkeypatch.setattr(module, attr, interrupted)
+    monkeypatch.chdir(tmp_path)
+    rc = module.main(args)
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == EXIT_INTERRUPTED
-    assert len(err) == 1 and err[0].endswith('analyse: interrupted (Ctrl-C); nothing written'), err
-    assert list(tmp_path.iterdir()) == []
-
-
-def test_discrepancy_ctrl_c_is_one_line(monkeypatch, capsys, tmp_path):
-    from hexapod_sim.discrepancy import cli
-
-    def interrupted(*a, **k):
-        raise KeyboardInterrupt
-    monkeypatch.setattr(cli, 'analyse', interrupted)
-    rc = cli.main([str(ROOT / 'bags' / 'discrepancy_demo'), '--json', str(tmp_path / 'out' / 'd.json')])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert rc == EXIT_INTERRUPTED
-    assert len(err) == 1 and err[0].endswith('discrepancy: interrupted (Ctrl-C)'), err
+    assert len(err) == 1 and err[0].endswith(line), err
     assert list(tmp_path.iterdir()) == []

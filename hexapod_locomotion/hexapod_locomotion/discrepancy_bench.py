@@ -482,7 +482,8 @@ def _record_named_walk(case: Case, out_dir: Path, name: str) -> tuple[Path, floa
 
 
 def main(argv=None) -> int:
-    from hexapod_model.cli_common import add_no_progress_option, make_parser, nonnegative_int, output_directory, output_file
+    from hexapod_model.cli_common import (add_no_progress_option, interrupted, make_parser, nonnegative_int,
+                                          output_directory, output_file)
     from hexapod_model.executor import ExecutorError, add_executor_options
     ap = make_parser('discrepancy_bench', __doc__.splitlines()[0])
     ap.add_argument('--seed', type=nonnegative_int, default=0, help='draws the magnitudes and joints of the cases')
@@ -539,6 +540,9 @@ def main(argv=None) -> int:
     except ExecutorError as exc:
         print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        return interrupted(ap.prog, f'the finished cases\' bags and results are in {args.keep}' if args.keep
+                           else 'nothing written')
     for label, part in (('stand calibration routine', [r for r, c in zip(results, cases) if not c.walk]),
                         (f'walks ({WALK_S:g} s; gait/terrain:effect)', [r for r, c in zip(results, cases) if c.walk])):
         if part:
