@@ -117,19 +117,22 @@ def test_time_windows_restrict_the_analysis(bag, robot):
 
 
 def _walk_like(robot, stance_offset_ticks):
-    """Two legs: femur lifted (swing) then lowered and held while reads sit above the goal (stance)."""
+    """Two legs in turn (leg 2 half a cycle later: a gait keeps a leg on the ground): femur lifted
+    (swing) then lowered and held while reads sit above the goal (stance)."""
     dt = 0.003
     t = np.arange(0.0, 6.0, dt)
     cmds, reads = [], []
     for k, tt in enumerate(t):
-        phase = tt % 3.0                    # 0-0.5 hold, 0.5-1 lift, 1-1.5 hold up, 1.5-2 lower, 2-3 stance
-        femur = 0.0 + 0.3 * np.clip((phase - 0.5) / 0.5, 0, 1) - 0.3 * np.clip((phase - 1.5) / 0.5, 0, 1)
-        goals = {f'leg{leg}_{r}': (femur if r == 'femur' else 0.0) for leg in (1, 2) for r in JOINT_ROLES}
+        # per leg: 0-0.5 hold, 0.5-1 lift, 1-1.5 hold up, 1.5-2 lower, 2-3 stance
+        phase = {leg: (tt - 1.5 * (leg - 1)) % 3.0 for leg in (1, 2)}
+        femur = {leg: 0.3 * np.clip((p - 0.5) / 0.5, 0, 1) - 0.3 * np.clip((p - 1.5) / 0.5, 0, 1)
+                 for leg, p in phase.items()}
+        goals = {f'leg{leg}_{r}': (femur[leg] if r == 'femur' else 0.0) for leg in (1, 2) for r in JOINT_ROLES}
         cmds.append((tt, goals))
-        stance = phase < 0.5 or phase > 2.05
         for leg in (1, 2):
+            stance = phase[leg] < 0.5 or phase[leg] > 2.05
             off = stance_offset_ticks * robot.servo.rad_per_tick if stance else 0.0
-            reads.append((tt + 0.001 * leg, f'leg{leg}_femur', femur + off))
+            reads.append((tt + 0.001 * leg, f'leg{leg}_femur', femur[leg] + off))
     return Recording.from_samples(cmds, reads)
 
 
