@@ -629,6 +629,13 @@ class Namer:
                 if self.progress is not None:
                     self.progress(f'round {round_ + 1}: {h.candidate.effect} on {len(h.joints)} joint(s)')
             ok = [h for h in fitted if self.passes(h)]
+            bundle = self._servo_law_bundle(effects, base_pred, fitted)
+            if bundle and not ok:            # the servo law's terms explain together what none does alone
+                for h in bundle:
+                    effects.append(h.effect)
+                    accepted.append(h)
+                    self.s.log.append(('servo_law', round_, h.candidate.effect, h.value))
+                continue
             if not ok:
                 break
             best = max(ok, key=lambda h: h.hold_gain)
@@ -642,7 +649,6 @@ class Namer:
                             and not self._extra_joints_confirm(best, h)):
                         best = h
                         break
-            bundle = self._servo_law_bundle(effects, base_pred, ok)
             if bundle and (len(bundle) > 1 or best.candidate.servo_law) and _gain(bundle) >= best.hold_gain:
                 for h in bundle:
                     effects.append(h.effect)
@@ -662,19 +668,22 @@ class Namer:
             effects = [h.effect for h in accepted]
         return effects, accepted
 
-    def _servo_law_bundle(self, effects, base_pred, ok: list[Hypothesis]) -> list[Hypothesis]:
-        """The servo-law terms that together explain the recording, when one of them is accepted alone.
+    def _servo_law_bundle(self, effects, base_pred, fitted: list[Hypothesis]) -> list[Hypothesis]:
+        """The servo-law terms that together explain the recording, when one of them improves it alone.
 
         Punch, motor damping and goal latency act on every servo at once and partly stand in for each
         other (more punch speeds a move up where more damping slows it down), so one of them alone can
         lose to a joint effect that mimics their sum (a torque limit on the whole robot), and fitted one
         after the other the first takes what belongs to the others (a walk with 1.15x damping, more punch
-        and a 1 ms goal latency: damping 1.07 alone, then no punch). So all of them are fitted at once
-        (Nelder-Mead on the fitting reads' squared error, from the terms accepted alone), and those that
-        pass the acceptance test with the others in place are taken (the rest dropped, the others
-        refitted). Returns them, or [] when no term was accepted alone.
+        and a 1 ms goal latency: damping 1.07 alone, then no punch), or none passes alone (a tetrapod walk
+        with 0.14 N m more punch and 1.3x damping: punch alone explained 31 % of the excess, a leg's torque
+        limit was taken instead). So when a servo-law term's fit improves the held-out reads at all, all of
+        them are fitted at once (Nelder-Mead on the fitting reads' squared error, from those fits), and
+        those that pass the acceptance test with the others in place are taken (the rest dropped, the
+        others refitted). Returns them, or [].
         """
-        alone = {h.candidate.effect: h for h in ok if h.candidate.servo_law}
+        alone = {h.candidate.effect: h for h in fitted if h.candidate.servo_law and h.hold_gain > 0
+                 and np.isfinite(h.value)}
         if not alone:
             return []
         joints = tuple(self.rep.joints)
