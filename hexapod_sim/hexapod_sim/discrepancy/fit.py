@@ -61,6 +61,7 @@ TIME_SHIFTS = ('readout_delay', 'goal_latency')     # predicted as a shift of th
 # A joint effect that, put on every analysed joint, is a servo-law term the tool names as such: on the
 # whole robot the servo law's candidate stands for it (the replay cannot tell them apart).
 ROBOT_WIDE_AS = {'viscous_damping': 'motor_damping', 'readout_delay': 'goal_latency'}
+TWIN_OF = {law: joint_effect for joint_effect, law in ROBOT_WIDE_AS.items()}
 
 
 SINGLE_SWING_BLOCK_S = 0.1   # fit / held-out blocks within the only swing of a leg (walks)
@@ -287,7 +288,6 @@ class Hypothesis:
     evals: int = 0
     # per affected joint: held-out (squared error before, after, number of reads)
     hold_by_joint: dict = field(default_factory=dict)
-    bundle_gain: float = 0.0     # held-out gain of the servo-law terms taken with this one (its first)
 
     @property
     def effect(self) -> Effect:
@@ -328,11 +328,6 @@ class FitSettings:
     feature_window_s: float = 0.25
     candidates: tuple[str, ...] = tuple(c.effect for c in CANDIDATES)
     log: list = field(default_factory=list)
-
-
-def _gain(bundle: list[Hypothesis]) -> float:
-    """Held-out gain [tick^2] of servo-law terms taken together (:meth:`Namer._servo_law_bundle`)."""
-    return bundle[0].bundle_gain
 
 
 class Namer:
@@ -530,10 +525,7 @@ class Namer:
         it (dense local grid, then bounded Brent): the parameter that best predicts every read.
         """
         c = h.candidate
-        aff = sorted(_affected(c.effect, h.joints) & set(self.rep.joints))
-        h.affected = tuple(aff)
-        h.fit_sse_before, _ = self._sse(base_pred, aff, 'fit')
-        h.hold_sse_before, h.n_hold = self._sse(base_pred, aff, 'hold')
+        aff = self._score_before(h, base_pred)
         cache: dict[float, tuple[float, float]] = {}
 
         def evaluate(v: float) -> tuple[float, float]:
@@ -569,12 +561,25 @@ class Namer:
                 v2 = float(res.x)
         h.value = float(v2)
         h.fit_sse_after = cache[v2][0]
+        self._score_held_out(h, effects, base_pred, aff)
+        return h
+
+    def _score_before(self, h: Hypothesis, base_pred) -> list[str]:
+        """``h``'s affected joints and its fitting and held-out errors under ``base_pred``; the joints."""
+        aff = sorted(_affected(h.candidate.effect, h.joints) & set(self.rep.joints))
+        h.affected = tuple(aff)
+        h.fit_sse_before, _ = self._sse(base_pred, aff, 'fit')
+        h.hold_sse_before, h.n_hold = self._sse(base_pred, aff, 'hold')
+        return aff
+
+    def _score_held_out(self, h: Hypothesis, effects, base_pred, aff) -> dict:
+        """``h``'s held-out errors at its value with ``effects`` in place (all and per joint); the prediction."""
         p = self.pred.predict(tuple(effects) + (h.effect,), aff)
         h.hold_sse_after, _ = self._sse(p, aff, 'hold')
         for j in aff:
             b, n = self._sse(base_pred, (j,), 'hold')
             h.hold_by_joint[j] = (b, self._sse(p, (j,), 'hold')[0], n)
-        return h
+        return p
 
     def passes(self, h: Hypothesis) -> bool:
         c = h.candidate
@@ -629,38 +634,23 @@ class Namer:
                 if self.progress is not None:
                     self.progress(f'round {round_ + 1}: {h.candidate.effect} on {len(h.joints)} joint(s)')
             ok = [h for h in fitted if self.passes(h)]
-            bundle = self._servo_law_bundle(effects, base_pred, fitted)
-            if bundle and not ok:            # the servo law's terms explain together what none does alone
-                for h in bundle:
-                    effects.append(h.effect)
-                    accepted.append(h)
-                    self.s.log.append(('servo_law', round_, h.candidate.effect, h.value))
-                continue
-            if not ok:
-                break
-            best = max(ok, key=lambda h: h.hold_gain)
-            if best.candidate.servo_law:
+            bundle, bundle_gain = self._servo_law_bundle(effects, base_pred, fitted)
+            best = max(ok, key=lambda h: h.hold_gain) if ok else None
+            if best is not None and best.candidate.servo_law:
                 # a servo-law term whose joint-effect twin on fewer joints gains nearly as much: the
                 # others do not show it, so it is that joint effect (a readout delay of one tibia)
-                twin = {v: k for k, v in ROBOT_WIDE_AS.items()}.get(best.candidate.effect)
-                for h in sorted(ok, key=lambda h: len(h.joints)):
-                    if (h.candidate.effect == twin and set(h.joints) < set(best.joints)
-                            and h.hold_gain >= self.s.parsimony * best.hold_gain
-                            and not self._extra_joints_confirm(best, h)):
-                        best = h
-                        break
-            if bundle and (len(bundle) > 1 or best.candidate.servo_law) and _gain(bundle) >= best.hold_gain:
+                best = self._smaller_scope(best, ok, TWIN_OF.get(best.candidate.effect))
+            # the servo law's terms together: where none passes alone, or where they gain more than the best
+            if bundle and (best is None or ((len(bundle) > 1 or best.candidate.servo_law)
+                                            and bundle_gain >= best.hold_gain)):
                 for h in bundle:
                     effects.append(h.effect)
                     accepted.append(h)
                     self.s.log.append(('servo_law', round_, h.candidate.effect, h.value))
                 continue
-            for h in sorted(ok, key=lambda h: len(h.joints)):
-                if (h.candidate.effect == best.candidate.effect and set(h.joints) < set(best.joints)
-                        and h.hold_gain >= self.s.parsimony * best.hold_gain
-                        and not self._extra_joints_confirm(best, h)):
-                    best = h
-                    break
+            if best is None:
+                break
+            best = self._smaller_scope(best, ok, best.candidate.effect)
             effects.append(best.effect)
             accepted.append(best)
         if len(accepted) > 1:
@@ -668,7 +658,18 @@ class Namer:
             effects = [h.effect for h in accepted]
         return effects, accepted
 
-    def _servo_law_bundle(self, effects, base_pred, fitted: list[Hypothesis]) -> list[Hypothesis]:
+    def _smaller_scope(self, best: Hypothesis, ok: list[Hypothesis], effect: str | None) -> Hypothesis:
+        """The smallest accepted hypothesis of ``effect`` on a subset of ``best``'s joints that reaches
+        ``parsimony`` of its held-out gain, unless the joints only ``best`` reaches confirm it on their own;
+        else ``best``."""
+        for h in sorted(ok, key=lambda h: len(h.joints)):
+            if (h.candidate.effect == effect and set(h.joints) < set(best.joints)
+                    and h.hold_gain >= self.s.parsimony * best.hold_gain
+                    and not self._extra_joints_confirm(best, h)):
+                return h
+        return best
+
+    def _servo_law_bundle(self, effects, base_pred, fitted: list[Hypothesis]) -> tuple[list[Hypothesis], float]:
         """The servo-law terms that together explain the recording, when one of them improves it alone.
 
         Punch, motor damping and goal latency act on every servo at once and partly stand in for each
@@ -680,12 +681,12 @@ class Namer:
         limit was taken instead). So when a servo-law term's fit improves the held-out reads at all, all of
         them are fitted at once (Nelder-Mead on the fitting reads' squared error, from those fits), and
         those that pass the acceptance test with the others in place are taken (the rest dropped, the
-        others refitted). Returns them, or [].
+        others refitted). Returns them and their held-out gain together, or ([], 0).
         """
         alone = {h.candidate.effect: h for h in fitted if h.candidate.servo_law and h.hold_gain > 0
                  and np.isfinite(h.value)}
         if not alone:
-            return []
+            return [], 0.0
         joints = tuple(self.rep.joints)
         terms = [BY_NAME[n] for n in self.s.candidates if BY_NAME[n].servo_law]
         while terms:
@@ -699,11 +700,10 @@ class Namer:
             worst = min(bad, key=lambda h: h.hold_gain)
             terms = [c for c in terms if c is not worst.candidate]
         else:
-            return []
+            return [], 0.0
         b0, _ = self._sse(base_pred, joints, 'hold')
         b1, _ = self._sse(self.pred.predict(list(effects) + [h.effect for h in bundle], joints), joints, 'hold')
-        bundle[0].bundle_gain = b0 - b1
-        return bundle
+        return bundle, b0 - b1
 
     def _fit_together(self, effects, terms, alone) -> list[float]:
         """Parameters of servo-law ``terms`` fitted at once on every analysed joint (see above)."""
@@ -733,19 +733,13 @@ class Namer:
         """Fill in ``h``'s fitting and held-out errors at its value, with ``effects`` and ``others`` in place."""
         inner = list(effects) + list(others)
         aff = sorted(_affected(h.candidate.effect, h.joints) & set(self.rep.joints))
-        h.affected = tuple(aff)
         base = self.pred.predict(inner, aff)
-        h.fit_sse_before, _ = self._sse(base, aff, 'fit')
-        h.hold_sse_before, h.n_hold = self._sse(base, aff, 'hold')
+        self._score_before(h, base)
         if not h.value > h.candidate.lo and not h.candidate.two_sided:
             h.value = math.nan                       # the term is not there at all
             return h
-        p = self.pred.predict(inner + [h.effect], aff)
+        p = self._score_held_out(h, inner, base, aff)
         h.fit_sse_after, _ = self._sse(p, aff, 'fit')
-        h.hold_sse_after, _ = self._sse(p, aff, 'hold')
-        for j in aff:
-            b, n = self._sse(base, (j,), 'hold')
-            h.hold_by_joint[j] = (b, self._sse(p, (j,), 'hold')[0], n)
         return h
 
     def _pick_for_fit(self, hyps: list[Hypothesis]) -> list[Hypothesis]:
