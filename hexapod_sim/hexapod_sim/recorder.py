@@ -352,6 +352,25 @@ class _QueuedWrites:
         """:meth:`Recorder.write_tf`, queued, when a /tf is due at ``t_s`` (:meth:`Recorder.tf_due`)."""
         self._put((None, joint_names, joint_angles, body_pose, t_s))
 
+    def _report(self, text: str) -> None:
+        """Tell ``on_error`` (if any) that the recording failed; a failing report must not end the writer."""
+        if self.on_error is not None:
+            try:
+                self.on_error(text)
+            except Exception:              # noqa: BLE001 - the robot runs on
+                pass
+
+    def _end_queue(self) -> bool:
+        """Mark the queue closed and wake its waiters (callers waiting for room: their messages are
+        dropped); False if it was closed already."""
+        with self._not_full:
+            if self._closed:
+                return False
+            self._closed = True
+            self._not_empty.notify()
+            self._not_full.notify_all()
+        return True
+
 
 class RecorderThread(_QueuedWrites):
     """A :class:`Recorder` written by a thread of its own, fed through a queue (thread safe).
@@ -442,20 +461,12 @@ class RecorderThread(_QueuedWrites):
                         rec.write(*item)
                 except Exception as exc:               # noqa: BLE001 - reported once, the robot runs on
                     self.error = f'{item[0] or contract.TF}: {one_line(exc)}'
-                    if self.on_error is not None:
-                        try:
-                            self.on_error(self.error)
-                        except Exception:              # noqa: BLE001 - a failing report must not end the writer
-                            pass
+                    self._report(self.error)
 
     def close(self) -> None:
         """Write everything enqueued so far, then close the bag (idempotent)."""
-        with self._not_full:
-            if self._closed:
-                return
-            self._closed = True
-            self._not_empty.notify()
-            self._not_full.notify_all()         # callers waiting for room: their messages are dropped
+        if not self._end_queue():
+            return
         self._thread.join()
         try:
             self.recorder.close()
@@ -605,20 +616,12 @@ class RecorderProcess(_QueuedWrites):
         with self._not_full:
             self._items.clear()
             self._not_full.notify_all()
-        if self.on_error is not None:
-            try:
-                self.on_error(text)
-            except Exception:              # noqa: BLE001 - a failing report must not end the recording thread
-                pass
+        self._report(text)
 
     def close(self) -> None:
         """Send everything enqueued so far, let the child close the bag, wait for it (idempotent)."""
-        with self._not_full:
-            if self._closed:
-                return
-            self._closed = True
-            self._not_empty.notify()
-            self._not_full.notify_all()
+        if not self._end_queue():
+            return
         self._sender.join()
         self._reader.join()
         self._proc.wait()
