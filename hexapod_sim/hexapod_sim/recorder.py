@@ -337,6 +337,21 @@ class Recorder:
         self.close()
 
 
+def _write_queued(rec: 'Recorder', item) -> str | None:
+    """Write one queued item (a message, or a /tf request written when due) to ``rec``; the error in one
+    line, or None. An error is reported once; the robot runs on."""
+    try:
+        if item[0] is None:
+            _, names, angles, pose, t_s = item
+            if rec.tf_due(t_s):
+                rec.write_tf(t_s, names, angles, pose)
+        else:
+            rec.write(*item)
+    except Exception as exc:               # noqa: BLE001 - reported once, the robot runs on
+        return f'{item[0] or contract.TF}: {one_line(exc)}'
+    return None
+
+
 class _QueuedWrites:
     """The writing side of a recorder that queues (:class:`RecorderThread`, :class:`RecorderProcess`):
     both take messages and /tf requests through their own bounded queue, ``_put``."""
@@ -452,15 +467,8 @@ class RecorderThread(_QueuedWrites):
             for item in batch:
                 if self.error is not None:
                     break
-                try:
-                    if item[0] is None:
-                        _, names, angles, pose, t_s = item
-                        if rec.tf_due(t_s):
-                            rec.write_tf(t_s, names, angles, pose)
-                    else:
-                        rec.write(*item)
-                except Exception as exc:               # noqa: BLE001 - reported once, the robot runs on
-                    self.error = f'{item[0] or contract.TF}: {one_line(exc)}'
+                self.error = _write_queued(rec, item)
+                if self.error is not None:
                     self._report(self.error)
 
     def close(self) -> None:
@@ -654,16 +662,10 @@ def recorder_process_main() -> None:
         for item in batch:
             if failed:
                 break
-            try:
-                if item[0] is None:
-                    _, names, angles, pose, t_s = item
-                    if rec.tf_due(t_s):
-                        rec.write_tf(t_s, names, angles, pose)
-                else:
-                    rec.write(*item)
-            except Exception as exc:                    # noqa: BLE001 - reported once, the robot runs on
+            error = _write_queued(rec, item)
+            if error is not None:
                 failed = True
-                _send_frame(out, ('error', f'{item[0] or contract.TF}: {one_line(exc)}'))
+                _send_frame(out, ('error', error))
         _send_frame(out, ('count', rec.count))
     close_error = None
     try:
