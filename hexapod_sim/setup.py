@@ -21,19 +21,19 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'replay = hexapod_sim.replay:main',
-            'bench_replay = hexapod_sim.bench_replay:main',
-            'sim = hexapod_sim.cli:main',
-            'sim_node = hexapod_sim.sim_node:main',
-            'bench_sim = hexapod_sim.bench_sim:main',
+            'replay = hexapod_sim.tools.replay:main',
+            'bench_replay = hexapod_sim.bench.bench_replay:main',
+            'sim = hexapod_sim.node.cli:main',
+            'sim_node = hexapod_sim.node.sim_node:main',
+            'bench_sim = hexapod_sim.bench.bench_sim:main',
             'discrepancy = hexapod_sim.discrepancy.cli:main',
-            'stand_calibration = hexapod_sim.stand_calibration:main',
-            'record_contract = hexapod_sim.record_contract:main',
-            'tf_figure = hexapod_sim.tf_figure:main',
+            'stand_calibration = hexapod_sim.calibration.stand:main',
+            'record_contract = hexapod_sim.bagio.record_contract:main',
+            'tf_figure = hexapod_sim.tools.tf_figure:main',
         ],
         # The MuJoCo hexapod as a backend of the driver's bus emulator (bus_emulator --backend sim).
         'hexapod_driver.emulator_backends': [
-            'sim = hexapod_sim.emulator_backend:SimBackend',
+            'sim = hexapod_sim.node.emulator_backend:SimBackend',
         ],
     },
 )

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from hexapod_model.cli_common import EXIT_INTERRUPTED
-from hexapod_model.testing import installed_executable
+from hexapod_testing import installed_executable
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -54,14 +54,14 @@ def test_demo_ctrl_c_keeps_a_readable_bag(tmp_path):
 def _tool(name):
     """(main, module attribute its work goes through, arguments, what its one line ends with)."""
     if name == 'analyse':
-        from hexapod_locomotion import analyse
+        from hexapod_locomotion.trials import analyse
         return analyse, 'rerun_detectors', [str(ROOT / 'bags' / 'tripod_blocks_fixed'), '--json', 'a/r.json'], \
             'analyse: interrupted (Ctrl-C); nothing written'
     if name == 'discrepancy':
         from hexapod_sim.discrepancy import cli
         return cli, 'analyse', [str(ROOT / 'bags' / 'discrepancy_demo'), '--json', 'out/d.json'], \
             'discrepancy: interrupted (Ctrl-C)'
-    from hexapod_locomotion import discrepancy_bench
+    from hexapod_locomotion.bench import discrepancy_bench
     return discrepancy_bench, 'run', ['--cases', 'clean', '--json', 'r.json'], \
         'discrepancy_bench: interrupted (Ctrl-C); nothing written'
 

@@ -52,7 +52,7 @@ def test_the_lint_catches_each_form():
 
 def test_the_checked_files_cover_code_and_docs():
     rel = {p.relative_to(ROOT).as_posix() for p in checked_files()}
-    for expected in ('README.md', 'docs/architecture.md', 'hexapod_locomotion/hexapod_locomotion/controller.py',
+    for expected in ('README.md', 'docs/architecture.md', 'hexapod_locomotion/hexapod_locomotion/core/controller.py',
                      'hexapod_model/hexapod_model/__init__.py', 'tests/test_package_dependencies.py'):
         assert expected in rel, expected
     assert not any(r.startswith(('build/', 'install/', '.venv/')) or '/node_modules/' in r for r in rel)

@@ -24,9 +24,9 @@ LAYERS = ['hexapod_msgs', 'hexapod_model', 'hexapod_driver', 'hexapod_sim', 'hex
 # (importer, imported) pairs the layering allows only in these files (paths relative to ROOT).
 # the sim uses the driver only to offer its physics to the bus emulator, and to run the stand
 # calibration routine (which lives with the sim-vs-real tool) on the real bus
-NARROW = {('hexapod_sim', 'hexapod_driver'): {'hexapod_sim/hexapod_sim/emulator_backend.py',
+NARROW = {('hexapod_sim', 'hexapod_driver'): {'hexapod_sim/hexapod_sim/node/emulator_backend.py',
                                               'hexapod_sim/test/test_emulator_backend.py',
-                                              'hexapod_sim/hexapod_sim/stand_calibration.py',
+                                              'hexapod_sim/hexapod_sim/calibration/stand.py',
                                               'hexapod_sim/test/test_robot_recording.py'}}
 
 # Python module -> (rosdep key, pip distribution pinned in requirements/). ROS packages need no
@@ -106,7 +106,8 @@ def scan(package: str):
         if rel.parts[0] not in (package, 'test'):
             continue                                   # setup.py, build leftovers
         is_test = rel.parts[0] == 'test'
-        local = {p.stem for p in path.parent.glob('*.py')} if is_test else set()   # test helpers (fakes.py)
+        # test helpers: the test folder's own (fakes.py) and the workspace's (tests/, pytest.ini's pythonpath)
+        local = {p.stem for p in (*path.parent.glob('*.py'), *(ROOT / 'tests').glob('*.py'))} if is_test else set()
         for line, mod in imports_of(path):
             if mod in sys.stdlib_module_names or mod in ('__future__', package) or mod in local:
                 continue
@@ -149,9 +150,10 @@ def test_imports_are_declared_layered_and_pinned(package):
 def test_workspace_level_tests_import_only_pinned_packages():
     pinned = _pinned()
     bad = []
+    helpers = {p.stem for p in (ROOT / 'tests').glob('*.py')}
     for path in sorted((ROOT / 'tests').glob('*.py')):
         for line, mod in imports_of(path):
-            if mod in sys.stdlib_module_names or mod == '__future__' or mod in LAYERS:
+            if mod in sys.stdlib_module_names or mod == '__future__' or mod in LAYERS or mod in helpers:
                 continue
             if not (_is_ros_package(mod, pinned) or mod in UNPINNED_ROS or (mod in PYTHON_KEYS and _dist(PYTHON_KEYS[mod][1]) in pinned)):
                 bad.append(f'{path.relative_to(ROOT)}:{line}: {mod} is not pinned')

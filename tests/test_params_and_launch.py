@@ -13,9 +13,9 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 
 from hexapod_driver.config import NODE as DRIVER  # noqa: E402
-from hexapod_locomotion.params import NODE as LOCOMOTION  # noqa: E402
+from hexapod_locomotion.nodes.params import NODE as LOCOMOTION  # noqa: E402
 from hexapod_model.param_schema import MODEL_NODE, params_yaml  # noqa: E402
-from hexapod_sim.params import NODE as SIM  # noqa: E402
+from hexapod_sim.node.params import NODE as SIM  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 NODES = {n.executable: n for n in (DRIVER, SIM, MODEL_NODE, LOCOMOTION)}
@@ -44,14 +44,14 @@ def test_parameter_file_is_the_schema_and_is_installed(exe):
 def _start_in_process(exe, ctx, tmp_path):
     """The node object started in ``ctx`` (whose arguments carry --params-file); (node, cleanup)."""
     if exe == 'sim_node':
-        from hexapod_sim.sim_node import SimNode
+        from hexapod_sim.node.sim_node import SimNode
         n = SimNode(context=ctx)
         return n, n.close
     if exe == 'model_node':
         from hexapod_model.model_node import ModelNode
         return ModelNode(context=ctx), lambda: None
     if exe == 'locomotion_node':
-        from hexapod_locomotion.locomotion_node import LocomotionNode
+        from hexapod_locomotion.nodes.locomotion_node import LocomotionNode
         n = LocomotionNode(context=ctx)          # waits for a bus master in its thread; stopped below
         return n, lambda: None
     from hexapod_driver.driver_node import DriverNode
@@ -266,7 +266,7 @@ def _members(launch: Path) -> list:
 @pytest.mark.parametrize('launch', LAUNCH_FILES, ids=lambda p: p.name)
 def test_launch_file_names_installed_executables_files_and_declared_parameters(launch):
     import yaml
-    from hexapod_locomotion.params import ComposedParams
+    from hexapod_locomotion.nodes.params import ComposedParams
     from hexapod_model.param_schema import specs as schema_specs
     nodes = launch_nodes(launch)
     assert nodes

@@ -15,9 +15,9 @@ REPO = Path(__file__).resolve().parent.parent
 
 def nodes():
     from hexapod_driver.config import NODE as DRIVER
-    from hexapod_locomotion.params import NODE as LOCOMOTION
+    from hexapod_locomotion.nodes.params import NODE as LOCOMOTION
     from hexapod_model.param_schema import MODEL_NODE, ROBOT_STATE_NODE
-    from hexapod_sim.params import NODE as SIM
+    from hexapod_sim.node.params import NODE as SIM
     return [DRIVER, SIM, MODEL_NODE, ROBOT_STATE_NODE, LOCOMOTION]
 
 

@@ -39,9 +39,9 @@ from hexapod_model.param_schema import ParameterError, RobotSource, help_lines
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoStatus
 from hexapod_msgs.srv import SetReadSchedule
 
-from .config import NODE, DriverConfig, DriverNodeParams, robot_defaults
-from .dynamixel_bus import CommandError, DynamixelBus
-from .local_bus import LocalDriverBus
+from hexapod_driver.config import NODE, DriverConfig, DriverNodeParams, robot_defaults
+from hexapod_driver.dynamixel_bus import CommandError, DynamixelBus
+from hexapod_driver.local_bus import LocalDriverBus
 
 
 EXIT_OK = 0                 # clean shutdown (Ctrl-C, SIGTERM)

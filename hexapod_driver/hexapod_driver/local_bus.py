@@ -17,7 +17,7 @@ from typing import Callable, Mapping, Sequence
 
 from hexapod_model.bus import BusError
 
-from .dynamixel_bus import DynamixelBus, StepResult
+from hexapod_driver.dynamixel_bus import DynamixelBus, StepResult
 
 
 class LocalDriverBus:

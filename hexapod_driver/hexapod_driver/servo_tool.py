@@ -23,8 +23,8 @@ from tqdm import tqdm
 from hexapod_model.cli_common import ArgumentParser, make_parser, nonnegative_int, positive_int
 from hexapod_model.description import load_robot
 
-from . import protocol as p
-from .port import LowLatencyPortHandler
+from hexapod_driver import protocol as p
+from hexapod_driver.port import LowLatencyPortHandler
 
 
 class ServoToolError(RuntimeError):

@@ -16,7 +16,8 @@ rclpy = pytest.importorskip('rclpy')
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from hexapod_model import contract, testing  # noqa: E402
+from hexapod_model import contract  # noqa: E402
+import hexapod_testing as testing  # noqa: E402
 from hexapod_model.description import ALL_JOINTS, load_robot  # noqa: E402
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics  # noqa: E402
 from hexapod_msgs.srv import SetReadSchedule  # noqa: E402

@@ -1,8 +1,8 @@
 """Offline re-evaluation of recorded walks (./hexapod analyse)."""
 import pytest
 
-from hexapod_locomotion.analyse import AnalysisError, main, rerun_detectors
-from hexapod_locomotion.trial_runner import TrialConfig, run_trial
+from hexapod_locomotion.trials.analyse import AnalysisError, main, rerun_detectors
+from hexapod_locomotion.trials.trial_runner import TrialConfig, run_trial
 from hexapod_sim.bagio import BagError, BagReader, BagWriter
 
 
@@ -40,7 +40,7 @@ def test_plot_of_a_fixed_detector_bag_marks_what_the_fixed_detector_did(tmp_path
     crosses the 21-tick threshold: both are marked as the recorded detector's stops."""
     from pathlib import Path
 
-    from hexapod_locomotion.analyse import plot
+    from hexapod_locomotion.trials.analyse import plot
     bag = Path(__file__).resolve().parents[2] / 'bags' / 'tripod_blocks_fixed'
     labels = plot(rerun_detectors(str(bag)), tmp_path / 'fixed.png')
     assert 'fixed: ran to theta_fin (recorded)' in labels
@@ -94,8 +94,8 @@ def test_demo_and_analyse_use_the_same_words_and_counts(walk_bag):
     """The demo's summary and analyse's report of one bag: 'swing-down phases' and 'leg swing-downs'
     with the same numbers, and the same speed, power and CoT line (one function, the same samples,
     windows from the first swing-down on)."""
-    from hexapod_locomotion.analyse import report_lines
-    from hexapod_locomotion.demo import summary_lines
+    from hexapod_locomotion.trials.analyse import report_lines
+    from hexapod_locomotion.trials.demo import summary_lines
     bag, res = walk_bag
     demo = summary_lines(res)
     r = rerun_detectors(str(bag))
@@ -131,7 +131,7 @@ def test_demo_and_analyse_commands_print_the_same_figures_for_one_bag(tmp_path, 
     results only) and its time limit is kept within one control period."""
     import json
 
-    from hexapod_locomotion.demo import main as demo_main
+    from hexapod_locomotion.trials.demo import main as demo_main
     bag, out = tmp_path / 'walk', tmp_path / 'walk.json'
     assert demo_main(['--terrain', 'flat', '--duration', '12', '--record', str(bag), '--json', str(out)]) == 0
     demo_out, demo_err = capsys.readouterr()
@@ -151,7 +151,7 @@ def test_demo_and_analyse_commands_print_the_same_figures_for_one_bag(tmp_path, 
 def test_demo_says_when_it_writes_the_gif(tmp_path, capsys):
     """The GIF is written after the walk (a pause of seconds): stderr says so after the progress bar,
     stdout names the file."""
-    from hexapod_locomotion.demo import main as demo_main
+    from hexapod_locomotion.trials.demo import main as demo_main
     gif = tmp_path / 'walk.gif'
     assert demo_main(['--terrain', 'flat', '--duration', '1', '--record', '', '--video', str(gif)]) == 0
     out, err = capsys.readouterr()
@@ -163,8 +163,8 @@ def test_demo_says_when_it_writes_the_gif(tmp_path, capsys):
 def test_the_improved_touchdown_is_replayed_with_its_dwell_margin(tmp_path):
     """/swing_down carries the dwell's Eq. 17 margin, so analyse re-runs the improved touchdown as the
     walk ran it; a recording made before the field existed replays the dwell with Eq. 17's margin."""
-    from hexapod_locomotion.detector import DetectorConfig, SwingDownPhase, phase_from_fields, swing_start_fields
-    from hexapod_locomotion.experiments import variant_fields
+    from hexapod_locomotion.core.detector import DetectorConfig, SwingDownPhase, phase_from_fields, swing_start_fields
+    from hexapod_locomotion.trials.experiments import variant_fields
     from hexapod_model.description import load_robot
     bag = tmp_path / 'improved'
     fields = variant_fields('improved')

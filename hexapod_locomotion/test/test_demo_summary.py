@@ -3,8 +3,8 @@ import os
 import subprocess
 from types import SimpleNamespace
 
-from hexapod_locomotion.demo import summary_lines
-from hexapod_locomotion.experiments import format_table4, summarize_table4
+from hexapod_locomotion.trials.demo import summary_lines
+from hexapod_locomotion.trials.experiments import format_table4, summarize_table4
 
 
 def _res(distance_m):
@@ -34,7 +34,7 @@ def test_the_table_says_why_cot_and_speed_are_missing():
 
 
 def test_a_demo_too_short_for_the_cot_says_so_before_it_walks(tmp_path):
-    from hexapod_model.testing import installed_executable
+    from hexapod_testing import installed_executable
     res = subprocess.run([installed_executable('hexapod_locomotion', 'demo'), '--duration', '2', '--terrain', 'flat',
                           '--record', '', '--no-progress'], capture_output=True, text=True, timeout=300, cwd=tmp_path,
                          env=dict(os.environ, HEXAPOD_EXE='demo', HEXAPOD_PROG='./hexapod demo'))

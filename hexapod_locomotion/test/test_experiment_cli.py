@@ -1,5 +1,5 @@
 """./hexapod experiment: the quality table keeps the failing cells."""
-from hexapod_locomotion.experiments import format_quality
+from hexapod_locomotion.trials.experiments import format_quality
 
 
 def _result(gait, detector, delay, detected):
@@ -36,7 +36,7 @@ class Run:
     """``experiment`` as the installed console script, its stderr (progress bars) collected."""
 
     def __init__(self, *args):
-        from hexapod_model.testing import installed_executable
+        from hexapod_testing import installed_executable
         self.proc = subprocess.Popen([installed_executable('hexapod_locomotion', 'experiment'), *args],
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=dict(os.environ, PYTHONUNBUFFERED='1'))
         self.err = b''

@@ -8,10 +8,10 @@ import json
 
 import pytest
 
-from hexapod_locomotion import sweep
-from hexapod_locomotion.experiments import run_many
-from hexapod_locomotion.trial_runner import TrialConfig
-from hexapod_model.executor import map_jobs
+from hexapod_locomotion.trials import sweep
+from hexapod_locomotion.trials.experiments import run_many
+from hexapod_locomotion.trials.trial_runner import TrialConfig
+from hexapod_locomotion.trials.executor import map_jobs
 
 SHORT = dict(duration_s=2.0, course_end_m=2.6)
 
@@ -25,7 +25,7 @@ def test_ray_tasks_give_the_process_pool_results(monkeypatch):
     cfgs = [TrialConfig(gait='tripod', detector='adaptive', seed=0, **SHORT),
             TrialConfig(gait='tetrapod', detector='fixed', seed=1, **SHORT)]
     pool = run_many(cfgs, jobs=2, desc='pool')
-    from hexapod_locomotion import experiments
+    from hexapod_locomotion.trials import experiments
     monkeypatch.setitem(experiments.EXECUTOR, 'ray', 'local')
     on_ray = run_many(cfgs, jobs=2, desc='ray')
     assert [r['config'] for r in on_ray] == [r['config'] for r in pool]      # the order of the configs
@@ -35,7 +35,7 @@ def test_ray_tasks_give_the_process_pool_results(monkeypatch):
 
 def test_an_unreachable_ray_cluster_is_one_line(capsys):
     pytest.importorskip('ray')
-    from hexapod_model.executor import ExecutorError
+    from hexapod_locomotion.trials.executor import ExecutorError
     from hexapod_model.cli_common import positive_int
     with pytest.raises(ExecutorError, match='no Ray cluster answers at 127.0.0.1:1'):
         map_jobs(positive_int, ['1'], ray_address='127.0.0.1:1', progress=False)
@@ -90,8 +90,8 @@ def test_bad_sweep_arguments_are_one_line(argv, message, tmp_path, capsys):
 def test_the_gait_cycle_timing_reaches_the_controller():
     """TrialConfig's transfer-phase fields (None = the controller's default) are the LocomotionParams
     a trial walks with, and a sweep parses a boolean field as a boolean."""
-    from hexapod_locomotion.controller import LocomotionParams
-    from hexapod_locomotion.trial_runner import locomotion_params
+    from hexapod_locomotion.core.controller import LocomotionParams
+    from hexapod_locomotion.trials.trial_runner import locomotion_params
     default = LocomotionParams()
     assert locomotion_params(TrialConfig()) == default
     p = locomotion_params(TrialConfig(t_swing_up_s=0.15, t_level_s=0.25, max_stride_m=0.07, overlap_transfer=False))
@@ -105,8 +105,8 @@ def test_the_gait_cycle_timing_reaches_the_controller():
 def test_the_discrepancy_bench_walks_are_calibration_walks():
     """The bench records its walks with the installed calibration-walk parameter file, the one a
     robot's walk is recorded with: the cycle of Fig. 4 in sequence, unhurried transfer phases."""
-    from hexapod_locomotion.discrepancy_bench import calibration_walk
-    from hexapod_locomotion.trial_runner import locomotion_params
+    from hexapod_locomotion.bench.discrepancy_bench import calibration_walk
+    from hexapod_locomotion.trials.trial_runner import locomotion_params
     values = calibration_walk()
     assert values['overlap_transfer'] is False and values['t_swing_up_s'] >= 0.15
     p = locomotion_params(TrialConfig(**values))

@@ -1,7 +1,7 @@
 """Gaits as data: support counts at every phase, phase offsets, validation."""
 import pytest
 
-from hexapod_locomotion.gait import DEFAULT_STRIDE_M, Gait, GaitError, get_gait, load_gaits
+from hexapod_locomotion.core.gait import DEFAULT_STRIDE_M, Gait, GaitError, get_gait, load_gaits
 
 
 @pytest.mark.parametrize('name, down', [('tripod', 3), ('tetrapod', 4), ('pentapod', 5)])
@@ -58,7 +58,7 @@ def test_bad_gaits_are_named(tmp_path):
 
 
 def test_a_gait_has_its_stride_and_the_parameter_replaces_it():
-    from hexapod_locomotion.controller import LocomotionParams
+    from hexapod_locomotion.core.controller import LocomotionParams
     p = LocomotionParams()
     assert p.stride_m(get_gait('pentapod')) == get_gait('pentapod').max_stride_m == 0.12
     assert p.stride_m(get_gait('tripod')) == DEFAULT_STRIDE_M
@@ -69,7 +69,7 @@ def test_a_gait_has_its_stride_and_the_parameter_replaces_it():
 def test_roll_pitch_yaw_of_known_rotations():
     import math
 
-    from hexapod_locomotion.metrics import roll_pitch_yaw
+    from hexapod_locomotion.core.metrics import roll_pitch_yaw
     h = math.sqrt(0.5)
     assert roll_pitch_yaw((1, 0, 0, 0)) == pytest.approx((0, 0, 0))
     assert roll_pitch_yaw((h, h, 0, 0)) == pytest.approx((math.pi / 2, 0, 0))

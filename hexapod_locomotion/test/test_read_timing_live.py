@@ -14,7 +14,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from hexapod_model.testing import installed_executable  # noqa: E402
+from hexapod_testing import installed_executable  # noqa: E402
 
 DOMAIN_ID = 220 + os.getpid() % 13          # 220..232: this file's processes and probes; DDS stays on loopback
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -99,7 +99,7 @@ def test_under_load_the_recording_replays_every_decision_of_the_live_controller(
     decisions (its reads replayed in bus order, out of Algorithm 1's order). The recording now replays
     the reads the controller took, so every decision is reproduced. (How much the recording still
     changes the walk under load depends on the load and is measured, not tested: docs/architecture.md.)"""
-    from hexapod_locomotion.analyse import rerun_detectors
+    from hexapod_locomotion.trials.analyse import rerun_detectors
     n_rec, _early, log_rec, bag = _walk(tmp_path, record=True)
     assert n_rec >= 6, log_rec[-2000:]
     r = rerun_detectors(str(bag))
@@ -117,9 +117,9 @@ def test_reads_delayed_in_the_subscriber_are_a_warning_and_a_diagnostics_count(c
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
-    from hexapod_locomotion.locomotion_node import LocomotionNode
-    from hexapod_locomotion.ros_bus import RosBus
-    from hexapod_sim.sim_node import SimNode
+    from hexapod_locomotion.nodes.locomotion_node import LocomotionNode
+    from hexapod_locomotion.nodes.ros_bus import RosBus
+    from hexapod_sim.node.sim_node import SimNode
 
     calls = [0]
     on_state = RosBus._on_state

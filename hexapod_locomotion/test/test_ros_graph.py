@@ -15,7 +15,7 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 
 from hexapod_model.contract import stamp_seconds  # noqa: E402
-from hexapod_model.testing import installed_executable  # noqa: E402
+from hexapod_testing import installed_executable  # noqa: E402
 
 
 _exe = installed_executable

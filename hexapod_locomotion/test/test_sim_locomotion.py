@@ -9,15 +9,15 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from hexapod_locomotion.controller import GaitController, LocomotionParams, VelocityCommand
-from hexapod_locomotion.detector import STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, SwingDownPhase
-from hexapod_locomotion.gait import get_gait
-from hexapod_locomotion.trial_runner import ProbeBus, TrialConfig, _detection_events, run_trial
+from hexapod_locomotion.core.controller import GaitController, LocomotionParams, VelocityCommand
+from hexapod_locomotion.core.detector import STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, SwingDownPhase
+from hexapod_locomotion.core.gait import get_gait
+from hexapod_locomotion.trials.trial_runner import ProbeBus, TrialConfig, _detection_events, run_trial
 from hexapod_model.description import load_robot
 from hexapod_model.kinematics import stance_feet
-from hexapod_sim.mjcf import FOOT_RADIUS_M
-from hexapod_sim.plant import HexapodSim
-from hexapod_sim.terrain import Box, Terrain
+from hexapod_sim.physics.mjcf import FOOT_RADIUS_M
+from hexapod_sim.physics.plant import HexapodSim
+from hexapod_sim.physics.terrain import Box, Terrain
 
 BLOCK_TOP_M = 0.035
 
@@ -103,8 +103,8 @@ def test_no_premature_stop_in_free_swing(robot, t_des, cell, gait):
     """On a stand (no ground) every swing-down must run to theta_fin, with the paper's Eq. 15 goals
     and with the improved touchdown (the experiments' cell: approach profile, dwell at theta_fin and
     the dwell's smaller Eq. 17 margin)."""
-    from hexapod_locomotion.experiments import variant_fields
-    from hexapod_locomotion.trial_runner import TrialConfig, detector_config, locomotion_params
+    from hexapod_locomotion.trials.experiments import variant_fields
+    from hexapod_locomotion.trials.trial_runner import TrialConfig, detector_config, locomotion_params
     cfg = TrialConfig(gait=gait, t_des_s=t_des, **variant_fields(cell))
     sim = HexapodSim(robot, terrain='flat', fixed_base=True)
     c = GaitController(robot, get_gait(gait), locomotion_params(cfg), detector_config(cfg), t_com_s=sim.t_com_s)
@@ -221,7 +221,7 @@ def test_late_steps_do_not_stop_a_free_swing(robot, anchored, monkeypatch):
     fourth step) still runs every swing-down to theta_fin: the model is read at each read's time
     after its own step's write. Read at the time since the phase began instead, the prediction runs
     ahead of the late goals and the free legs stop in the air - what the real-time robot did."""
-    import hexapod_locomotion.controller as controller
+    import hexapod_locomotion.core.controller as controller
     if not anchored:
         monkeypatch.setattr(controller, 'SwingDownPhase', _PhaseOnStartTimes)
     sim = HexapodSim(robot, terrain='flat', fixed_base=True)
@@ -239,7 +239,7 @@ def test_late_steps_do_not_stop_a_free_swing(robot, anchored, monkeypatch):
 def test_replay_with_the_recorded_writes_makes_the_live_decisions(robot):
     """``analyse`` replays a swing-down from its recorded reads and writes (/joint_commands): with a
     late controller, the replay stops each leg at the same step as the live run."""
-    from hexapod_locomotion.detector import replay_swing_down, run_swing_down
+    from hexapod_locomotion.core.detector import replay_swing_down, run_swing_down
     sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
     c = GaitController(robot, get_gait('tripod'), LocomotionParams(), DetectorConfig(kind='adaptive'),
                        t_com_s=sim.t_com_s)

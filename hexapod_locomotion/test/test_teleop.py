@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from hexapod_locomotion.cmd_vel_pub import CliError, check_velocity, rate_warning
-from hexapod_locomotion.controller import LocomotionParams
-from hexapod_locomotion.gait import get_gait
-from hexapod_locomotion.teleop_keyboard import Teleop, controller_limits, keys_from_bytes
+from hexapod_locomotion.nodes.cmd_vel_pub import CliError, check_velocity, rate_warning
+from hexapod_locomotion.core.controller import LocomotionParams
+from hexapod_locomotion.core.gait import get_gait
+from hexapod_locomotion.nodes.teleop_keyboard import Teleop, controller_limits, keys_from_bytes
 
 REPO = Path(__file__).resolve().parents[2]
 DOMAIN_ID = 100 + os.getpid() % 40          # 100..139: this file's process tests
@@ -116,7 +116,7 @@ def test_rate_warning_against_the_timeout():
 rclpy = pytest.importorskip('rclpy')
 from geometry_msgs.msg import Twist  # noqa: E402
 
-from hexapod_model.testing import installed_executable, node_env, ros_probe  # noqa: E402
+from hexapod_testing import installed_executable, node_env, ros_probe  # noqa: E402
 
 
 def executable(name):

@@ -9,14 +9,14 @@ import time
 
 import numpy as np
 
-from .description import load_robot
-from .swing_model import LegModel, predict_swing_down
+from hexapod_model.description import load_robot
+from hexapod_model.swing_model import LegModel, predict_swing_down
 
 TARGET_MS = 0.3
 
 
 def main(argv=None) -> None:
-    from .cli_common import fail, make_parser, positive_float, positive_int
+    from hexapod_model.cli_common import fail, make_parser, positive_float, positive_int
     ap = make_parser('bench_model', __doc__.splitlines()[0])
     ap.add_argument('--repeats', type=positive_int, default=500, help='timed predictions')
     ap.add_argument('--t-des', type=positive_float, default=2.0, help='swing-down duration [s]')

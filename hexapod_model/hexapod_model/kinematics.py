@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from .description import JOINT_ROLES, LEGS, Robot
+from hexapod_model.description import JOINT_ROLES, LEGS, Robot
 
 
 class UnreachableTargetError(ValueError):

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from rclpy.node import Node
 
-from .contract import PREDICT_SWING_DOWN
-from .description import LEGS, DescriptionError
-from .node_params import NodeParams, node_help, run_node
-from .param_schema import MODEL_NODE, RobotSource
-from .swing_model import LegModel, SwingDownError, predict_swing_down
+from hexapod_model.contract import PREDICT_SWING_DOWN
+from hexapod_model.description import LEGS, DescriptionError
+from hexapod_model.node_params import NodeParams, node_help, run_node
+from hexapod_model.param_schema import MODEL_NODE, RobotSource
+from hexapod_model.swing_model import LegModel, SwingDownError, predict_swing_down
 
 
 class ModelNode(Node):

@@ -23,7 +23,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from .param_schema import ParameterError, ParamSpec, build, check, coerce, specs
+from hexapod_model.param_schema import ParameterError, ParamSpec, build, check, coerce, specs
 
 INT64_MAX = 2**63 - 1
 EXIT_BAD_PARAMETER = 1
@@ -136,7 +136,7 @@ def node_command_line(argv: list[str] | None, exe: str, help_text: Callable[[], 
     argument there (which rclpy would silently ignore, e.g. ``--gait bogus`` for ``-p gait:=bogus``)
     is refused in one line and 2 is returned; ``None``: start the node. ``argv`` without the
     program name (default ``sys.argv[1:]``)."""
-    from .cli_common import prog_name
+    from hexapod_model.cli_common import prog_name
     argv = sys.argv[1:] if argv is None else list(argv)
     own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
     if '-h' in own or '--help' in own:
@@ -212,7 +212,7 @@ def init_node_process(args: list[str] | None = None) -> None:
     from rclpy._rclpy_pybind11 import RCLError
     from rclpy.utilities import remove_ros_args
 
-    from .cli_common import prog_name
+    from hexapod_model.cli_common import prog_name
     try:                          # parsed once first: rcl's init would also log its own [ERROR] line
         remove_ros_args(args if args is not None else sys.argv)
     except RCLError as exc:       # e.g. '-p' without NAME:=VALUE
@@ -254,8 +254,8 @@ def spin_until_shutdown(node, period_s: float = 0.1) -> None:
 def node_help(exe: str, doc: str, schemas, defaults: Mapping[str, Any] | None = None) -> Callable[[], str]:
     """``help_text`` for :func:`run_node`: usage, the module's description, every parameter."""
     def text() -> str:
-        from .cli_common import prog_name
-        from .param_schema import help_lines
+        from hexapod_model.cli_common import prog_name
+        from hexapod_model.param_schema import help_lines
         return '\n'.join([f'usage: {prog_name(exe)} [-h] [--ros-args -p NAME:=VALUE ...]', '', doc.strip(), '',
                           'Parameters (-p NAME:=VALUE):', *help_lines(schemas, defaults)])
     return text

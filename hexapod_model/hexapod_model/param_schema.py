@@ -202,7 +202,7 @@ class RobotSource:
 
     def load(self):
         """The :class:`hexapod_model.description.Robot` (raises DescriptionError naming the file and key)."""
-        from .description import load_robot
+        from hexapod_model.description import load_robot
         return load_robot(self.robot_description or None, list(self.robot_overlays))
 
 

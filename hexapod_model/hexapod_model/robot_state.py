@@ -20,12 +20,12 @@ from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from . import contract
-from .description import DescriptionError
-from .node_params import NodeParams, node_help, run_node
-from .param_schema import ROBOT_STATE_NODE, RobotSource, RobotStateParams
-from .tf_tree import TfTree
-from .urdf import urdf_xml
+from hexapod_model import contract
+from hexapod_model.description import DescriptionError
+from hexapod_model.node_params import NodeParams, node_help, run_node
+from hexapod_model.param_schema import ROBOT_STATE_NODE, RobotSource, RobotStateParams
+from hexapod_model.tf_tree import TfTree
+from hexapod_model.urdf import urdf_xml
 
 try:
     from geometry_msgs.msg import TransformStamped

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from .description import BusJoint, ServoParams
+from hexapod_model.description import BusJoint, ServoParams
 
 
 def theta_to_tick(theta_rad, servo: ServoParams):

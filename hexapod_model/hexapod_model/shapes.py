@@ -2,12 +2,12 @@
 
 The robot description (``robot.yaml``) holds the kinematics and the link masses; the shapes below
 are project nominal values [N] for pictures and collisions (the paper gives none), named once here
-so the URDF (:mod:`hexapod_model.urdf`) and the MJCF (:mod:`hexapod_sim.mjcf`) draw the same robot.
+so the URDF (:mod:`hexapod_model.urdf`) and the MJCF (:mod:`hexapod_sim.physics.mjcf`) draw the same robot.
 Pure Python/numpy.
 """
 from __future__ import annotations
 
-from .description import Robot
+from hexapod_model.description import Robot
 
 FOOT_RADIUS_M = 0.008          # rubber foot-tip sphere
 LINK_RADIUS_M = 0.007          # link capsules (visual; the tibia capsule also collides)

@@ -43,8 +43,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .description import JointEffects, Robot, ServoParams, joint_name
-from .servo import firmware_torque_scalar
+from hexapod_model.description import JointEffects, Robot, ServoParams, joint_name
+from hexapod_model.servo import firmware_torque_scalar
 
 try:  # numba makes one 2 s prediction take well under a millisecond; the pure-Python path is exact too
     from numba import njit

@@ -19,9 +19,9 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .contract import stamp_parts
-from .description import Robot
-from .urdf import ROOT_LINK, WORLD_FRAME, urdf_joints
+from hexapod_model.contract import stamp_parts
+from hexapod_model.description import Robot
+from hexapod_model.urdf import ROOT_LINK, WORLD_FRAME, urdf_joints
 
 
 def quat_xyzw(rot: np.ndarray) -> tuple[float, float, float, float]:

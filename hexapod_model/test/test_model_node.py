@@ -88,7 +88,7 @@ def test_the_running_model_node_refuses_bad_start_speeds_and_serves_on():
 
     from hexapod_msgs.srv import PredictSwingDown
 
-    from hexapod_model.testing import installed_executable, node_env, ros_probe, stop_process
+    from hexapod_testing import installed_executable, node_env, ros_probe, stop_process
     domain = 220 + os.getpid() % 13                  # 220..232 (Fast DDS refuses above 232): this test's own
     proc = subprocess.Popen([installed_executable('hexapod_model', 'model_node')], env=node_env(domain),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -5,12 +5,12 @@ import math
 
 import pytest
 
-from hexapod_sim.calibration import calibration_plan, run_calibration
+from hexapod_sim.calibration.plan import calibration_plan, run_calibration
 from hexapod_model.description import JOINT_ROLES, Effect, joint_name, load_robot
 from hexapod_sim.discrepancy import analyse
 from hexapod_sim.discrepancy.report import text_report
 
-sim_mod = pytest.importorskip('hexapod_sim.plant', reason='the MuJoCo sim package is not importable')
+sim_mod = pytest.importorskip('hexapod_sim.physics.plant', reason='the MuJoCo sim package is not importable')
 
 
 def _record(robot_truth, plan):

@@ -138,7 +138,7 @@ def test_a_walk_of_the_fast_overlapped_cycle_is_named_as_such():
 @pytest.fixture(scope='module')
 def overlapped_walk(tmp_path_factory):
     """A clean 10 s tripod walk over the blocks with the controller's default (overlapped, fast) cycle."""
-    locomotion = pytest.importorskip('hexapod_locomotion.trial_runner')
+    locomotion = pytest.importorskip('hexapod_locomotion.trials.trial_runner')
     import contextlib
     import io
     bag = tmp_path_factory.mktemp('walk') / 'overlapped'
@@ -176,7 +176,7 @@ def test_a_welded_replay_with_gravity_minus_acceleration_is_a_moving_body():
     """What body_motion rests on: legs on a welded trunk under gravity g - a move as they do on a trunk
     accelerating by a under gravity g (the sim's free base, lifted off the ground)."""
     from hexapod_sim.discrepancy.body_motion import gravity_per_period
-    from hexapod_sim.plant import HexapodSim, SimError
+    from hexapod_sim.physics.plant import HexapodSim, SimError
 
     imu = np.array([[0.0, 1.0, 0.0, 9.81], [1.0, 3.0, 0.0, 9.81]])
     g = gravity_per_period(imu, 3, 0.5)

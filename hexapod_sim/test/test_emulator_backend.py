@@ -11,7 +11,7 @@ from hexapod_driver.config import DriverConfig
 from hexapod_driver.dynamixel_bus import DynamixelBus
 from hexapod_driver.emulator import BACKEND_GROUP, BusEmulator, backend_plugins
 from hexapod_model.description import ALL_JOINTS, load_robot
-from hexapod_sim.emulator_backend import SimBackend
+from hexapod_sim.node.emulator_backend import SimBackend
 
 ROOT = Path(__file__).resolve().parents[2]
 # Generous reply timeout: the CI machine is shared and loaded; a lost reply then costs ~30 ms.

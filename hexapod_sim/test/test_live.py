@@ -25,8 +25,8 @@ websockets = pytest.importorskip('websockets')
 pytest.importorskip('foxglove')
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
 
-from hexapod_sim.live import LiveView, LiveViewError  # noqa: E402
-from hexapod_sim.recorder import Recorder  # noqa: E402
+from hexapod_sim.node.live import LiveView, LiveViewError  # noqa: E402
+from hexapod_sim.bagio.recorder import Recorder  # noqa: E402
 
 def bag_topic(name: str) -> str:
     return contract.bag_topic(name)
@@ -144,7 +144,7 @@ def test_recorder_feeds_the_live_view_and_a_client_receives_each_channel():
     assert list(js.name) == ['leg1_femur'] and js.position[0] == pytest.approx(angles[1])
     (_, gd), *_ = client.decode(bag_topic(contract.GROUND_DETECTION))
     assert gd.leg == 1 and gd.stopped and gd.err_tick == 4.0
-    from hexapod_sim.live import LIVE_TOPICS
+    from hexapod_sim.node.live import LIVE_TOPICS
     assert {c['topic'] for c in client.channels.values()} == {bag_topic(t) for t in LIVE_TOPICS}
     assert '/ground_detection' in {c['topic'] for c in client.channels.values()}
 
@@ -181,7 +181,7 @@ def _url_from(proc, pattern, timeout=120.0):
 
 def test_demo_foxglove_serves_the_walk():
     robot = load_robot()
-    proc = subprocess.Popen([sys.executable, '-m', 'hexapod_locomotion.demo', '--foxglove', '0', '--record', '',
+    proc = subprocess.Popen([sys.executable, '-m', 'hexapod_locomotion.trials.demo', '--foxglove', '0', '--record', '',
                              '--duration', '6', '--terrain', 'flat', '--no-progress'],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=_env(90))
     try:
@@ -201,7 +201,7 @@ def test_sim_node_parameter_serves_the_live_view(namespace):
     """The channels have the bags' absolute names also when the node runs in a namespace."""
     robot = load_robot()
     ns = ['-r', f'__ns:={namespace}'] if namespace else []
-    proc = subprocess.Popen([sys.executable, '-m', 'hexapod_sim.sim_node', '--ros-args', '-p', 'foxglove:=true',
+    proc = subprocess.Popen([sys.executable, '-m', 'hexapod_sim.node.sim_node', '--ros-args', '-p', 'foxglove:=true',
                              '-p', 'foxglove_port:=0', '-p', 'truth_rate_hz:=100.0', *ns],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env=_env(92 if namespace else 91))

@@ -7,7 +7,7 @@ import pytest
 
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Effect, load_robot
 from hexapod_model.kinematics import forward
-from hexapod_sim.mjcf import FOOT_RADIUS_M, home_foot_height_m, scene, servo_range_rad
+from hexapod_sim.physics.mjcf import FOOT_RADIUS_M, home_foot_height_m, scene, servo_range_rad
 
 
 @pytest.fixture(scope='module')

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from hexapod_model.description import load_robot
-from hexapod_sim import cli
-from hexapod_sim.mjcf import mjcf_file_text
-from hexapod_sim.plant import HexapodSim
+from hexapod_sim.node import cli
+from hexapod_sim.physics.mjcf import mjcf_file_text
+from hexapod_sim.physics.plant import HexapodSim
 
 COMMITTED = Path(__file__).resolve().parents[1] / 'models' / 'hexapod_ax12a_mockup.xml'
 REGENERATE = f'./hexapod sim --mjcf hexapod_sim/models/{COMMITTED.name} --terrain mockup'

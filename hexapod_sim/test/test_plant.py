@@ -8,8 +8,8 @@ import yaml
 from hexapod_model.description import ALL_JOINTS, Effect, joint_name, load_robot
 from hexapod_model.servo import firmware_torque_nm, quantize_tick, theta_to_tick, winding_loss_w
 from hexapod_model.swing_model import interpolated_goals, predict_swing_down
-from hexapod_sim.mjcf import FOOT_RADIUS_M
-from hexapod_sim.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, PowerMeter, SimError
+from hexapod_sim.physics.mjcf import FOOT_RADIUS_M
+from hexapod_sim.physics.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, PowerMeter, SimError
 
 RAISED = [0.45, 0.1]     # femur, tibia at the end of swing-forward [rad] (as in the model's tests)
 BELOW = [-0.15, -0.05]   # theta_fin below the (absent) ground
@@ -191,7 +191,7 @@ def test_torque_is_the_firmware_law_on_integer_ticks(robot):
 
 
 def test_compiled_quantiser_equals_quantize_tick(robot):
-    from hexapod_sim.firmware import quantize_array
+    from hexapod_sim.physics.firmware import quantize_array
     x = np.concatenate([np.random.default_rng(0).uniform(-5, 1030, 5000), np.arange(-3, 1027) + 0.5,
                         [-0.5, 0.5, 1022.5, 1023.5, 511.5, 512.5, -0.49, 1023.49]])
     np.testing.assert_array_equal(quantize_array(x, float(robot.servo.max_tick)), quantize_tick(x, robot.servo))

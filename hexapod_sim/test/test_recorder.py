@@ -7,8 +7,8 @@ import pytest
 
 from hexapod_sim.bagio import BagReader
 from hexapod_model.contract import stamp_dict
-from hexapod_sim import recorder
-from hexapod_sim.recorder import Recorder, resolve_bag_dir, ros_to_plain
+from hexapod_sim.bagio import recorder
+from hexapod_sim.bagio.recorder import Recorder, resolve_bag_dir, ros_to_plain
 
 
 def test_bag_paths(monkeypatch, tmp_path):

@@ -4,9 +4,9 @@ import pytest
 from PIL import Image
 
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, load_robot
-from hexapod_sim import cli
-from hexapod_sim.render import RenderError, record_video, render_png, scripted_tripod
-from hexapod_sim.plant import HexapodSim
+from hexapod_sim.node import cli
+from hexapod_sim.tools.render import RenderError, record_video, render_png, scripted_tripod
+from hexapod_sim.physics.plant import HexapodSim
 
 
 @pytest.fixture(scope='module')
@@ -51,7 +51,7 @@ def test_video_is_driven_by_a_goal_callback(robot, tmp_path):
 
 def test_scripted_tripod_lifts_one_tripod_at_a_time(robot):
     g = scripted_tripod(robot, settle_s=0.0)
-    from hexapod_sim.render import TRIPODS
+    from hexapod_sim.tools.render import TRIPODS
     from hexapod_model.kinematics import forward
     for t in np.linspace(1.3, 2.3, 9):                    # after the first (ramp) cycle
         goals = g(t)

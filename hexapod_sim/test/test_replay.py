@@ -24,7 +24,7 @@ from sensor_msgs.msg import Imu, JointState  # noqa: E402
 from hexapod_model import contract  # noqa: E402
 from hexapod_sim.bagio import BagReader, BagWarning, BagWriter  # noqa: E402
 from hexapod_msgs.msg import ReadSchedule  # noqa: E402
-from hexapod_sim.replay import BagPlayer, Pacer, playback_window  # noqa: E402
+from hexapod_sim.tools.replay import BagPlayer, Pacer, playback_window  # noqa: E402
 
 T0 = 1_700_000_000_000_000_000
 JS = 'sensor_msgs/msg/JointState'
@@ -194,7 +194,7 @@ def test_pacer_uses_absolute_deadlines():
 
 def run_cli(*args, timeout=60):
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    return subprocess.run([sys.executable, '-m', 'hexapod_sim.replay', *map(str, args)], env=env,
+    return subprocess.run([sys.executable, '-m', 'hexapod_sim.tools.replay', *map(str, args)], env=env,
                           capture_output=True, text=True, timeout=timeout)
 
 
@@ -243,7 +243,7 @@ def test_cli_garbage_and_bad_options(tmp_path):
 def test_cli_ctrl_c_stops_cleanly(tmp_path):
     bag = make_bag(tmp_path / 'bag')
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    proc = subprocess.Popen([sys.executable, '-m', 'hexapod_sim.replay', str(bag), '--loop'], env=env,
+    proc = subprocess.Popen([sys.executable, '-m', 'hexapod_sim.tools.replay', str(bag), '--loop'], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()          # "replay: playing ..." once it is publishing

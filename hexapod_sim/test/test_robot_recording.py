@@ -12,11 +12,11 @@ import time
 import numpy as np
 import pytest
 
-from hexapod_model import testing
+import hexapod_testing as testing
 from hexapod_model.description import ALL_JOINTS, load_robot
 from hexapod_sim.discrepancy.recording import load_recording
 from hexapod_driver.emulator import BusEmulator
-from hexapod_sim.stand_calibration import main as stand_calibration
+from hexapod_sim.calibration.stand import main as stand_calibration
 
 DOMAIN_ID = 40 + os.getpid() % 20          # 40..59: clear of test_driver_node's 20..39
 
@@ -32,7 +32,7 @@ def test_stand_calibration_runs_the_routine_on_the_driver_and_writes_the_contrac
         assert stand_calibration(['--device', emu.port, '--out', str(bag), '--legs', '2', '--phases', 'settle',
                                   '--no-progress']) == 0
         # the routine's goals reached the servos of leg 2 (ids 4-6): the settle pose
-        from hexapod_sim.calibration import calibration_plan
+        from hexapod_sim.calibration.plan import calibration_plan
         plan = calibration_plan(robot, legs=(2,), phases=('settle',))
         goal_femur = round(512 + plan.goals_rad[0, 1] / robot.servo.rad_per_tick)
         assert emu.servo(5).get('goal_position') == goal_femur
@@ -72,7 +72,7 @@ def test_record_contract_records_the_driver_topics_into_a_contract_bag(robot, tm
                                    '-p', 'command_timeout_s:=0.0', '-p', 'timeout_margin_ms:=25.0',
                                    '-p', 'startup_timeout_margin_ms:=200.0', '-p', 'startup_attempts:=10'],
                                   env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        rec = subprocess.Popen([sys.executable, '-m', 'hexapod_sim.record_contract', '--out', str(bag)],
+        rec = subprocess.Popen([sys.executable, '-m', 'hexapod_sim.bagio.record_contract', '--out', str(bag)],
                                env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             import rclpy
@@ -110,9 +110,9 @@ def test_record_contract_records_the_driver_topics_into_a_contract_bag(robot, tm
 
 def test_record_contract_names_bad_input(tmp_path):
     (tmp_path / 'taken').mkdir()
-    p = subprocess.run([sys.executable, '-m', 'hexapod_sim.record_contract', '--out', str(tmp_path / 'taken')],
+    p = subprocess.run([sys.executable, '-m', 'hexapod_sim.bagio.record_contract', '--out', str(tmp_path / 'taken')],
                        env=_env(), capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and 'already exists' in p.stderr and 'Traceback' not in p.stderr
-    p = subprocess.run([sys.executable, '-m', 'hexapod_sim.record_contract', '--out', str(tmp_path / 'x'),
+    p = subprocess.run([sys.executable, '-m', 'hexapod_sim.bagio.record_contract', '--out', str(tmp_path / 'x'),
                         '--duration', 'nan'], env=_env(), capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and '--duration' in p.stderr and not (tmp_path / 'x').exists()

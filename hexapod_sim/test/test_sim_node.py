@@ -18,11 +18,12 @@ from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import BatteryState, Imu, JointState  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from hexapod_model import contract, testing  # noqa: E402
+from hexapod_model import contract  # noqa: E402
+import hexapod_testing as testing  # noqa: E402
 from hexapod_model.description import ALL_JOINTS, load_robot  # noqa: E402
 from hexapod_model.servo import theta_to_tick  # noqa: E402
 from hexapod_msgs.msg import ReadSchedule, ServoDiagnostics  # noqa: E402
-from hexapod_sim.sim_node import SimNode  # noqa: E402
+from hexapod_sim.node.sim_node import SimNode  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 DOMAIN_ID = 60 + os.getpid() % 40          # test-specific domain; DDS stays on loopback

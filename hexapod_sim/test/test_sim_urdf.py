@@ -16,7 +16,7 @@ def robot():
 
 def _sim_cli(*args, cwd):
     env = dict(os.environ)
-    return subprocess.run([sys.executable, '-m', 'hexapod_sim.cli', *args], cwd=cwd, env=env,
+    return subprocess.run([sys.executable, '-m', 'hexapod_sim.node.cli', *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=120)
 
 

@@ -15,7 +15,7 @@ import pytest
 from hexapod_model.description import ALL_JOINTS, Effect, joint_name, load_robot
 from hexapod_model.servo import theta_to_tick
 from hexapod_model.swing_model import CoxaModel
-from hexapod_sim.plant import HexapodSim
+from hexapod_sim.physics.plant import HexapodSim
 
 JOINT = 'leg1_coxa'
 DRIVE_NM = 0.2          # saturated drive towards the goal (torque limit): 0.06 Coulomb < 0.2

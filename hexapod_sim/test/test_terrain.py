@@ -7,8 +7,8 @@ import pytest
 
 from hexapod_model.description import load_robot
 from hexapod_model.kinematics import stance_feet
-from hexapod_sim import terrain as T
-from hexapod_sim.mjcf import scene
+from hexapod_sim.physics import terrain as T
+from hexapod_sim.physics.mjcf import scene
 
 
 def test_names_and_bad_input():

@@ -1,4 +1,4 @@
-"""The per-millisecond truth a benchmark takes from the sim (hexapod_sim.truth_log), the cheap
+"""The per-millisecond truth a benchmark takes from the sim (hexapod_sim.physics.truth_log), the cheap
 foot-contact test behind it, and the sim node writing it as a running process."""
 import os
 import signal
@@ -8,10 +8,10 @@ import time
 import numpy as np
 import pytest
 
-from hexapod_model import testing
+import hexapod_testing as testing
 from hexapod_model.description import ALL_JOINTS, load_robot
-from hexapod_sim.plant import HexapodSim, SimError
-from hexapod_sim.truth_log import TRUTH_COLUMNS, TruthLog, load_truth
+from hexapod_sim.physics.plant import HexapodSim, SimError
+from hexapod_sim.physics.truth_log import TRUTH_COLUMNS, TruthLog, load_truth
 
 DOMAIN_ID = 150 + os.getpid() % 40
 

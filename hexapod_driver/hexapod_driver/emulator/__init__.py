@@ -13,7 +13,7 @@ What the horns do is a *backend*:
 * :class:`IdealServoBackend`: a servo that follows its goal at the moving speed (register 32;
   0 = the no-load speed) on the 1 kHz firmware grid, limp when torque is off;
 * :class:`ServoBusBackend`: an adapter over any :class:`hexapod_model.bus.ServoBus` (the MuJoCo
-  sim ``hexapod_sim.plant.HexapodSim``): goal writes become ``sync_write`` and position reads
+  sim ``hexapod_sim.physics.plant.HexapodSim``): goal writes become ``sync_write`` and position reads
   ``wait_until`` + ``read_position`` on that bus, with the robot description's mounting
   (direction, offset) between DH angle and raw tick.
 
@@ -42,11 +42,11 @@ The package by job: :mod:`.control_table` (one servo's registers and error condi
 injection), :mod:`.pty_server` (:class:`BusEmulator`: the pseudo-terminal, packet handling,
 timing), :mod:`.cli` (``bus_emulator``).
 """
-from .backends import (BACKEND_GROUP, IdealServoBackend, ServoBackend, ServoBusBackend, backend_plugins,
+from hexapod_driver.emulator.backends import (BACKEND_GROUP, IdealServoBackend, ServoBackend, ServoBusBackend, backend_plugins,
                        firmware_tick_at_or_after)
-from .control_table import EmulatedServo, EmulatorError
-from .faults import Faults
-from .pty_server import BusEmulator, LogEntry
+from hexapod_driver.emulator.control_table import EmulatedServo, EmulatorError
+from hexapod_driver.emulator.faults import Faults
+from hexapod_driver.emulator.pty_server import BusEmulator, LogEntry
 
 __all__ = ['BACKEND_GROUP', 'BusEmulator', 'EmulatedServo', 'EmulatorError', 'Faults', 'IdealServoBackend',
            'LogEntry', 'ServoBackend', 'ServoBusBackend', 'backend_plugins', 'firmware_tick_at_or_after']

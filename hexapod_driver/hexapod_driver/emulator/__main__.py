@@ -1,6 +1,6 @@
 """``python -m hexapod_driver.emulator``: the same as the ``bus_emulator`` executable."""
 import sys
 
-from .cli import main
+from hexapod_driver.emulator.cli import main
 
 sys.exit(main())

@@ -11,9 +11,9 @@ import numpy as np
 
 from hexapod_model.description import load_robot
 
-from .. import protocol as p
-from .backends import BACKEND_GROUP, backend_plugins
-from .pty_server import BusEmulator
+from hexapod_driver import protocol as p
+from hexapod_driver.emulator.backends import BACKEND_GROUP, backend_plugins
+from hexapod_driver.emulator.pty_server import BusEmulator
 
 
 def _load_plugins(ap: argparse.ArgumentParser) -> dict:

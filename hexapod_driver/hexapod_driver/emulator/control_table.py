@@ -2,7 +2,7 @@
 and its persistent error conditions (voltage, temperature, overload)."""
 from __future__ import annotations
 
-from .. import protocol as p
+from hexapod_driver import protocol as p
 
 
 class EmulatorError(RuntimeError):

@@ -5,10 +5,10 @@ from __future__ import annotations
 import random
 from typing import TYPE_CHECKING
 
-from .control_table import EmulatorError
+from hexapod_driver.emulator.control_table import EmulatorError
 
 if TYPE_CHECKING:
-    from .pty_server import BusEmulator
+    from hexapod_driver.emulator.pty_server import BusEmulator
 
 
 class Faults:

@@ -18,8 +18,8 @@ from mcap.records import Schema
 from mcap_ros2._dynamic import _for_each_msgdef, serialize_dynamic
 from mcap_ros2.decoder import DecoderFactory
 
-from .common import BagError, MessageEncodeError
-from .definitions import normalize_type_name
+from hexapod_sim.bagio.common import BagError, MessageEncodeError
+from hexapod_sim.bagio.definitions import normalize_type_name
 
 
 def parse_definitions(msg_type: str, text: str) -> dict:

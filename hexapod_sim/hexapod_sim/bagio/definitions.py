@@ -12,7 +12,7 @@ import re
 from functools import lru_cache
 from pathlib import Path
 
-from .common import BagError
+from hexapod_sim.bagio.common import BagError
 
 DELIMITER = '=' * 80 + '\n'         # ros2msg separator between concatenated definitions
 _EMBEDDED_PATH = Path(__file__).resolve().parents[1] / 'data' / 'ros_msg_definitions.json'

@@ -21,10 +21,10 @@ from mcap.stream_reader import breakup_chunk
 
 from hexapod_model import contract
 
-from .cdr import decoder_for
-from .common import MCAP_MAGIC, BagError, BagMessage, BagWarning, TopicInfo
-from .definitions import message_definition, normalize_type_name
-from .writer import BagWriter
+from hexapod_sim.bagio.cdr import decoder_for
+from hexapod_sim.bagio.common import MCAP_MAGIC, BagError, BagMessage, BagWarning, TopicInfo
+from hexapod_sim.bagio.definitions import message_definition, normalize_type_name
+from hexapod_sim.bagio.writer import BagWriter
 
 
 _KNOWN_OPCODES = {int(o) for o in Opcode}

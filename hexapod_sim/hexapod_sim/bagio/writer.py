@@ -19,9 +19,9 @@ from mcap.writer import Writer as McapWriter
 
 from hexapod_model import contract
 
-from .cdr import encoder_for, normalize, parse_definitions, ros_message_type
-from .common import DEFAULT_QOS_PROFILE, ROS_DISTRO, ROSBAG2_VERSION, BagError, BagWarning, MessageEncodeError
-from .definitions import message_definition, normalize_type_name, type_hash
+from hexapod_sim.bagio.cdr import encoder_for, normalize, parse_definitions, ros_message_type
+from hexapod_sim.bagio.common import DEFAULT_QOS_PROFILE, ROS_DISTRO, ROSBAG2_VERSION, BagError, BagWarning, MessageEncodeError
+from hexapod_sim.bagio.definitions import message_definition, normalize_type_name, type_hash
 
 
 class _NoAliasDumper(yaml.SafeDumper):

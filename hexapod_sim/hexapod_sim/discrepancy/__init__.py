@@ -12,7 +12,7 @@
 Command line: :mod:`.cli` (``discrepancy``); benchmark on concealed sim data: :mod:`.bench`.
 Pure numpy/scipy (plus matplotlib for the plot); no rclpy.
 """
-from .analysis import Analysis, FoundEffect, analyse
-from .recording import Recording, RecordingError, load_recording
+from hexapod_sim.discrepancy.analysis import Analysis, FoundEffect, analyse
+from hexapod_sim.discrepancy.recording import Recording, RecordingError, load_recording
 
 __all__ = ['Analysis', 'FoundEffect', 'Recording', 'RecordingError', 'analyse', 'load_recording']

@@ -13,14 +13,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hexapod_model.description import Effect, Robot, load_robot, parse_joint_name
-from .effects import scope_name
-from .fit import ROUNDING_VAR, FitSettings, Hypothesis, Namer, make_split, unobservable
-from .locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
-from .recording import Recording, RecordingError
-from .segments import (PHASES, body_motion_share, gait_phases, looks_like_walk, median_swing_up_s, obstructed_swings,
+from hexapod_sim.discrepancy.effects import scope_name
+from hexapod_sim.discrepancy.fit import ROUNDING_VAR, FitSettings, Hypothesis, Namer, make_split, unobservable
+from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
+from hexapod_sim.discrepancy.recording import Recording, RecordingError
+from hexapod_sim.discrepancy.segments import (PHASES, body_motion_share, gait_phases, looks_like_walk, median_swing_up_s, obstructed_swings,
                        swing_segments)
-from .body_motion import body_motion_correction
-from .simulate import Replay
+from hexapod_sim.discrepancy.body_motion import body_motion_correction
+from hexapod_sim.discrepancy.simulate import Replay
 
 MODES = ('auto', 'stand', 'walk')
 # A walk's swing starts in motion from the reads around lift-off; reads in the first 0.1 s are left

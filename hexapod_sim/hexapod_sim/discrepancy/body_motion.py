@@ -24,8 +24,8 @@ import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, Robot, joint_name
 from hexapod_model.servo import theta_to_tick
-from .recording import Recording
-from .simulate import Replay
+from hexapod_sim.discrepancy.recording import Recording
+from hexapod_sim.discrepancy.simulate import Replay
 
 
 def gravity_per_period(imu: np.ndarray, n_periods: int, dt: float) -> np.ndarray:
@@ -52,7 +52,7 @@ def rotation_per_period(imu: np.ndarray, n_periods: int, dt: float) -> tuple[np.
 def body_motion_correction(replay: Replay, rec: Recording, robot: Robot) -> dict[str, np.ndarray]:
     """Per analysed joint, at each of its analysed reads: the MuJoCo replay with the body's measured motion
     minus the free-leg model's nominal prediction [ticks]. Needs ``rec.imu``."""
-    from ..plant import HexapodSim
+    from hexapod_sim.physics.plant import HexapodSim
     if rec.imu is None:
         raise ValueError('body_motion_correction needs a recording with /imu')
     dt = replay.dt

@@ -14,12 +14,12 @@ import warnings
 from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, interrupted, make_parser,
                           open_for_writing, output_file, plot_extensions, positive_float, ratio_at_least_one)
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
-from .analysis import MODES, analyse
-from .effects import BY_NAME
-from .fit import FitSettings
+from hexapod_sim.discrepancy.analysis import MODES, analyse
+from hexapod_sim.discrepancy.effects import BY_NAME
+from hexapod_sim.discrepancy.fit import FitSettings
 from hexapod_sim.bagio import BagWarning
-from .recording import RecordingError, load_recording
-from .segments import parse_windows
+from hexapod_sim.discrepancy.recording import RecordingError, load_recording
+from hexapod_sim.discrepancy.segments import parse_windows
 
 
 def build_parser():
@@ -82,7 +82,7 @@ def _main(ap, args) -> int:
     except (RecordingError, DescriptionError, ValueError) as exc:
         print(f'{ap.prog}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         return 2
-    from .report import overlay_yaml, text_report, to_json
+    from hexapod_sim.discrepancy.report import overlay_yaml, text_report, to_json
     print(text_report(result))
     if args.json:
         open_for_writing(args.json).write_text(json.dumps(to_json(result, args.bag), indent=2) + '\n')
@@ -92,7 +92,7 @@ def _main(ap, args) -> int:
         print(f'overlay written to {args.write_overlay} (read it with --overlay {args.write_overlay}; '
               'empty when nothing was found)')
     if args.plot:
-        from .plot import save_plot
+        from hexapod_sim.discrepancy.plot import save_plot
         save_plot(result, open_for_writing(args.plot))
         print(f'plot written to {args.plot}')
     return 0

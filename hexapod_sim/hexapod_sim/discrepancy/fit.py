@@ -51,8 +51,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from hexapod_model.description import Effect, Robot, joint_name, parse_joint_name
-from .effects import BY_NAME, CANDIDATES, Candidate, leg_joints
-from .simulate import Replay
+from hexapod_sim.discrepancy.effects import BY_NAME, CANDIDATES, Candidate, leg_joints
+from hexapod_sim.discrepancy.simulate import Replay
 
 
 ROUNDING_VAR = 1.0 / 12.0   # variance [tick^2] of rounding to whole ticks (uniform in +-0.5)

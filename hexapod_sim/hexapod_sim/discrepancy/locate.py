@@ -30,7 +30,7 @@ from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from hexapod_model.description import Robot, joint_name, parse_joint_name
 from hexapod_model.swing_model import LegModel
-from .simulate import Replay
+from hexapod_sim.discrepancy.simulate import Replay
 from hexapod_model.description import JOINT_ROLES
 from hexapod_model.servo import theta_to_tick, tick_to_theta
 

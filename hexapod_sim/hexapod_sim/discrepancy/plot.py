@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .analysis import Analysis
+from hexapod_sim.discrepancy.analysis import Analysis
 
 
 def pick_joints(a: Analysis, limit: int = 4) -> list[str]:

@@ -85,7 +85,7 @@ class Recording:
 
     def write_bag(self, path: str | Path) -> None:
         """Write this recording as a contract bag (``/joint_commands`` per write, ``/joint_states`` per read)."""
-        from ..bagio import BagWriter   # only needed when bags are written
+        from hexapod_sim.bagio import BagWriter   # only needed when bags are written
         events = []
         writes: dict[float, dict[str, float]] = {}
         for j, s in self.commands.items():
@@ -137,7 +137,7 @@ def screen_imu(imu: np.ndarray, t0_s: float, duration_s: float) -> tuple[np.ndar
     joint reads (another clock: a bag whose /imu is stamped in wall time and its reads in sim time).
     Samples with (almost) no specific force are left out silently: a trunk on its legs feels about g,
     and the sim's sample before its first physics step, or a dropout, would replay the legs weightless."""
-    from .glitches import Glitch
+    from hexapod_sim.discrepancy.glitches import Glitch
     imu = imu[np.linalg.norm(imu[:, 1:4], axis=1) >= IMU_MIN_SPECIFIC_FORCE].copy()
     if len(imu) < 2:
         return None, ()
@@ -157,14 +157,14 @@ def load_recording(path: str | Path, robot=None) -> Recording:
     order, positions out of range or beyond the servo's speed from their neighbours; the servo of
     ``robot``, default the packaged description) are left out and listed in ``Recording.glitches``.
     """
-    from .glitches import Glitch, screen
+    from hexapod_sim.discrepancy.glitches import Glitch, screen
     if robot is None:
         from hexapod_model.description import load_robot
         robot = load_robot()
     p = Path(path)
     if not p.exists():
         raise RecordingError(f'{p}: no such bag (expected a rosbag2 directory or a .mcap file)')
-    from ..bagio import BagError, BagReader, imu_series, joint_series
+    from hexapod_sim.bagio import BagError, BagReader, imu_series, joint_series
     try:
         reader = BagReader(str(p))
         series = joint_series(reader, log_time=True)

@@ -6,12 +6,12 @@ import math
 import yaml
 
 from hexapod_model.description import effects_to_overlay
-from .analysis import UNEXPLAINED_TICKS as CLOSE_FIT_TICKS, Analysis
-from .effects import BY_NAME, scope_name
-from .fit import least_confirmable_change
-from .glitches import summary_line
-from .segments import PHASES
-from .locate import CONDITION_WORDS, REVEALED_BY, WINDOW_S
+from hexapod_sim.discrepancy.analysis import UNEXPLAINED_TICKS as CLOSE_FIT_TICKS, Analysis
+from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
+from hexapod_sim.discrepancy.fit import least_confirmable_change
+from hexapod_sim.discrepancy.glitches import summary_line
+from hexapod_sim.discrepancy.segments import PHASES
+from hexapod_sim.discrepancy.locate import CONDITION_WORDS, REVEALED_BY, WINDOW_S
 
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexapod_model.description import joint_name
-from .recording import Recording, RecordingError
+from hexapod_sim.discrepancy.recording import Recording, RecordingError
 
 
 def parse_windows(texts) -> list[tuple[float, float]]:

@@ -1,0 +1,1 @@
+"""The controller in plain Python: gaits, swing phases, Algorithm 1 and the fixed-threshold baseline, leveling, metrics, read timing. No ROS import."""

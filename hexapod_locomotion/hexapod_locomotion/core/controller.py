@@ -1,0 +1,557 @@
+"""The adaptive gait cycle of the paper's Fig. 4, on any :class:`hexapod_model.bus.ServoBus`.
+
+One *phase* moves one gait group: swing-up, swing-forward (joint-space interpolation of the foot
+targets), swing-down with ground detection (Algorithm 1, :mod:`.detector`), then - once every
+swinging leg has stopped - body leveling (Sec. 5, Eq. 8-10) combined with the explicit forward
+motion and turning requested by the velocity command. Pure Python + numpy: time comes from the
+bus, nothing reads a wall clock, so the same code runs lock-stepped in simulation, on the driver,
+and behind the ROS node.
+
+Frames: body frame x forward, y left, z up. Foot targets are planned in the body frame; the
+ground is felt, never assumed, except that ``theta_fin`` is placed ``ground_depth_m`` below the
+nominal stance height so contact always develops (Sec. 7).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from hexapod_model.bus import ServoBus
+from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name
+from hexapod_model.kinematics import UnreachableTargetError, forward, inverse, stance_feet
+from hexapod_model.leveling import LevelingError, level_body
+from hexapod_model.servo import theta_to_tick
+from hexapod_model.swing_model import LegModel, predict_swing_down
+
+from hexapod_locomotion.core.detector import (STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, ReadResult, SwingDownPhase,
+                       run_swing_down)
+from hexapod_locomotion.core.gait import Gait
+
+
+class LocomotionError(RuntimeError):
+    """The controller cannot continue safely (message says why)."""
+
+
+# Longest duration of a gait-cycle step (t_des_s, swing-up, swing-forward, settle, leveling, dwell) [s].
+# The swing-down model and the goal profiles are computed per control period (about 3 ms), so a
+# duration far beyond a walk's (the paper: t_des 0.5-1 s) would only exhaust the memory.
+MAX_STEP_S = 10.0
+STEP_DURATIONS = ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_settle_s', 't_level_s', 'fin_dwell_s')
+
+
+@dataclass(frozen=True)
+class LocomotionParams:
+    """Gait-cycle parameters. Lengths in metres, times in seconds."""
+
+    t_des_s: float = 1.0             # swing-down duration (paper: 0.5 or 1 s)
+    # Transfer phases (node parameters too). With the overlapped transfer (overlap_transfer) the
+    # leveling runs beside the next swing-up + swing-forward, so a phase is max(0.3, 0.1 + 0.2) s +
+    # settle + swing-down. Measured with table4 on the mockup: with the gaits' strides (9 / 10 /
+    # 12 cm) tripod, tetrapod and pentapod at t_des 1 s walk at or above the paper's speeds (in
+    # sequence, 0.15 / 0.25 / 0.1 / 0.3 s and 7 cm: 63-77 %). Faster transfers (0.07 / 0.13 / 0.2 s)
+    # made the pentapod slower on the blocks (missed contacts, feet on block edges).
+    t_swing_up_s: float = 0.1
+    t_swing_forward_s: float = 0.2
+    t_level_s: float = 0.3
+    # Pause after the swing-forward before the swing-down. The model starts in the leg's motion
+    # (start_in_motion), so the legs need not come to rest. Pentapod on the mockup (10 trials
+    # of 60 s): 0.1 s walked 0.026 / 0.018 m/s at t_des 0.5 / 1 s, 0.05 s 0.028 / 0.019 (the paper:
+    # 0.028 / 0.017); none at all 0.030 / 0.019, but the improved touchdown then missed 1.2 % of its
+    # contacts at t_des 1 s (0.2-0.4 % with 0.05 s).
+    t_settle_s: float = 0.05
+    write_period_s: float = 0.01     # goal update period outside the swing-down
+    lift_m: float = 0.05             # swing-up height above the current foothold
+    # longest foothold displacement per cycle; 0 = the gait's own (gaits.yaml: 9 / 10 / 12 cm)
+    max_stride_m: float = 0.0
+    max_turn_rad: float = 0.25       # largest yaw per cycle
+    # theta_fin this far below the nominal ground. Eq. 15 moves the goal from theta_init to theta_fin
+    # in t_des, so a deeper theta_fin means a faster swing-down at the same t_des: more free-swing lag
+    # (the servo's back-EMF), a higher Eq. 17 threshold and a harder touchdown. 3 cm covers the
+    # mockup's step-downs (blocks 0-6 cm: a missed contact is rare and handled); 6 cm raised the
+    # peak femur torque at t_des = 0.5 s from 0.66 to 0.89 N m.
+    ground_depth_m: float = 0.03
+    explicit_forward: float = 0.8    # extra body shift per phase, fraction of stride * L / 6
+    background_reads: bool = True    # read joints round-robin whenever the bus would idle
+    # Leveling treats a leg that has just found ground as carrying this fraction of an equal share
+    # of the body weight among the legs that support the next swing (GaitController.
+    # landing_preload_rad); 0 = take its goal as it is.
+    landing_preload: float = 1.0
+    # Touchdown goal profile. 1 = the paper's Eq. 15 (a constant goal rate to theta_fin). Below 1 (the
+    # improved touchdown): from approach_height_m above the expected ground (the higher of the nominal
+    # ground and the leg's last foothold) the goal moves at this fraction of the Eq. 15 rate, so the
+    # free-swing lag - the force with which a foot that has just touched pushes the body up - shrinks
+    # by that factor, at the price of a longer swing-down.
+    approach_rate: float = 1.0
+    approach_height_m: float = 0.015
+    # A leg whose goal has reached theta_fin keeps being read for this long [s] (and still stops on
+    # contact) before it stops at theta_fin: a contact late in a slow approach grows its error by a
+    # small step per period and can reach theta_fin before it crosses Eq. 17. 0 = Algorithm 1.
+    fin_dwell_s: float = 0.0
+    # Gait-cycle structure. False = the sequence of Fig. 4 as drawn: swing-up, swing-forward,
+    # settle, swing-down, then body leveling with every foot down. True = the leveling after a
+    # swing-down runs while the next group swings up and forward: the legs that support the next swing
+    # level the body and move it forward, the next group lifts its feet from their footholds and
+    # carries them forward; the transfer then takes max(t_level_s, t_swing_up_s + t_swing_forward_s)
+    # instead of their sum. The swing-down (Algorithm 1) and the leveled pose are unchanged, and the
+    # leveling still starts only after every landing leg has stopped (Fig. 4).
+    overlap_transfer: bool = True
+    # Where Algorithm 1's model (CalcModel) starts, at the measured theta_init. False = at rest (the
+    # paper's robot waited for its legs). True = in the leg's motion: the same leg model, run over the
+    # goals written since the swing-up began, gives each leg's (femur, tibia) speed at the swing-down
+    # start. A leg still moving there lags differently from one at rest, and a model started at rest
+    # stops it in the air. Measured with table4 (10 trials of 60 s per cell): with the 12 cm pentapod
+    # stride, 0.1 s of settle leaves the legs moving, 28 / 25 premature stops at t_des 0.5 / 1 s
+    # started at rest, 4 / 2 started in motion; without any settle, free swings on flat ground:
+    # 34 -> 0 (pentapod, t_des 0.5 s).
+    start_in_motion: bool = True
+    # The stride grows over the first gait cycle (GaitController.start_ramp); False = full stride from
+    # the first phase (a calibration walk's short stride keeps its support without the ramp, and its
+    # first swings then carry as much as the later ones).
+    start_ramp: bool = True
+
+    def __post_init__(self):
+        positive = ('t_des_s', 't_swing_up_s', 't_swing_forward_s', 't_level_s', 'write_period_s')
+        for f in self.__dataclass_fields__:
+            v = getattr(self, f)
+            if f in positive and not (math.isfinite(v) and v > 0):
+                raise LocomotionError(f'locomotion parameter {f} must be finite and > 0, got {v!r}')
+            if isinstance(v, float) and not (math.isfinite(v) and v >= 0):
+                raise LocomotionError(f'locomotion parameter {f} must be finite and >= 0, got {v!r}')
+        for f in STEP_DURATIONS:
+            v = getattr(self, f)
+            if v > MAX_STEP_S:
+                raise LocomotionError(f'locomotion parameter {f} must be in (0, {MAX_STEP_S:g}] s, got {v:g}')
+        if not 0.0 < self.approach_rate <= 1.0:
+            raise LocomotionError(f'locomotion parameter approach_rate must be in (0, 1], got {self.approach_rate!r}')
+
+    def stride_m(self, gait: Gait) -> float:
+        """Longest foothold displacement per cycle for ``gait``: max_stride_m if set, else the gait's own."""
+        return self.max_stride_m if self.max_stride_m > 0 else gait.max_stride_m
+
+    def transfer_s(self) -> float:
+        """Duration of one phase outside the settle and the swing-down: leveling plus the next swing-up and
+        swing-forward, in sequence or overlapped (``overlap_transfer``)."""
+        swing = self.t_swing_up_s + self.t_swing_forward_s
+        return max(self.t_level_s, swing) if self.overlap_transfer else swing + self.t_level_s
+
+    def swing_down_s(self) -> float:
+        """Expected swing-down duration on flat ground: Eq. 15 moves the goal from lift_m above the
+        ground to ground_depth_m below it in t_des_s, and the leg stops at the ground."""
+        return self.t_des_s * self.lift_m / (self.lift_m + self.ground_depth_m) if self.lift_m > 0 else self.t_des_s
+
+    def cycle_s(self, gait: Gait) -> float:
+        """Expected duration of one gait cycle (every group swings once) on flat ground: the velocity
+        command becomes a displacement per cycle with it, so the robot walks at the commanded speed."""
+        return gait.n_phases * (self.transfer_s() + self.t_settle_s + self.swing_down_s())
+
+    def saturating_velocity(self, gait: Gait) -> tuple[float, float]:
+        """(|v| [m/s], |wz| [rad/s]) beyond which step_phase clamps the stride / turn per cycle."""
+        c = self.cycle_s(gait)
+        return self.stride_m(gait) / c, self.max_turn_rad / c
+
+
+@dataclass(frozen=True)
+class VelocityCommand:
+    """Desired body velocity (as geometry_msgs/Twist): vx, vy [m/s], wz [rad/s]."""
+
+    vx: float = 0.05
+    vy: float = 0.0
+    wz: float = 0.0
+
+    def __post_init__(self):
+        for name in ('vx', 'vy', 'wz'):
+            if not math.isfinite(getattr(self, name)):
+                raise LocomotionError(f'velocity command {name} is not finite: {getattr(self, name)!r}')
+
+
+@dataclass
+class LegOutcome:
+    leg: int
+    stop_reason: int
+    stop_time_s: float
+    stop_step: int
+    peak_err_tick: float
+    premature_suspects: int
+    femur_step_tick: float          # |Delta theta| of the femur goal per control step (Eq. 15)
+    contact_step_tick: float = float('nan')   # the same at the stop step (the approach profile's, if on)
+
+
+@dataclass
+class PhaseReport:
+    phase: int
+    legs: tuple[int, ...]
+    t_start_s: float
+    t_swing_down_start_s: float
+    t_swing_down_end_s: float
+    t_end_s: float
+    outcomes: list[LegOutcome]
+    body_roll_pitch_rad: tuple[float, float]
+    warnings: list[str] = field(default_factory=list)
+
+
+class GaitController:
+    """Runs the adaptive gait cycle for one gait and detector on a bus."""
+
+    def __init__(self, robot: Robot, gait: Gait, params: LocomotionParams = LocomotionParams(),
+                 detector: DetectorConfig = DetectorConfig(), t_com_s: float | None = None,
+                 on_read: Callable[[ReadResult], None] | None = None,
+                 on_phase: Callable[[PhaseReport], None] | None = None,
+                 on_swing_start: Callable[[SwingDownPhase], None] | None = None):
+        self.robot = robot
+        self.gait = gait
+        self.params = params
+        self.detector = detector
+        self.t_com_s = robot.bus.t_com_s if t_com_s is None else float(t_com_s)
+        self.on_read = on_read
+        self.on_phase = on_phase
+        self.on_swing_start = on_swing_start
+        self.models = {leg: LegModel(robot, leg) for leg in LEGS}
+        self.neutral = stance_feet(robot)                   # (6, 3) body frame
+        self.body_height_m = -float(self.neutral[0, 2])
+        self.goals = self._stance_goals()
+        self.phase_index = 0
+        self._pending_level: dict[str, float] | None = None  # leveling left for the next transfer
+        self._rr = 0                                        # round-robin read pointer
+        # (bus time, (femur, tibia) goals of the swinging legs) per write since the swing-up began
+        self._goal_log: list[tuple[float, np.ndarray]] | None = None
+        self._logged_legs: tuple[int, ...] = ()
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the swing-down model now, before the robot moves: in
+        real time, the first swing-down would otherwise stall its legs for the compile time."""
+        legs = self.gait.swing_legs(0)
+        angles = [self.leg_angles(leg)[1:] for leg in legs]
+        predict_swing_down(self.robot, legs, angles, angles, self.params.t_des_s, self.t_com_s, n_steps=2,
+                           models=self.models)
+        # the rollout a stall of the host is replayed with (SwingDownPhase._hold)
+        self.models[legs[0]].rollout(angles[0], [0.0, 0.0], np.full((3, 2), float(self.robot.servo.center_tick)))
+
+    # ------------------------------------------------------------------ helpers
+    def _stance_goals(self) -> dict[str, float]:
+        th = self.robot.default_stance_rad
+        return {joint_name(leg, r): th[i] for leg in LEGS for i, r in enumerate(JOINT_ROLES)}
+
+    def leg_angles(self, leg: int) -> np.ndarray:
+        """Commanded (coxa, femur, tibia) angles of ``leg``."""
+        return np.array([self.goals[joint_name(leg, r)] for r in JOINT_ROLES])
+
+    def foot(self, leg: int) -> np.ndarray:
+        """Commanded foot-tip position of ``leg`` in the body frame."""
+        return forward(self.robot, leg, self.leg_angles(leg))
+
+    def idle_until(self, bus: ServoBus, t: float) -> None:
+        """Let time pass until ``t``; with background reads, read joints round-robin meanwhile (as a
+        driver's default read schedule does: the recording then holds every joint's motion)."""
+        if self.params.background_reads:
+            while bus.now() + self.t_com_s <= t + 1e-12:
+                bus.read_position(ALL_JOINTS[self._rr % len(ALL_JOINTS)])
+                self._rr += 1
+        bus.wait_until(t)
+
+    def move_joints(self, bus: ServoBus, target: dict[str, float], duration_s: float) -> None:
+        """Linear joint-space interpolation of the given joints over ``duration_s``."""
+        start = {j: self.goals[j] for j in target}
+        t0 = bus.now()
+        n = max(1, int(round(duration_s / self.params.write_period_s)))
+        for i in range(1, n + 1):
+            a = i / n
+            for j, v in target.items():
+                self.goals[j] = start[j] + a * (v - start[j])
+            bus.sync_write({j: self.goals[j] for j in target})
+            self._log_goals(bus)
+            self.idle_until(bus, t0 + i * duration_s / n)
+
+    def move_keyframes(self, bus: ServoBus, keys: dict[str, list[tuple[float, float]]], duration_s: float) -> None:
+        """Piecewise-linear joint-space motion: joint -> [(t, angle), ...] with t in (0, duration_s]
+        increasing, from the current goals at t = 0."""
+        tables = {j: (np.r_[0.0, [k[0] for k in kk]], np.r_[self.goals[j], [k[1] for k in kk]]) for j, kk in keys.items()}
+        t0 = bus.now()
+        n = max(1, int(round(duration_s / self.params.write_period_s)))
+        for i in range(1, n + 1):
+            t = i * duration_s / n
+            for j, (ts, vs) in tables.items():
+                self.goals[j] = float(np.interp(t, ts, vs))
+            bus.sync_write({j: self.goals[j] for j in keys})
+            self._log_goals(bus)
+            self.idle_until(bus, t0 + t)
+
+    def start_ramp(self) -> float:
+        """Fraction of the stride allowed in this phase: it grows over the first gait cycle, (k + 1) / n
+        in phase k of n, then stays 1. From the home stance every foot starts at its neutral foothold,
+        so a full stride in the first cycle leaves the feet further apart than any later cycle does
+        (pentapod, 10 cm: a stance foot lifted off for up to 0.1 s in the first cycle, never later)."""
+        if not self.params.start_ramp:
+            return 1.0
+        n = self.gait.n_phases
+        return min(1.0, (self.phase_index + 1) / n)
+
+    def _log_goals(self, bus: ServoBus) -> None:
+        if self._goal_log is not None:
+            self._goal_log.append((bus.now(), np.array([self.leg_angles(leg)[1:] for leg in self._logged_legs])))
+
+    def start_speeds(self, t_end_s: float) -> np.ndarray | None:
+        """(L, 2) femur and tibia speeds [rad/s] of the swinging legs at ``t_end_s`` as the swing-down
+        model predicts them: each leg from rest at its goals when the swing-up began, driven by the goals
+        written since (held between writes, one per servo control period). None without a log."""
+        log, self._goal_log = self._goal_log, None
+        dt = self.robot.servo.control_period_s
+        if not log or t_end_s - log[0][0] < dt:
+            return None
+        ts = np.array([t for t, _ in log])
+        grid = log[0][0] + dt * np.arange(int((t_end_s - log[0][0]) / dt + 1e-9))
+        held = np.searchsorted(ts, grid + 1e-9, side='right') - 1
+        ticks = np.rint(theta_to_tick(np.stack([v for _, v in log])[held], self.robot.servo))   # (n, L, 2)
+        return np.array([self.models[leg].rollout(log[0][1][slot], [0.0, 0.0], ticks[:, slot]).qd_rad_s[-1]
+                         for slot, leg in enumerate(self._logged_legs)])
+
+    # ------------------------------------------------------------------ the cycle
+    def startup(self, bus: ServoBus, duration_s: float = 0.5) -> None:
+        """Move every joint to the home stance."""
+        bus.sync_write(dict(self.goals))
+        self.idle_until(bus, bus.now() + duration_s)
+
+    def step_phase(self, bus: ServoBus, cmd: VelocityCommand = VelocityCommand()) -> PhaseReport:
+        p = self.params
+        legs = self.gait.swing_legs(self.phase_index)
+        L = len(legs)
+        warnings: list[str] = []
+        t_start = bus.now()
+        cycle_s = p.cycle_s(self.gait)
+        d = np.array([cmd.vx, cmd.vy]) * cycle_s
+        stride = p.stride_m(self.gait) * self.start_ramp()
+        if np.linalg.norm(d) > stride:
+            d *= stride / np.linalg.norm(d)
+        yaw = float(np.clip(cmd.wz * cycle_s, -p.max_turn_rad, p.max_turn_rad))
+
+        # 1.-2. swing-up and swing-forward (with the pending leveling, if the transfer is overlapped):
+        # the feet go to the neutral foothold advanced by half the stride (and turned)
+        if p.start_in_motion:
+            self._logged_legs, self._goal_log = legs, []
+            self._log_goals(bus)
+        ground_z = self._transfer(bus, legs, d, yaw, warnings)
+
+        # 3. swing-down with ground detection (Algorithm 1), from the measured state
+        self.idle_until(bus, bus.now() + p.t_settle_s)
+        init, fin, coxa, approach = [], [], [], []
+        for leg in legs:
+            th = self.leg_angles(leg)
+            foot = self.foot(leg)
+            th_fin = self._fin_angles(leg, foot, warnings)
+            measured = [bus.read_position(joint_name(leg, r))[0] for r in ('femur', 'tibia')]
+            init.append(measured)
+            fin.append(th_fin[1:])
+            coxa.append(th[0])
+            approach.append(self.approach_fraction(foot[2], forward(self.robot, leg, np.r_[th[0], th_fin[1:]])[2],
+                                                   ground_z[leg]))
+        t_sd = bus.now()
+        qd0 = self.start_speeds(t_sd) if p.start_in_motion else None
+        phase = SwingDownPhase(self.robot, legs, coxa, init, fin, p.t_des_s, self.t_com_s, self.detector,
+                               t_start_s=t_sd, models=self.models, approach_from=approach,
+                               approach_rate=p.approach_rate,
+                               fin_dwell_steps=int(math.ceil(p.fin_dwell_s / (L * self.t_com_s) - 1e-9)),
+                               qd0_rad_s=qd0)
+        if self.on_swing_start is not None:
+            self.on_swing_start(phase)
+        run_swing_down(bus, phase, on_read=self.on_read)
+        t_sd_end = bus.now()
+        outcomes = []
+        no_ground = set()
+        for leg in legs:
+            st = phase.state[leg]
+            g = phase.goals(st.stop_step)
+            for j in ('femur', 'tibia'):
+                self.goals[joint_name(leg, j)] = g[joint_name(leg, j)]
+            if st.stop_reason == STOP_THETA_FIN:
+                no_ground.add(leg)
+                warnings.append(f'leg {leg}: no ground found down to theta_fin; the body is not leveled on it')
+            outcomes.append(LegOutcome(leg, st.stop_reason, st.stop_time_s - t_sd, st.stop_step,
+                                       st.peak_err_tick, st.premature_suspects, phase.femur_step_tick(leg),
+                                       phase.femur_step_tick(leg, max(st.stop_step, 0))))
+
+        # 4. body leveling + explicit forward motion + turn (overlapped: with the next swing-up)
+        landed = [o.leg for o in outcomes if o.stop_reason == STOP_CONTACT]
+        target, roll_pitch = self._level_target(d * (p.explicit_forward * L / 6.0), no_ground, warnings, landed)
+        if target is not None:
+            if p.overlap_transfer:
+                self._pending_level = target
+            else:
+                self.move_joints(bus, target, p.t_level_s)
+        report = PhaseReport(self.phase_index, legs, t_start, t_sd, t_sd_end, bus.now(), outcomes, roll_pitch,
+                             warnings)
+        self.phase_index += 1
+        if self.on_phase is not None:
+            self.on_phase(report)
+        return report
+
+    def _transfer(self, bus: ServoBus, legs, d, yaw: float, warnings: list[str]) -> dict[int, float]:
+        """Swing-up and swing-forward of ``legs``; with a pending leveling (``overlap_transfer``) the
+        other legs level the body meanwhile. Returns each swinging leg's expected ground (body frame z
+        after the transfer): the higher of its foothold and the nominal ground."""
+        p = self.params
+        level = self._pending_level
+        self._pending_level = None
+        start = {leg: self.foot(leg) for leg in legs}
+        # the footholds in the body frame after the leveling (the frame the swing targets are in)
+        end = start if level is None else {
+            leg: forward(self.robot, leg, np.array([level[joint_name(leg, r)] for r in JOINT_ROLES])) for leg in legs}
+        ground_z = {leg: max(float(end[leg][2]), -self.body_height_m) for leg in legs}
+        lift = np.array([0.0, 0.0, p.lift_m])
+        c, s = math.cos(yaw / 2), math.sin(yaw / 2)
+        fwd = {}
+        for leg in legs:
+            n = self.neutral[leg - 1]
+            xy = np.array([c * n[0] - s * n[1], s * n[0] + c * n[1]]) + d / 2
+            fwd.update(self._targets(leg, np.array([xy[0], xy[1], ground_z[leg] + p.lift_m]), warnings))
+        if level is None:
+            # Fig. 4 in sequence: lift the feet straight up, then carry them forward
+            up = {}
+            for leg in legs:
+                up.update(self._targets(leg, start[leg] + lift, warnings))
+            self.move_joints(bus, up, p.t_swing_up_s)
+            self.move_joints(bus, fwd, p.t_swing_forward_s)
+            return ground_z
+        # overlapped: the body moves under the swinging feet, so the foot lifts straight up over its
+        # foothold as the body frame is at the end of the swing-up (the body's motion is linear in time)
+        total = p.transfer_s()
+        a = p.t_swing_up_s / total
+        up = {}
+        for leg in legs:
+            up.update(self._targets(leg, (1 - a) * start[leg] + a * end[leg] + lift, warnings))
+        keys = {j: [(total, v)] for j, v in level.items() if j not in fwd}
+        for j in fwd:
+            keys[j] = [(p.t_swing_up_s, up[j]), (total, fwd[j])]
+        self.move_keyframes(bus, keys, total)
+        return ground_z
+
+    def finish(self, bus: ServoBus) -> None:
+        """Carry out a leveling left pending by an overlapped transfer (before standing still)."""
+        if self._pending_level is not None:
+            target, self._pending_level = self._pending_level, None
+            self.move_joints(bus, target, self.params.t_level_s)
+
+    def approach_fraction(self, z_start_m: float, z_fin_m: float, ground_z_m: float) -> float:
+        """Fraction of the swing-down path (theta_init -> theta_fin) at which the foot is
+        ``approach_height_m`` above the expected ground ``ground_z_m`` (body frame z), taking the
+        foot height as linear along the joint-space path (it is within a few mm over a swing-down).
+        1 when the approach profile is off."""
+        if self.params.approach_rate >= 1.0 or z_start_m <= z_fin_m:
+            return 1.0
+        z_a = ground_z_m + self.params.approach_height_m
+        return float(np.clip((z_start_m - z_a) / (z_start_m - z_fin_m), 0.0, 1.0))
+
+    def _targets(self, leg: int, foot, warnings: list[str]) -> dict[str, float]:
+        try:
+            th = inverse(self.robot, leg, foot)
+        except UnreachableTargetError as exc:
+            # Pull the target towards the neutral foothold until it is reachable.
+            n = self.neutral[leg - 1]
+            for a in np.linspace(0.1, 1.0, 10):
+                try:
+                    th = inverse(self.robot, leg, (1 - a) * np.asarray(foot) + a * n)
+                    break
+                except UnreachableTargetError:
+                    continue
+            else:
+                raise LocomotionError(f'leg {leg}: no reachable target near {np.round(foot, 3).tolist()}') from exc
+            warnings.append(f'{exc}; target pulled towards the neutral foothold')
+        return {joint_name(leg, r): float(v) for r, v in zip(JOINT_ROLES, th)}
+
+    def _fin_angles(self, leg: int, foot, warnings: list[str]) -> np.ndarray:
+        """theta_fin: the foot straight below its current position, ground_depth_m under the nominal ground."""
+        depth = self.params.ground_depth_m
+        for _ in range(12):
+            try:
+                return inverse(self.robot, leg, np.array([foot[0], foot[1], -self.body_height_m - depth]))
+            except UnreachableTargetError:
+                depth *= 0.7
+        warnings.append(f'leg {leg}: cannot reach below the nominal ground; theta_fin at the nominal ground')
+        return inverse(self.robot, leg, np.array([foot[0], foot[1], -self.body_height_m]))
+
+    def landing_preload_rad(self, leg: int, n_support: int) -> np.ndarray:
+        """Goal offset (coxa, femur, tibia) [rad] under which ``leg``'s servos push its foot down with
+        ``landing_preload`` x an equal share of the body weight.
+
+        A loaded stance leg's goals sit below its real pose by the servos' compliance deflection
+        (about 8 femur ticks for a sixth of the weight); a leg stopped at contact has goals at its
+        unloaded pose. Leveling all commanded feet onto one plane would leave that leg
+        under-preloaded, and it is the first to lift off when the next group swings (in tetrapod, without
+        this preload, a stance leg was often in the air). ``n_support`` legs share the weight. Only
+        needed where the support is statically indeterminate (more than three legs).
+        Static balance: gain * (goal - theta) = -J^T f with f the ground reaction on the foot. The
+        servo's punch is left out on purpose: the tick of extra preload it amounts to keeps the
+        support down (with the punch subtracted, 32 reads of a tetrapod's and 459 of a pentapod's 6500
+        had a support foot up on flat ground, `test_support_feet_stay_down_at_every_tick_on_flat_ground`)."""
+        th = self.leg_angles(leg)
+        jac = np.empty((3, 3))
+        h = 1e-6
+        for i in range(3):
+            d = np.zeros(3)
+            d[i] = h
+            jac[:, i] = (forward(self.robot, leg, th + d) - forward(self.robot, leg, th - d)) / (2 * h)
+        f = np.array([0.0, 0.0, self.params.landing_preload * self.robot.total_mass_kg * self.robot.gravity_mps2
+                      / max(n_support, 1)])
+        servo = self.robot.servo
+        return -(jac.T @ f) / (servo.gain_nm_per_tick / servo.rad_per_tick)
+
+    def _level_target(self, shift_xy, no_ground: set[int], warnings: list[str], landed=()):
+        """Eq. 8-10 on the support feet, then the yaw that best maps the neutral stance onto the feet
+        (so the body follows turning legs) and the explicit forward shift.
+
+        A leg that found no ground down to theta_fin (``no_ground``) carries no weight, so it is left out
+        of the plane (Eq. 8-9: the body's tilt and height), but the body's position along the plane
+        follows all six feet (Eq. 10's average), that leg's included where it looked for ground. The leg
+        then waits over that spot at the nominal ground's height (in the air over a step-down) until it
+        swings again. Centring the body on the five feet instead moved it back by about a sixth of a
+        front foot's reach (4 cm) whenever a front leg found a step-down, and the feet swung later were
+        placed from that body: pentapod at t_des 0.5 s on the mockup's blocks (5 seeds),
+        14-18 mm of progress per phase against 20-21 mm with all six feet. A leg left hanging at
+        theta_fin (tried first: 0.023 -> 0.026 m/s, 10 trials of 60 s) pulled later levelings down
+        towards it, out of the legs' reach: a tripod with the fixed detector fell, tetrapod walks stalled.
+
+        The feet are taken from the *commanded* joint angles of every leg, the stopped legs' frozen
+        goals included. Loaded servos sag below their goals (about 1 cm of foot height at full
+        load for the AX-12A's compliance), so mixing measured and commanded positions would place
+        some feet systematically high and unload them; with all commanded feet on one plane the
+        compliant servos share the load like equal springs."""
+        support = [leg for leg in LEGS if leg not in no_ground]
+        feet = np.array([self.foot(leg) for leg in LEGS])
+        # the legs that will carry the body while the next group swings; three or fewer carry it by
+        # statics whatever their preload, which then only squeezes the feet (tripod: +7 W)
+        n_next = len([leg for leg in support if leg not in self.gait.swing_legs(self.phase_index + 1)])
+        for leg in (landed if n_next > 3 else ()):
+            feet[leg - 1] = forward(self.robot, leg, self.leg_angles(leg) + self.landing_preload_rad(leg, n_next))
+        try:
+            pose, _ = level_body(feet[[leg - 1 for leg in support]], self.body_height_m)
+        except LevelingError as exc:
+            warnings.append(f'body leveling skipped: {exc}')
+            return None, (0.0, 0.0)
+        new_feet = pose.to_body(feet)
+        roll_pitch = pose.roll_pitch_rad()
+        idx = [leg - 1 for leg in support]
+        # Eq. 10's average over all six feet, not only the support (a no-op when every leg found ground)
+        new_feet[:, :2] -= new_feet[:, :2].mean(axis=0) - new_feet[idx, :2].mean(axis=0)
+        nf = new_feet[idx, :2] - new_feet[idx, :2].mean(axis=0)
+        nn = self.neutral[idx, :2] - self.neutral[idx, :2].mean(axis=0)
+        yaw = math.atan2(np.sum(nn[:, 0] * nf[:, 1] - nn[:, 1] * nf[:, 0]), np.sum(nn * nf))
+        for scale in (1.0, 0.5, 0.0):
+            c, s = math.cos(-yaw * scale), math.sin(-yaw * scale)
+            rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+            moved = (new_feet - np.array([shift_xy[0], shift_xy[1], 0]) * scale) @ rot.T
+            for leg in no_ground:
+                moved[leg - 1, 2] = self.neutral[leg - 1, 2]
+            try:
+                target = {}
+                for leg in LEGS:
+                    th = inverse(self.robot, leg, moved[leg - 1])
+                    target.update({joint_name(leg, r): float(v) for r, v in zip(JOINT_ROLES, th)})
+                break
+            except UnreachableTargetError as exc:
+                warnings.append(f'leveling: {exc}; shortening the body motion')
+        else:
+            warnings.append('leveling: no reachable leveled pose; holding the current pose')
+            return None, roll_pitch
+        return target, roll_pitch
+

@@ -1,0 +1,234 @@
+"""locomotion_node: the adaptive gait cycle behind ROS topics.
+
+Subscribes ``/cmd_vel`` and publishes per-read ground-detection telemetry on ``/ground_detection``
+and each swing-down's inputs on ``/swing_down``. The controller (library code) runs in a worker
+thread and talks to a servo bus:
+
+* on its own (``ros2 run hexapod_locomotion locomotion_node``), through :class:`RosBus`: the servo
+  interface of the driver or the sim node in another process (``/joint_states`` in,
+  ``/joint_commands`` and the read schedule out; they are indistinguishable). Over DDS this cannot
+  hold Algorithm 1's cadence in real time (docs/architecture.md); it is exact lock-stepped.
+* composed with the driver or sim node in one process (``hexapod_locomotion robot``), through the
+  bus object that node hands over: the controller then owns the bus as on the robot.
+
+Whatever the route, each read the controller decides on is checked against Algorithm 1's timing
+(:mod:`hexapod_locomotion.core.read_timing`): a read taken longer after the bus master published it
+than the Eq. 17 margin allows, or sampled before the read taken just before it, is one warning
+line at once (the first of each swing-down) and counted in ``/diagnostics``
+(``locomotion_node: read timing``, published with every phase report and every warning).
+"""
+from __future__ import annotations
+
+import gc
+import math
+import threading
+import traceback
+
+import rclpy
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from hexapod_model import diagnostics
+from hexapod_model.bus import BusError
+from hexapod_model.contract import CMD_VEL, DIAGNOSTICS, GROUND_DETECTION, SWING_DOWN, stamp_msg, stamp_parts
+from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
+from hexapod_model.node_params import NodeParams, node_help, run_node
+from hexapod_model.param_schema import RobotSource
+
+from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
+from hexapod_locomotion.core.detector import DetectorConfig, DetectorError, swing_start_fields
+from hexapod_locomotion.core.gait import GaitError, get_gait
+from hexapod_locomotion.nodes.params import NODE, LocomotionNodeParams
+from hexapod_locomotion.core.read_timing import ReadTiming
+from hexapod_locomotion.nodes.ros_bus import RosBus
+
+class LocomotionNode(Node):
+    def __init__(self, bus=None, **node_kwargs):
+        """``bus``: a :class:`hexapod_model.bus.ServoBus` with ``stopped`` (threading.Event) and
+        ``set_schedule(joints)`` owned by a node in this process; None = the bus over ROS topics."""
+        super().__init__('locomotion_node', **node_kwargs)
+        params = NodeParams(self)
+        self.robot = params.declare(RobotSource).load()
+        p = self.params = params.declare(LocomotionNodeParams)
+        if bus is not None:
+            t_com = bus.t_com_s
+            self.bus = bus
+        else:
+            t_com = p.t_com_s or self.robot.bus.t_com_s
+            timeout = p.read_timeout_s or (10.0 if p.lockstep else 2.0)
+            self.bus = RosBus(self, t_com, read_timeout_s=timeout, lockstep=p.lockstep)
+        from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
+        from geometry_msgs.msg import Twist
+        self._LGD = LegGroundDetection
+        self._SDS = SwingDownStart
+        from diagnostic_msgs.msg import DiagnosticArray
+        # every read the controller decided on: a recording needs them all to replay the decisions
+        self.det_pub = self.create_publisher(LegGroundDetection, GROUND_DETECTION, 1000)
+        self.diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
+        self.timing = ReadTiming(self.get_name())
+        self.swing_pub = self.create_publisher(SwingDownStart, SWING_DOWN, 10)
+        self.create_subscription(Twist, CMD_VEL, self._on_cmd, 10)
+        self._cmd = VelocityCommand(p.default_vx, 0.0, 0.0)
+        self._cmd_time = None
+        self.controller = GaitController(
+            self.robot, get_gait(p.gait),
+            LocomotionParams(t_des_s=p.t_des_s, lift_m=p.lift_m, max_stride_m=p.max_stride_m,
+                             ground_depth_m=p.ground_depth_m, landing_preload=p.landing_preload,
+                             approach_rate=p.approach_rate, approach_height_m=p.approach_height_m, fin_dwell_s=p.fin_dwell_s,
+                             t_swing_up_s=p.t_swing_up_s, t_swing_forward_s=p.t_swing_forward_s,
+                             t_settle_s=p.t_settle_s, t_level_s=p.t_level_s, overlap_transfer=p.overlap_transfer,
+                             start_in_motion=p.start_in_motion, start_ramp=p.start_ramp,
+                             background_reads=False),
+            DetectorConfig(kind=p.detector, epsilon_tick=p.epsilon_tick, dwell_epsilon_tick=p.dwell_epsilon_tick,
+                           fixed_threshold_tick=p.fixed_threshold_tick),
+            t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
+            on_swing_start=self._publish_swing_start)
+        self.controller.warm_up()
+        self._swing_start = {}
+        self.failed = False
+        self._worker = threading.Thread(target=self._run, daemon=True)
+        self._worker.start()
+
+    def _on_cmd(self, msg) -> None:
+        try:
+            self._cmd = VelocityCommand(msg.linear.x, msg.linear.y, msg.angular.z)
+            # never wait here: in lock-step the bus time waits for reads this executor delivers
+            t = self._bus_time()
+            self._cmd_time = math.nan if t is None else t       # nan: stamped by the worker on first use
+        except LocomotionError as exc:
+            self.get_logger().error(f'/cmd_vel rejected: {exc}')
+
+    def _bus_time(self) -> float | None:
+        hint = getattr(self.bus, 'time_hint', None)
+        return hint() if hint is not None else self.bus.now()
+
+    def _current_cmd(self) -> VelocityCommand | None:
+        timeout = self.get_parameter('cmd_vel_timeout_s').value
+        if self._cmd_time is None:
+            return self._cmd if self._cmd.vx or self._cmd.vy or self._cmd.wz else None
+        if math.isnan(self._cmd_time):
+            self._cmd_time = self.bus.now()
+        if self.bus.now() - self._cmd_time > timeout:
+            return None
+        return self._cmd
+
+    def _publish_read(self, r) -> None:
+        # lock-stepped, the bus master waits for the goals: a read's age does not delay them
+        age = None if self.params.lockstep else getattr(self.bus, 'read_age_s', None)
+        warning = self.timing.on_read(r.leg, r.step, r.stamp_s, age)
+        if warning is not None:
+            self.get_logger().warning(warning)
+            self._publish_diagnostics()
+        m = self._LGD()
+        m.header.stamp.sec, m.header.stamp.nanosec = stamp_parts(r.stamp_s)
+        m.header.frame_id = joint_name(r.leg, 'femur')
+        m.swing_start.sec, m.swing_start.nanosec = stamp_parts(r.stamp_s - r.t_swing_s)
+        m.leg, m.detector, m.t_swing_s = r.leg, r.detector, r.t_swing_s
+        m.theta_des_tick, m.theta_real_tick = r.theta_des_tick, r.theta_real_tick
+        m.theta_est_tick, m.err_tick, m.err_est_tick = r.theta_est_tick, r.err_tick, r.err_est_tick
+        m.threshold_tick, m.stopped, m.stop_reason = r.threshold_tick, r.stopped, r.stop_reason
+        self.det_pub.publish(m)
+
+    def _publish_swing_start(self, phase) -> None:
+        # Algorithm 1 reads only the femurs of the swinging legs, in order (t_con = L * T_com)
+        self.bus.set_schedule([joint_name(leg, 'femur') for leg in phase.legs])
+        self.timing.start_phase(phase)
+        m = self._SDS()
+        m.header.stamp.sec, m.header.stamp.nanosec = stamp_parts(phase.t_start_s)
+        for k, v in swing_start_fields(phase).items():
+            setattr(m, k, v)
+        self.swing_pub.publish(m)
+
+    def _log_phase(self, rep) -> None:
+        legs = ', '.join(f'leg {o.leg}: {"ground" if o.stop_reason == 1 else "NO GROUND"} after {o.stop_time_s:.3f} s'
+                         for o in rep.outcomes)
+        self.get_logger().info(f'phase {rep.phase}: {legs}')
+        for w in rep.warnings:
+            self.get_logger().warning(w)
+        self._publish_diagnostics()
+
+    def _publish_diagnostics(self) -> None:
+        t = self._bus_time()
+        self.diag_pub.publish(diagnostics.diagnostic_array([self.timing.status()], stamp_msg(0.0 if t is None else t)))
+
+    def _run(self) -> None:
+        try:
+            wait = getattr(self.bus, 'wait_for_master', None)
+            if wait is not None:
+                wait(self.get_logger().info)
+            self.bus.set_schedule(ALL_JOINTS)
+            self.bus.wait_until(self.bus.now() + 0.5)
+            self.controller.startup(self.bus)
+            while not self.bus.stopped.is_set():
+                cmd = self._current_cmd()
+                if cmd is None:
+                    self.controller.finish(self.bus)      # a leveling left for the next swing: stand level
+                    self.bus.wait_until(self.bus.now() + 0.05)
+                    continue
+                self.controller.step_phase(self.bus, cmd)
+                self.bus.set_schedule(ALL_JOINTS)
+        except (BusError, LocomotionError, DetectorError) as exc:
+            if not self.bus.stopped.is_set():
+                self.failed = True
+                self.get_logger().error(f'locomotion stopped: {exc}')
+        except RCLError:
+            # SIGINT/SIGTERM shut the context down while this thread was publishing: a normal stop
+            if self.context.ok():
+                self.failed = True
+                self.get_logger().error(f'locomotion stopped by a middleware error:\n{traceback.format_exc()}')
+        except Exception:      # noqa: BLE001 - a bug: say where, and let main() end the process non-zero
+            if not self.context.ok():
+                # the context went away under this thread (SIGINT/SIGTERM): rclpy's bindings then raise
+                # other errors than RCLError too (a TypeError from a handle already invalid): a normal stop
+                return
+            self.failed = True
+            self.get_logger().error(f'locomotion stopped by an unexpected error:\n{traceback.format_exc()}')
+
+    @property
+    def running(self) -> bool:
+        """The controller thread is alive (it only ends on a stop or a failure)."""
+        return self._worker.is_alive()
+
+    def destroy_node(self):
+        self.bus.stopped.set()
+        self._worker.join(timeout=2.0)
+        return super().destroy_node()
+
+
+def spin_while_walking(executor, node: LocomotionNode) -> None:
+    """Spin until shutdown, or until the controller thread has ended (then raise SystemExit(1) if it
+    failed: a supervisor or the user restarts the node; the bus master holds the last goals).
+
+    Everything made while starting (imports, the robot model, compiled kernels, the MuJoCo model:
+    about 180,000 objects) is moved out of the garbage collector's reach first (``gc.freeze``).
+    Without that, each full collection traverses them all: 120-290 ms with the interpreter held,
+    measured in the composed robot: twice during start-up and once in a 25 s walk (none with the freeze)
+    - a stall in which a landing leg keeps pushing against the ground."""
+    gc.freeze()
+    while rclpy.ok(context=node.context) and node.running:
+        executor.spin_once(timeout_sec=0.1)
+    if node.failed:
+        raise SystemExit(1)
+
+
+def _spin(node: LocomotionNode) -> None:
+    # One thread is enough: no callback of this node waits (the controller runs in its own
+    # thread), and rclpy's MultiThreadedExecutor costs about as much CPU per message again as the
+    # rest of the node (wait set rebuilt per message, a thread-pool hand-off per callback): over
+    # DDS in lock-step that was 40 % of the node's CPU per simulated millisecond.
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    try:
+        spin_while_walking(ex, node)
+    finally:                  # its pending tasks end with it, before the context goes (no Task.__del__ noise)
+        ex.shutdown()
+
+
+def main(args=None):
+    run_node('locomotion_node', LocomotionNode, node_help('locomotion_node', __doc__, NODE.schemas), args,
+             errors=(DescriptionError, GaitError, DetectorError, LocomotionError), spin=_spin, spec=NODE)
+
+
+if __name__ == '__main__':
+    main()

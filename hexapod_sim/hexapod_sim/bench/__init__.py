@@ -1,0 +1,1 @@
+"""Benchmarks of the sim and of bag replay (they print figures)."""
