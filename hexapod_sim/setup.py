@@ -22,6 +22,7 @@ setup(
     entry_points={
         'console_scripts': [
             'replay = hexapod_sim.replay:main',
+            'reindex = hexapod_sim.reindex:main',
             'bench_replay = hexapod_sim.bench_replay:main',
             'sim = hexapod_sim.cli:main',
             'sim_node = hexapod_sim.sim_node:main',
