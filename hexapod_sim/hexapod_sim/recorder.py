@@ -249,7 +249,7 @@ class Recorder:
         self._tf_truth = False                     # joint angles come from write_tf(), not /joint_states
         self._last_t_ns: int | None = None         # latest log time written (a /tf of it may be due)
         self._writer = BagWriter(self.path, flush_period_s=flush_period_s, **writer_kw) if self.path else None
-        self.count = 0
+        self._emitted = 0
 
     def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
         """Record ``msg`` (a ROS message or a nested dict) on ``topic`` at simulated time ``t_s``."""
@@ -273,7 +273,12 @@ class Recorder:
             self.live.log(topic, msg_type, msg, t_ns)
         if self._writer is not None:
             self._writer.write(topic, msg_type, msg, t_ns)
-        self.count += 1
+        self._emitted += 1
+
+    @property
+    def count(self) -> int:
+        """Messages in the bag (once a write failed: those it kept), or handed to the live view."""
+        return self._writer.message_count if self._writer is not None else self._emitted
 
     def tf_due(self, t_s: float) -> bool:
         """True when the next /tf message is due at ``t_s`` (so a simulator fetches its truth only then)."""

@@ -245,13 +245,20 @@ class BagWriter:
         kept = sum(t.flushed for t in self._topics.values())
         span = '' if self._ft_max is None else f' up to t={self._ft_max * 1e-9:.3f} s'
         try:
-            end_cut_file(self.mcap_path, self._good_end)
+            scan = end_cut_file(self.mcap_path, self._good_end)
+            for t in self._topics.values():         # what is left after the cut, for metadata.yaml
+                t.flushed = scan.counts.get(t.channel_id, 0)
+            times = [c.end_ns for c in scan.chunks]
+            self._ft_max = max(times) if times else None
+            self._ft_min = min(c.start_ns for c in scan.chunks) if times else None
+            kept = sum(t.flushed for t in self._topics.values())
+            span = '' if self._ft_max is None else f' up to t={self._ft_max * 1e-9:.3f} s'
             self._write_metadata(final=False)
-            after = f'the bag is closed with the {kept} message(s){span} written before'
+            after = f'the bag ends with the {kept} message(s){span} written before it'
         except OSError as exc2:
             after = (f'it could not be closed either ({exc2.strerror or exc2}); the {kept} message(s){span} '
                      'written before are readable by this project\'s tools, `reindex` repairs it')
-        self._failure = f'{self.path}: write failed ({exc.strerror or exc}); recording stopped, {after}'
+        self._failure = f'{self.path}: write failed ({exc.strerror or exc}); {after}'
         raise BagError(self._failure) from None
 
     def _flush_locked(self) -> None:
@@ -349,8 +356,9 @@ class BagWriter:
 
     @property
     def message_count(self) -> int:
+        """Messages written (once a write failed: those the bag kept)."""
         with self._lock:
-            return sum(t.written for t in self._topics.values())
+            return sum((t.flushed if self._failure is not None else t.written) for t in self._topics.values())
 
     def __enter__(self) -> 'BagWriter':
         return self
