@@ -25,6 +25,7 @@ setup(
             'reindex = hexapod_sim.reindex:main',
             'bench_replay = hexapod_sim.bench_replay:main',
             'bench_kills = hexapod_sim.kill_bench:main',
+            'fuzz_inputs = hexapod_sim.fuzz_inputs:main',
             'sim = hexapod_sim.cli:main',
             'sim_node = hexapod_sim.sim_node:main',
             'bench_sim = hexapod_sim.bench_sim:main',
