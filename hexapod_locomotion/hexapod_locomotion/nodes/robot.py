@@ -137,7 +137,11 @@ def main(args=None) -> None:
             ex = SingleThreadedExecutor()
             for n in nodes:
                 ex.add_node(n)
-            spin_while_walking(ex, loco)
+            try:
+                spin_while_walking(ex, loco)
+            finally:        # sim_node's stop_on_record_error shut the context down
+                if getattr(master, 'stopped_on_record_error', False):
+                    raise SystemExit(1)
     except (BusError, ValueError) as exc:          # the driver's start-up: nothing left enabled
         print(f'robot: start-up failed: {exc}', file=sys.stderr)
         raise SystemExit(1)

@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_sim.bagio import BagError, BagReader, BagWarning
+from hexapod_sim.bagio import BagError, BagReader, BagWarning, one_warning
 from hexapod_model.cli_common import (add_no_progress_option, interrupted, make_parser, open_for_writing, output_file,
                                       plot_extensions)
-from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, POWER, SIM_TRUTH_POSE,
+from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER, SIM_TRUTH_POSE,
                                    SWING_DOWN, stamp_seconds, topic_key)
 from hexapod_model.description import LEGS, DescriptionError, joint_name, load_robot, parse_joint_name
 from hexapod_model.swing_model import LegModel
@@ -80,6 +80,11 @@ def load_bag(path: str):
                             f'recorded (record with ./hexapod demo or a locomotion_node of this version)')
     if JOINT_STATES not in topics:
         raise AnalysisError(f'{path}: no /{JOINT_STATES} topic - there are no servo reads to analyse')
+    for name, msg_type in reader.topics().items():       # a topic of another type would be read field by field
+        key = topic_key(name)
+        if key in MSG_TYPES and msg_type != MSG_TYPES[key]:
+            raise AnalysisError(f'{path}: {name} is recorded as {msg_type or "an unknown type"}, expected '
+                                f'{MSG_TYPES[key]}')
     swings, femur_reads, recorded = [], [], defaultdict(dict)
     consumed = defaultdict(lambda: defaultdict(list))     # swing start -> leg -> stamps [ns] the controller read
     femur_at = {}                                         # (leg, stamp [ns]) -> (femur angle, stamp [s])
@@ -392,8 +397,9 @@ def _analyse(ap, args) -> int:
     except (BagError, AnalysisError, DetectorError) as exc:
         print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 2
-    for w in r['bag_warnings']:
-        print(f'{ap.prog}: warning: {" ".join(str(w).split())}', file=sys.stderr)
+    line = one_warning(r['bag_warnings'])
+    if line:
+        print(f'{ap.prog}: warning: {line}', file=sys.stderr)
     for line in report_lines(r, args.json):
         print(line)
     if args.plot:

@@ -315,6 +315,12 @@ def _detection_events(robot: Robot, probe: ProbeBus, phase: SwingDownPhase,
     return out
 
 
+def _recording_failed(text: str) -> None:
+    """A write to the bag failed (disk full, ...): one line; the walk runs on, unrecorded."""
+    import sys
+    print(f'recording stopped: {text}; the walk runs on without recording', file=sys.stderr, flush=True)
+
+
 def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -> TrialResult:
     """Walk one trial; ``progress(sim_time_s, distance_m)`` is called after every phase,
     ``on_video_write(n_frames)`` before the GIF is written. ``live``: a
@@ -327,9 +333,12 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     robot = load_robot(overlays=cfg.overlays)
     sim = HexapodSim(robot, terrain=cfg.terrain, seed=cfg.seed, t_com_s=cfg.t_com_s, start_xy_m=(cfg.start_x_m, 0.0))
     recorder = None
-    if cfg.record or live is not None:
+    if live is not None:
         from hexapod_sim.bagio.recorder import Recorder
         recorder = Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live)
+    elif cfg.record:        # by a process of its own, which closes the bag even if this one is killed
+        from hexapod_sim.bagio.recorder import RecorderProcess
+        recorder = RecorderProcess(Path(cfg.record), robot=robot, on_error=_recording_failed)
     frames, on_probe, renderer = [], None, None
     if cfg.video:
         import mujoco
@@ -388,6 +397,8 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
         probe.deadline_s = math.inf
         if recorder is not None:
             recorder.close()
+            if getattr(recorder, 'close_error', None):
+                _recording_failed(f'the bag could not be closed: {recorder.close_error}')
         if renderer is not None:
             renderer.close()
             if frames:

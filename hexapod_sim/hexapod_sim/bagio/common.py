@@ -42,3 +42,12 @@ class TopicInfo:
     message_count: int                  # messages readable in the bag
     offered_qos_profiles: tuple = ()    # list of QoS dicts as in metadata.yaml (version 9)
     type_description_hash: str = ''     # RIHS01_... or ''
+
+
+def one_warning(problems) -> str | None:
+    """The problems a reader found as the one warning line a tool prints (None if there are none)."""
+    problems = [' '.join(str(p).split()) for p in problems]
+    if not problems:
+        return None
+    more = len(problems) - 1
+    return problems[0] + (f' (and {more} more problem(s) of this kind or others)' if more else '')

@@ -174,8 +174,9 @@ class BagReader:
     cannot be decoded -> skipped by :meth:`messages` unless ``raw=True``). ``warnings`` lists them.
     """
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, *, ignore_metadata: bool = False):
         self.path = Path(path)
+        self._ignore_metadata = ignore_metadata     # read the directory's .mcap files, whatever metadata.yaml lists
         self.warnings: list[str] = []
         self.metadata: dict | None = None
         self._defer_warnings = True     # warn only once we know the bag is readable at all
@@ -218,7 +219,7 @@ class BagReader:
                 return [p]
         meta_file = p / 'metadata.yaml'
         mcaps = sorted(x for x in p.iterdir() if x.suffix == '.mcap' and x.is_file())
-        if meta_file.is_file():
+        if meta_file.is_file() and not self._ignore_metadata:
             try:
                 info = yaml.safe_load(meta_file.read_text())['rosbag2_bagfile_information']
                 rel = list(info['relative_file_paths'])
@@ -243,7 +244,8 @@ class BagReader:
                 files = mcaps
             return files
         if mcaps:
-            self._warn(f'no metadata.yaml; reading {[m.name for m in mcaps]}')
+            if not self._ignore_metadata:
+                self._warn(f'no metadata.yaml; reading {[m.name for m in mcaps]}')
             return mcaps
         raise BagError(f'{p}: not a rosbag2 directory (no metadata.yaml and no .mcap file)')
 

@@ -249,7 +249,7 @@ class Recorder:
         self._tf_truth = False                     # joint angles come from write_tf(), not /joint_states
         self._last_t_ns: int | None = None         # latest log time written (a /tf of it may be due)
         self._writer = BagWriter(self.path, flush_period_s=flush_period_s, **writer_kw) if self.path else None
-        self.count = 0
+        self._emitted = 0
 
     def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
         """Record ``msg`` (a ROS message or a nested dict) on ``topic`` at simulated time ``t_s``."""
@@ -273,7 +273,12 @@ class Recorder:
             self.live.log(topic, msg_type, msg, t_ns)
         if self._writer is not None:
             self._writer.write(topic, msg_type, msg, t_ns)
-        self.count += 1
+        self._emitted += 1
+
+    @property
+    def count(self) -> int:
+        """Messages in the bag (once a write failed: those it kept), or handed to the live view."""
+        return self._writer.message_count if self._writer is not None else self._emitted
 
     def tf_due(self, t_s: float) -> bool:
         """True when the next /tf message is due at ``t_s`` (so a simulator fetches its truth only then)."""
@@ -348,7 +353,10 @@ def _write_queued(rec: 'Recorder', item) -> str | None:
         else:
             rec.write(*item)
     except Exception as exc:               # noqa: BLE001 - reported once, the robot runs on
-        return f'{item[0] or contract.TF}: {one_line(exc)}'
+        text = one_line(exc)
+        if rec.path is not None and text.startswith(str(rec.path)):     # a write error names the bag already
+            return text
+        return f'{item[0] or contract.TF}: {text}'
     return None
 
 
@@ -366,6 +374,22 @@ class _QueuedWrites:
     def write_tf_if_due(self, t_s: float, joint_names, joint_angles, body_pose=None) -> None:
         """:meth:`Recorder.write_tf`, queued, when a /tf is due at ``t_s`` (:meth:`Recorder.tf_due`)."""
         self._put((None, joint_names, joint_angles, body_pose, t_s))
+
+    _tf_next_ns = 0             # when the next /tf may be due, as far as this side knows
+
+    def tf_due(self, t_s: float) -> bool:
+        """True when a /tf may be due at ``t_s``: :meth:`Recorder.tf_due` of the writer's side, which
+        this side cannot ask, judged from the /tf it asked for (:meth:`write_tf`) at the same rate.
+        It is never False where the writer's would be True, and the writer checks again, so a caller
+        of ``if tf_due(t): write_tf(t, ...)`` records what the same calls on a :class:`Recorder` would."""
+        return int(round(t_s * 1e9)) >= self._tf_next_ns
+
+    def write_tf(self, t_s: float, joint_names, joint_angles, body_pose=None) -> None:
+        """:meth:`write_tf_if_due` (the writer writes it if it is due on its side)."""
+        t_ns = int(round(t_s * 1e9))
+        period = int(round(1e9 / TF_RATE_HZ))
+        self._tf_next_ns = max(self._tf_next_ns, t_ns - t_ns % period + period)
+        self.write_tf_if_due(t_s, joint_names, joint_angles, body_pose)
 
     def _report(self, text: str) -> None:
         """Tell ``on_error`` (if any) that the recording failed; a failing report must not end the writer."""
@@ -652,12 +676,22 @@ def recorder_process_main() -> None:
     except Exception as exc:                            # noqa: BLE001 - the parent raises it as one line
         _send_frame(out, ('fail', one_line(exc)))
         return
-    _send_frame(out, ('ready', None))
+    parent = [True]                                     # the parent still reads the reports
+
+    def report(frame) -> None:
+        """A report to the parent; once it is gone (killed: the pipe is broken) the bag is still
+        written to its end and closed: end of input comes when its last batch has been read."""
+        if parent[0]:
+            try:
+                _send_frame(out, frame)
+            except OSError:
+                parent[0] = False
+    report(('ready', None))
     failed = False
     while True:
         try:
             batch = _read_frame(inp)
-        except EOFError:
+        except (EOFError, OSError, pickle.UnpicklingError):     # a killed parent can leave half a frame
             break
         for item in batch:
             if failed:
@@ -665,14 +699,14 @@ def recorder_process_main() -> None:
             error = _write_queued(rec, item)
             if error is not None:
                 failed = True
-                _send_frame(out, ('error', error))
-        _send_frame(out, ('count', rec.count))
+                report(('error', error))
+        report(('count', rec.count))
     close_error = None
     try:
         rec.close()
     except Exception as exc:                            # noqa: BLE001 - the parent reports it in its closing line
         close_error = one_line(exc)
-    _send_frame(out, ('closed', rec.count, close_error))
+    report(('closed', rec.count, close_error))
 
 
 def one_line(exc: BaseException) -> str:

@@ -5,7 +5,6 @@ import math
 import os
 import threading
 import time
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
@@ -20,7 +19,7 @@ from mcap.writer import Writer as McapWriter
 from hexapod_model import contract
 
 from hexapod_sim.bagio.cdr import encoder_for, normalize, parse_definitions, ros_message_type
-from hexapod_sim.bagio.common import DEFAULT_QOS_PROFILE, ROS_DISTRO, ROSBAG2_VERSION, BagError, BagWarning, MessageEncodeError
+from hexapod_sim.bagio.common import DEFAULT_QOS_PROFILE, ROS_DISTRO, ROSBAG2_VERSION, BagError, MessageEncodeError
 from hexapod_sim.bagio.definitions import message_definition, normalize_type_name, type_hash
 
 
@@ -109,6 +108,8 @@ class BagWriter:
         self._last_flush_t_ns: int | None = None
         self._last_flush_wall = time.monotonic()
         self._closed = False
+        self._failure: str | None = None            # the write error that ended the recording
+        self._good_end = 0                          # file offset after the last complete flush
         self._flush_locked()                        # header on disk + provisional metadata.yaml
         self._stop = threading.Event()
         self._flusher = threading.Thread(target=self._flush_loop, name=f'bagwriter-flush:{self.path.name}',
@@ -203,7 +204,10 @@ class BagWriter:
             elif msg_type != t.msg_type and normalize_type_name(msg_type) != t.msg_type:
                 raise BagError(f'topic {topic} is recorded as {t.msg_type}, cannot write {msg_type} on it')
             data = self._encode(t, msg)
-            self._mcap.add_message(channel_id=t.channel_id, log_time=t_ns, publish_time=t_ns, data=data)
+            try:
+                self._mcap.add_message(channel_id=t.channel_id, log_time=t_ns, publish_time=t_ns, data=data)
+            except OSError as exc:
+                self._fail_locked(exc)
             t.written += 1
             self._pending += 1
             self._t_min = t_ns if self._t_min is None else min(self._t_min, t_ns)
@@ -212,18 +216,56 @@ class BagWriter:
                 self._last_flush_t_ns = t_ns
             if (t_ns - self._last_flush_t_ns >= self._period_ns
                     or time.monotonic() - self._last_flush_wall >= self.flush_period_s):
-                self._flush_locked()
+                self._flush_or_fail()
 
     def flush(self) -> None:
         """Close the open chunk, flush + fsync the file and rewrite metadata.yaml now."""
         with self._lock:
             self._check_open()
+            self._flush_or_fail()
+
+    def _flush_or_fail(self) -> None:
+        try:
             self._flush_locked()
+        except OSError as exc:
+            self._fail_locked(exc)
+
+    def _fail_locked(self, exc: OSError) -> None:
+        """A write failed (disk full, file-size limit): end the bag at its last complete flush, which
+        stays readable (:func:`~.repair.end_cut_file`, metadata.yaml of the flushed messages), and
+        raise :class:`BagError` saying so; every later write raises it too."""
+        from hexapod_sim.bagio.repair import end_cut_file
+        self._closed = True
+        if hasattr(self, '_stop'):                  # not yet there if the first flush fails
+            self._stop.set()
+        try:
+            self._file.close()
+        except OSError:
+            pass
+        kept = sum(t.flushed for t in self._topics.values())
+        span = '' if self._ft_max is None else f' up to t={self._ft_max * 1e-9:.3f} s'
+        try:
+            scan = end_cut_file(self.mcap_path, self._good_end)
+            for t in self._topics.values():         # what is left after the cut, for metadata.yaml
+                t.flushed = scan.counts.get(t.channel_id, 0)
+            times = [c.end_ns for c in scan.chunks]
+            self._ft_max = max(times) if times else None
+            self._ft_min = min(c.start_ns for c in scan.chunks) if times else None
+            kept = sum(t.flushed for t in self._topics.values())
+            span = '' if self._ft_max is None else f' up to t={self._ft_max * 1e-9:.3f} s'
+            self._write_metadata(final=False)
+            after = f'the bag ends with the {kept} message(s){span} written before it'
+        except OSError as exc2:
+            after = (f'it could not be closed either ({exc2.strerror or exc2}); the {kept} message(s){span} '
+                     'written before are readable by this project\'s tools, `reindex` repairs it')
+        self._failure = f'{self.path}: write failed ({exc.strerror or exc}); {after}'
+        raise BagError(self._failure) from None
 
     def _flush_locked(self) -> None:
         self._mcap.flush()
         if self._fsync:
             os.fsync(self._file.fileno())
+        self._good_end = self._file.tell()
         for t in self._topics.values():
             t.flushed = t.written
         self._ft_min, self._ft_max = self._t_min, self._t_max
@@ -240,9 +282,9 @@ class BagWriter:
                 due = self._last_flush_wall + self.flush_period_s
                 if self._pending and time.monotonic() >= due:
                     try:
-                        self._flush_locked()
-                    except OSError as exc:    # disk full etc.: report, keep recording
-                        warnings.warn(f'{self.path}: periodic flush failed: {exc}', BagWarning)
+                        self._flush_or_fail()
+                    except BagError:          # disk full etc.: the next write() raises it
+                        return
                     due = self._last_flush_wall + self.flush_period_s
             if self._stop.wait(max(0.005, due - time.monotonic())):
                 return
@@ -292,24 +334,31 @@ class BagWriter:
             self._closed = True
             self._stop.set()
             info = _dump_yaml(self._bag_info(final=True))
-            self._mcap.add_metadata('rosbag2', {'serialized_metadata': info, 'ROS_DISTRO': ROS_DISTRO})
-            self._mcap.finish()
-            self._file.flush()
-            if self._fsync:
-                os.fsync(self._file.fileno())
-            self._file.close()
-            self._write_metadata(final=True)
+            try:
+                self._mcap.add_metadata('rosbag2', {'serialized_metadata': info, 'ROS_DISTRO': ROS_DISTRO})
+                self._mcap.finish()
+                self._file.flush()
+                if self._fsync:
+                    os.fsync(self._file.fileno())
+                self._file.close()
+                self._write_metadata(final=True)
+            except OSError as exc:
+                self._closed = False
+                self._fail_locked(exc)
         if self._flusher is not threading.current_thread():
             self._flusher.join(timeout=5.0)
 
     def _check_open(self) -> None:
+        if self._failure is not None:
+            raise BagError(self._failure)
         if self._closed:
             raise BagError(f'{self.path}: writer is closed')
 
     @property
     def message_count(self) -> int:
+        """Messages written (once a write failed: those the bag kept)."""
         with self._lock:
-            return sum(t.written for t in self._topics.values())
+            return sum((t.flushed if self._failure is not None else t.written) for t in self._topics.values())
 
     def __enter__(self) -> 'BagWriter':
         return self

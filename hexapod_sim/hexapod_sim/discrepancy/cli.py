@@ -17,7 +17,7 @@ from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
 from hexapod_sim.discrepancy.analysis import MODES, analyse
 from hexapod_sim.discrepancy.effects import BY_NAME
 from hexapod_sim.discrepancy.fit import FitSettings
-from hexapod_sim.bagio import BagWarning
+from hexapod_sim.bagio import BagWarning, one_warning
 from hexapod_sim.discrepancy.recording import RecordingError, load_recording
 from hexapod_sim.discrepancy.segments import parse_windows
 
@@ -69,10 +69,11 @@ def _main(ap, args) -> int:
         with warnings.catch_warnings(record=True) as caught:      # a damaged bag: read what is there, say so
             warnings.simplefilter('always', BagWarning)
             rec = load_recording(args.bag, robot)
+        line = one_warning([w.message for w in caught if issubclass(w.category, BagWarning)])
+        if line:
+            print(f'{ap.prog}: warning: {line}', file=sys.stderr)
         for w in caught:
-            if issubclass(w.category, BagWarning):
-                print(f'{ap.prog}: warning: {" ".join(str(w.message).split())}', file=sys.stderr)
-            else:
+            if not issubclass(w.category, BagWarning):
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         settings = FitSettings(min_ratio=args.min_ratio)
         if args.candidates:

@@ -27,6 +27,9 @@ class SimParams:
     lockstep: bool = param(False, 'advance one read-schedule cycle per /joint_commands message (deterministic runs)')
     record: str = param('', "bag to record every topic to: '' off, 'auto' bags/sim_<time>, a name (bags/<name>) "
                         'or a path')
+    stop_on_record_error: bool = param(False, 'when a write to the bag fails (disk full, file-size limit): '
+                                       'true = stop: torque off on every servo and the node ends (exit code '
+                                       '1); false = the robot runs on unrecorded')
     imu_rate_hz: float = param(400.0, 'IMU rate [Hz] (paper: 400); 0 = no IMU; at most one sample per physics '
                                'step', min=0.0)
     power_rate_hz: float = param(100.0, '/power rate [Hz] (power averaged); 0 off', min=0.0)

@@ -47,7 +47,7 @@ from std_srvs.srv import Trigger
 
 from hexapod_model import contract, diagnostics
 from hexapod_model.description import ALL_JOINTS, DescriptionError
-from hexapod_model.node_params import EXIT_BAD_PARAMETER, NodeParams, node_help, run_node
+from hexapod_model.node_params import EXIT_BAD_PARAMETER, NodeParams, node_help, run_node, spin_until_shutdown
 from hexapod_model.param_schema import RobotSource
 from hexapod_model.urdf import urdf_xml
 from hexapod_model.contract import stamp_msg
@@ -95,6 +95,8 @@ class SimNode(Node):
         self._last_timing_t_s = 0.0         # start of the /bus_timing window (bus health on /diagnostics)
         self.recorder = None
         self.live = None
+        self._stop_on_record_error = p.stop_on_record_error
+        self.stopped_on_record_error = False     # the node ended on a failed write to the bag
         if p.foxglove:
             try:
                 self.live = LiveView(p.foxglove_port, name='hexapod sim_node')
@@ -266,9 +268,26 @@ class SimNode(Node):
     def _recording_failed(self, text: str) -> None:
         """The writer thread could not write (disk full, ...): one line; the robot runs on, unrecorded
         (the closing line at :meth:`close` then says how many messages the bag holds)."""
+        if self._stop_on_record_error:
+            self._stop_for_recording(text)
+            return
         line = f'recording stopped: {text}; the simulation runs on without recording'
         if self.context.ok():
             self.get_logger().error(line)
+        else:
+            print(f'[sim_node] {line}', file=sys.stderr, flush=True)
+
+    def _stop_for_recording(self, text: str) -> None:
+        """``stop_on_record_error``: torque off on every servo, one line, and the node ends (exit code 1)."""
+        with self._lock:
+            self.sim.emergency_stop()
+            t = self.sim.now()
+        self.stopped_on_record_error = True
+        line = (f'recording stopped: {text}; stopping (stop_on_record_error): torque off on every servo at '
+                f't={t:.3f} s (sim time), the node ends')
+        if self.context.ok():
+            self.get_logger().error(line)
+            self.context.try_shutdown()
         else:
             print(f'[sim_node] {line}', file=sys.stderr, flush=True)
 
@@ -436,10 +455,18 @@ def _error_text(bits: int, enabled: bool) -> str:
     return '; '.join(parts) or 'ok'
 
 
+def _spin(node: SimNode) -> None:
+    try:
+        spin_until_shutdown(node)
+    finally:        # the stop shut the context down: spinning may end with ExternalShutdownException
+        if node.stopped_on_record_error:
+            raise SystemExit(1)
+
+
 def main(args=None) -> None:
     run_node('sim_node', SimNode, node_help('sim_node', __doc__, NODE.schemas), args,
              errors=(DescriptionError, SimError, BagError), error_exit=EXIT_BAD_PARAMETER, close=SimNode.close,
-             spec=NODE)
+             spec=NODE, spin=_spin)
 
 
 if __name__ == '__main__':

@@ -31,7 +31,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import remove_ros_args
 
 from hexapod_model import contract
-from hexapod_sim.bagio import BagError, BagReader, BagWarning, type_hash
+from hexapod_sim.bagio import BagError, BagReader, BagWarning, one_warning, type_hash
 
 try:
     from tqdm import tqdm
@@ -280,8 +280,9 @@ def main(args=None) -> int:
     except BagError as exc:
         print(f'{parser.prog}: error: {exc}', file=sys.stderr)
         return 2
-    for w in reader.warnings:
-        print(f'{parser.prog}: warning: {w}', file=sys.stderr)
+    line = one_warning(reader.warnings)
+    if line:
+        print(f'{parser.prog}: warning: {line}', file=sys.stderr)
     rclpy.init(args=args)
     node = None
     rc = 0

@@ -1,0 +1,354 @@
+"""A seeded fuzzer over bags and robot descriptions: do the tools fail in one line, or read what they can?
+
+    ./hexapod run hexapod_sim fuzz_inputs [--cases 1000] [--seed 0] [--out DIR]
+
+Each case damages a small valid input and runs the tools on it in this process:
+
+- bags (from the first seconds of ``bags/tripod_blocks_adaptive``): bit flips, truncation at a chunk
+  boundary (and a few bytes either side), a huge record length field, a topic recorded with the wrong
+  message type, a ``metadata.yaml`` that lies (counts, files, version, storage, types, garbage);
+  run through ``analyse``, ``discrepancy`` and the reader ``replay`` plays from (:class:`BagReader`
+  and its messages);
+- robot descriptions and overlays (from ``robot.yaml``): a value of the wrong type, NaN, infinite,
+  negative, a missing key; run through ``load_robot`` (what every tool and node loads) and
+  ``discrepancy --robot``/``--overlay``.
+
+A case passes if each tool ends with code 0 (at most one warning line) or 2 (exactly one error line),
+prints no traceback, and takes at most 10 s; the peak memory of the run is printed (every case under
+1 GB if the run's peak is). A failing case prints its seed and what happened; the exit code is 1 if
+any failed.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import math
+import random
+import resource
+import shutil
+import signal
+import struct
+import sys
+import tempfile
+import time
+import traceback
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from hexapod_sim.bagio import BagError, BagReader, BagWarning, BagWriter
+
+CASE_LIMIT_S = 10.0
+BASE_SECONDS = 2.5          # of the reference walk in the base bag
+BAG_KINDS = ('bitflip', 'truncate', 'huge_length', 'wrong_type', 'metadata_lies')
+DESC_KINDS = ('wrong_type', 'nan', 'inf', 'negative', 'missing_key')
+
+
+def reference_bag() -> Path:
+    from hexapod_sim.bagio.recorder import default_bag_root
+    return default_bag_root() / 'tripod_blocks_adaptive'
+
+
+def make_base_bag(dst: Path, seconds: float = BASE_SECONDS) -> Path:
+    """The first ``seconds`` of the reference walk as a small complete bag."""
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', BagWarning)
+        r = BagReader(reference_bag())
+    end = r.start_ns + int(seconds * 1e9)
+    with BagWriter(dst, chunk_size=64 * 1024) as w:
+        for topic, info in r.topic_info().items():
+            w.add_topic(topic, info.msg_type, definition=r.schema_text(topic),
+                        qos_profiles=list(info.offered_qos_profiles) or None)
+        for topic, msg_type, t_ns, data in r.messages(raw=True, end_ns=end):
+            w.write(topic, msg_type, data, t_ns)
+    return dst
+
+
+def _records(data: bytes) -> list[tuple[int, int, int]]:
+    """(offset, opcode, length) of each top-level MCAP record."""
+    out, pos = [], 8
+    while pos + 9 <= len(data):
+        op, length = struct.unpack_from('<BQ', data, pos)
+        out.append((pos, op, length))
+        if pos + 9 + length > len(data):
+            break
+        pos += 9 + length
+    return out
+
+
+def mutate_bag(base: Path, dst: Path, kind: str, rng: random.Random) -> str:
+    """Copy ``base`` to ``dst`` damaged as ``kind``; a short description of the damage."""
+    shutil.copytree(base, dst)
+    mcap = next(dst.glob('*.mcap'))
+    data = bytearray(mcap.read_bytes())
+    meta_path = dst / 'metadata.yaml'
+    if kind == 'bitflip':
+        n = rng.choice((1, 4, 32))
+        for _ in range(n):
+            i = rng.randrange(len(data))
+            data[i] ^= 1 << rng.randrange(8)
+        mcap.write_bytes(bytes(data))
+        return f'{n} bit flip(s)'
+    if kind == 'truncate':
+        recs = _records(bytes(data))
+        chunks = [off for off, op, _ in recs if op == 0x06] + [len(data)]
+        cut = max(0, min(len(data), rng.choice(chunks) + rng.choice((0, 0, 1, -1, 9, -9, 100))))
+        mcap.write_bytes(bytes(data[:cut]))
+        return f'truncated at byte {cut} of {len(data)}'
+    if kind == 'huge_length':
+        off, op, _ = rng.choice(_records(bytes(data)))
+        huge = rng.choice((2**63 - 1, 2**64 - 1, 2**40, len(data) * 4))
+        struct.pack_into('<Q', data, off + 1, huge)
+        mcap.write_bytes(bytes(data))
+        return f'length of the record (opcode 0x{op:02x}) at byte {off} set to {huge}'
+    if kind == 'wrong_type':
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', BagWarning)
+            r = BagReader(base)
+        topic = rng.choice(sorted(r.topics()))
+        other = rng.choice(sorted({t for t in r.topics().values()} - {r.topics()[topic]}))
+        shutil.rmtree(dst)
+        with BagWriter(dst) as w:        # the topic's messages as they are, its schema another type's
+            for t, info in r.topic_info().items():
+                typ = other if t == topic else info.msg_type
+                w.add_topic(t, typ, definition=None if t == topic else r.schema_text(t))
+            for t, msg_type, t_ns, raw in r.messages(raw=True):
+                w.write(t, other if t == topic else msg_type, raw, t_ns)
+        return f'{topic} recorded as {other}'
+    meta = yaml.safe_load(meta_path.read_text())
+    info = meta['rosbag2_bagfile_information']
+    lie = rng.choice(('counts', 'missing_file', 'extra_file', 'version', 'storage', 'topic_type', 'garbage',
+                      'not_a_dict', 'no_topics', 'negative_duration', 'empty'))
+    if lie == 'counts':
+        for e in info['topics_with_message_count']:
+            e['message_count'] = rng.choice((0, 10**12, -5))
+        info['message_count'] = 10**15
+    elif lie == 'missing_file':
+        info['relative_file_paths'] = ['elsewhere_0.mcap']
+    elif lie == 'extra_file':
+        info['relative_file_paths'] = info['relative_file_paths'] + ['../../etc/passwd', 'metadata.yaml']
+    elif lie == 'version':
+        info['version'] = rng.choice((99, 'nine', None))
+    elif lie == 'storage':
+        info['storage_identifier'] = rng.choice(('sqlite3', 42, None))
+    elif lie == 'topic_type':
+        for e in info['topics_with_message_count']:
+            e['topic_metadata']['type'] = rng.choice(('std_msgs/msg/String', 'no/such/Type', 7, None))
+    elif lie == 'negative_duration':
+        info['duration'] = {'nanoseconds': -10**18}
+        info['starting_time'] = {'nanoseconds_since_epoch': 'yesterday'}
+    elif lie == 'no_topics':
+        info['topics_with_message_count'] = 'none'
+    if lie == 'garbage':
+        meta_path.write_bytes(bytes(rng.randrange(256) for _ in range(200)))
+    elif lie == 'not_a_dict':
+        meta_path.write_text(rng.choice(('[1, 2, 3]\n', 'just text\n', 'rosbag2_bagfile_information: 5\n')))
+    elif lie == 'empty':
+        meta_path.write_text('')
+    else:
+        meta_path.write_text(yaml.safe_dump(meta))
+    return f'metadata.yaml lies: {lie}'
+
+
+def _leaves(obj, path=()):
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _leaves(v, path + (k,))
+    elif isinstance(obj, list) and obj and not all(isinstance(x, (int, float)) for x in obj):
+        for i, v in enumerate(obj):
+            yield from _leaves(v, path + (i,))
+    else:
+        yield path, obj
+
+
+def mutate_description(dst: Path, kind: str, rng: random.Random) -> tuple[str, bool]:
+    """A damaged robot description written to ``dst``; (what was done, used as an overlay?)."""
+    from hexapod_model.description import default_description_path
+    doc = yaml.safe_load(default_description_path().read_text())
+    path, value = rng.choice(list(_leaves(doc)))
+    parent = doc
+    for k in path[:-1]:
+        parent = parent[k]
+    key = path[-1]
+    if kind == 'wrong_type':
+        new = rng.choice(('text', [1, 2], {'a': 1}, True, None))
+    elif kind == 'nan':
+        new = math.nan
+    elif kind == 'inf':
+        new = rng.choice((math.inf, -math.inf))
+    elif kind == 'negative':
+        new = -abs(value) - 1.0 if isinstance(value, (int, float)) and not isinstance(value, bool) else -1.0
+    else:
+        new = None
+    if kind == 'missing_key':
+        del parent[key]
+    else:
+        parent[key] = new
+    as_overlay = rng.random() < 0.5
+    out = doc
+    if as_overlay:                   # only the damaged branch, as an overlay file holds it
+        out = {}
+        node = out
+        src = doc
+        for k in path[:-1]:
+            src = src[k]
+            if isinstance(k, int):   # a list element: the overlay carries the whole list
+                break
+            node = node.setdefault(k, {} if isinstance(src, dict) else src)
+        if isinstance(node, dict) and kind != 'missing_key' and not isinstance(key, int):
+            node[key] = new
+    dst.write_text(yaml.safe_dump(out, allow_unicode=True))
+    return f'{"/".join(map(str, path))}: {kind}{"" if kind == "missing_key" else f" -> {new!r}"}' + \
+        (' (overlay)' if as_overlay else ''), as_overlay
+
+
+@dataclass
+class Outcome:
+    tool: str
+    code: int | None
+    lines: list
+    seconds: float
+    trace: str = ''
+
+    def problem(self) -> str:
+        if self.trace:
+            return f'{self.tool}: uncaught {self.trace}'
+        if self.seconds > CASE_LIMIT_S:
+            return f'{self.tool}: took {self.seconds:.1f} s'
+        if self.code == 2 and len(self.lines) != 1:
+            return f'{self.tool}: exit 2 with {len(self.lines)} stderr lines: {self.lines[:3]}'
+        if self.code == 0 and len([x for x in self.lines if 'warning' in x]) > 1:
+            return f'{self.tool}: {len(self.lines)} warning lines: {self.lines[:3]}'
+        if self.code not in (0, 2):
+            return f'{self.tool}: exit {self.code}: {self.lines[-1:]}'
+        return ''
+
+
+class _Timeout(Exception):
+    pass
+
+
+def _alarm(signum, frame):
+    raise _Timeout()
+
+
+def run_tool(name: str, fn) -> Outcome:
+    """``fn()`` (a tool's main, returning its exit code) with stderr captured and a time limit."""
+    err = io.StringIO()
+    t0 = time.perf_counter()
+    code, trace = None, ''
+    old = signal.signal(signal.SIGALRM, _alarm)
+    signal.setitimer(signal.ITIMER_REAL, CASE_LIMIT_S * 3)
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            code = fn()
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except _Timeout:
+        trace = f'timeout after {CASE_LIMIT_S * 3:.0f} s'
+    except BaseException as exc:           # noqa: BLE001 - what the fuzzer looks for
+        tb = traceback.extract_tb(exc.__traceback__)[-1]
+        trace = f'{type(exc).__name__}: {str(exc)[:200]} ({Path(tb.filename).name}:{tb.lineno})'
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+    lines = [x for x in err.getvalue().splitlines() if x.strip()]
+    if 'Traceback' in err.getvalue():
+        trace = trace or 'traceback printed: ' + lines[-1][:200]
+    return Outcome(name, code, lines, time.perf_counter() - t0, trace)
+
+
+def _read_all(bag: Path) -> int:
+    """What ``replay`` does with a bag before publishing: open it, decode every message."""
+    try:
+        r = BagReader(bag)
+    except BagError as exc:
+        print(f'replay: error: {exc}', file=sys.stderr)
+        return 2
+    for w in r.warnings[:1]:
+        print(f'replay: warning: {w}', file=sys.stderr)
+    for _ in r.messages():
+        pass
+    return 0
+
+
+def bag_tools(bag: Path) -> list[Outcome]:
+    from hexapod_locomotion.trials.analyse import main as analyse
+    from hexapod_sim.discrepancy.cli import main as discrepancy
+    return [run_tool('analyse', lambda: analyse([str(bag), '--no-progress'])),
+            run_tool('discrepancy', lambda: discrepancy([str(bag), '--no-progress'])),
+            run_tool('replay-reader', lambda: _read_all(bag))]
+
+
+def description_tools(desc: Path, as_overlay: bool, bag: Path) -> list[Outcome]:
+    from hexapod_model.description import DescriptionError, load_robot
+    from hexapod_sim.discrepancy.cli import main as discrepancy
+
+    def load() -> int:
+        try:
+            load_robot(None if as_overlay else desc, overlays=[desc] if as_overlay else ())
+        except DescriptionError as exc:
+            print(f'load_robot: error: {exc}', file=sys.stderr)
+            return 2
+        return 0
+    flag = ['--overlay', str(desc)] if as_overlay else ['--robot', str(desc)]
+    return [run_tool('load_robot', load),
+            run_tool('discrepancy', lambda: discrepancy([str(bag), '--no-progress', *flag]))]
+
+
+def run_case(i: int, seed: int, base: Path, work: Path) -> tuple[str, list[Outcome]]:
+    rng = random.Random(f'{seed}:{i}')
+    case_dir = work / f'case_{i}'
+    case_dir.mkdir()
+    try:
+        if rng.random() < 0.7:
+            kind = rng.choice(BAG_KINDS)
+            what = f'bag {kind}: ' + mutate_bag(base, case_dir / 'bag', kind, rng)
+            return what, bag_tools(case_dir / 'bag')
+        kind = rng.choice(DESC_KINDS)
+        desc = case_dir / 'robot.yaml'
+        what, as_overlay = mutate_description(desc, kind, rng)
+        return 'description ' + what, description_tools(desc, as_overlay, base)
+    finally:
+        shutil.rmtree(case_dir, ignore_errors=True)
+
+
+def main(args=None) -> int:
+    ap = argparse.ArgumentParser(prog='fuzz_inputs', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--cases', type=int, default=1000)
+    ap.add_argument('--seed', type=int, default=0)
+    ap.add_argument('--out', default=None, help='work folder (default: a temporary one, removed at the end)')
+    opts = ap.parse_args(sys.argv[1:] if args is None else args)
+    if opts.cases < 1:
+        print('fuzz_inputs: error: --cases must be at least 1', file=sys.stderr)
+        return 2
+    work = Path(opts.out) if opts.out else Path(tempfile.mkdtemp(prefix='fuzz_inputs_'))
+    work.mkdir(parents=True, exist_ok=True)
+    base = make_base_bag(work / 'base')
+    failed, slowest, t0 = 0, 0.0, time.monotonic()
+    try:
+        for i in range(opts.cases):
+            what, outcomes = run_case(i, opts.seed, base, work)
+            slowest = max([slowest] + [o.seconds for o in outcomes])
+            problems = [p for p in (o.problem() for o in outcomes) if p]
+            if problems:
+                failed += 1
+                print(f'case {i} (seed {opts.seed}): {what}: ' + '; '.join(problems), flush=True)
+            if (i + 1) % 50 == 0:
+                print(f'fuzz_inputs: {i + 1}/{opts.cases} cases, {failed} failing, '
+                      f'{time.monotonic() - t0:.0f} s', file=sys.stderr, flush=True)
+    finally:
+        if not opts.out:
+            shutil.rmtree(work, ignore_errors=True)
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f'fuzz_inputs: {opts.cases} cases (seed {opts.seed}): {opts.cases - failed} passed, {failed} failed; '
+          f'slowest tool run {slowest:.2f} s; peak memory of the run {peak_mb:.0f} MB')
+    return 1 if failed else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,45 @@
+"""The seeded fuzzer over bags and robot descriptions (hexapod_sim.bench.fuzz_inputs), and the defects it found."""
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from hexapod_sim.bench import fuzz_inputs
+
+
+@pytest.fixture(scope='module')
+def base(tmp_path_factory):
+    return fuzz_inputs.make_base_bag(tmp_path_factory.mktemp('fuzz') / 'base')
+
+
+def test_100_seeded_cases_end_in_one_line_or_read_what_they_can(base, tmp_path):
+    failing = []
+    for i in range(100):
+        what, outcomes = fuzz_inputs.run_case(i, 0, base, tmp_path)
+        problems = [p for p in (o.problem() for o in outcomes) if p]
+        if problems:
+            failing.append(f'case {i}: {what}: {problems}')
+    assert not failing, '\n'.join(failing)
+
+
+def _outcomes(base, tmp_path, kind, seed):
+    bag = tmp_path / 'bag'
+    what = fuzz_inputs.mutate_bag(base, bag, kind, random.Random(seed))
+    return what, {o.tool: o for o in fuzz_inputs.bag_tools(bag)}
+
+
+def test_analyse_refuses_a_topic_recorded_with_the_wrong_type_in_one_line(base, tmp_path):
+    """It read /joint_commands recorded as std_msgs/String field by field: AttributeError traceback."""
+    what, out = _outcomes(base, tmp_path, 'wrong_type', '0:6')
+    assert out['analyse'].code == 2 and not out['analyse'].trace, (what, out['analyse'])
+    assert 'is recorded as' in out['analyse'].lines[0]
+
+
+def test_a_bag_with_several_corrupt_chunks_gives_one_warning_line(base, tmp_path):
+    """analyse and discrepancy printed one line per corrupt chunk (and the schema parser's own lines)."""
+    what, out = _outcomes(base, tmp_path, 'bitflip', '0:27')
+    for tool in ('analyse', 'discrepancy'):
+        o = out[tool]
+        assert not o.problem(), (what, o)
+        assert len([x for x in o.lines if 'warning' in x]) <= 1 and not any('Error processing' in x for x in o.lines)
