@@ -217,6 +217,10 @@ def kill_one(i: int, target: str, mode: str, delay_s: float, bag: Path, env: dic
         deadline = time.monotonic() + 120.0
         while not (bag / 'metadata.yaml').exists() and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
+        # and once the sim's clock runs (a loaded machine may take many seconds to start the walk)
+        while (clock is not None and (clock.t_s is None or clock.t_s < 0.5) and proc.poll() is None
+               and time.monotonic() < deadline):
+            time.sleep(0.05)
         if proc.poll() is not None:
             res.problem = f'the command ended before the kill (exit {proc.returncode})'
             return res
