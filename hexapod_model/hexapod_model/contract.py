@@ -91,6 +91,9 @@ DIAGNOSTICS = '/diagnostics'                # diagnostic_msgs/msg/DiagnosticArra
 # Evaluation-only ground truth published by the sim; never consumed by any estimator/controller.
 SIM_TRUTH_CONTACTS = 'sim/foot_contacts'    # hexapod_msgs-free: std_msgs/msg/Float64MultiArray
 SIM_TRUTH_POSE = 'sim/body_pose'            # geometry_msgs/msg/PoseStamped
+# What the simulated robot walks on (terrain, seed, start position; YAML text), once, transient local:
+# the sim-vs-real tool replays a simulated walk on the same ground.
+SIM_SCENE = 'sim/scene'                     # std_msgs/msg/String
 
 
 def topic_key(name: str) -> str:
@@ -116,6 +119,7 @@ MSG_TYPES = {
     CMD_VEL: 'geometry_msgs/msg/Twist',
     SIM_TRUTH_CONTACTS: 'std_msgs/msg/Float64MultiArray',
     SIM_TRUTH_POSE: 'geometry_msgs/msg/PoseStamped',
+    SIM_SCENE: 'std_msgs/msg/String',
     ROBOT_DESCRIPTION: 'std_msgs/msg/String',
     TF: 'tf2_msgs/msg/TFMessage',
     TF_STATIC: 'tf2_msgs/msg/TFMessage',

@@ -330,15 +330,17 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     The walk ends at ``cfg.duration_s`` of simulated walking time within one control period (the
     phase in progress is cut off and not counted), at the course end, or when the robot falls."""
     from hexapod_sim.physics.plant import HexapodSim
+    from hexapod_sim.physics.terrain import Ground
     robot = load_robot(overlays=cfg.overlays)
-    sim = HexapodSim(robot, terrain=cfg.terrain, seed=cfg.seed, t_com_s=cfg.t_com_s, start_xy_m=(cfg.start_x_m, 0.0))
+    ground = Ground(cfg.terrain, cfg.seed, (cfg.start_x_m, 0.0))
+    sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, t_com_s=cfg.t_com_s, start_xy_m=ground.start_xy_m)
     recorder = None
     if live is not None:
         from hexapod_sim.bagio.recorder import Recorder
-        recorder = Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live)
+        recorder = Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live, scene=ground.to_text())
     elif cfg.record:        # by a process of its own, which closes the bag even if this one is killed
         from hexapod_sim.bagio.recorder import RecorderProcess
-        recorder = RecorderProcess(Path(cfg.record), robot=robot, on_error=_recording_failed)
+        recorder = RecorderProcess(Path(cfg.record), robot=robot, on_error=_recording_failed, scene=ground.to_text())
     frames, on_probe, renderer = [], None, None
     if cfg.video:
         import mujoco

@@ -240,8 +240,10 @@ class Recorder:
     """
 
     def __init__(self, bag_dir: str | os.PathLike | None, flush_period_s: float = FLUSH_PERIOD_S,
-                 robot: Robot | None = None, tf_rate_hz: float = TF_RATE_HZ, live=None, **writer_kw: Any):
+                 robot: Robot | None = None, tf_rate_hz: float = TF_RATE_HZ, live=None, scene: str | None = None,
+                 **writer_kw: Any):
         self.path = Path(bag_dir) if bag_dir is not None else None
+        self._scene = scene                        # the sim's ground (/sim/scene text), written once at the start
         self.live = live                           # a hexapod_sim.node.live.LiveView also gets every message
         self._tf = TfTree(robot if robot is not None else load_robot()) if tf_rate_hz > 0 else None
         self._tf_period_ns = int(round(1e9 / tf_rate_hz)) if tf_rate_hz > 0 else 0
@@ -311,9 +313,12 @@ class Recorder:
             return
         self._next_tf_ns = t_ns
         sec, nsec = divmod(t_ns, 1_000_000_000)
+        latched = (contract.ROBOT_DESCRIPTION, contract.TF_STATIC) + ((contract.SIM_SCENE,) if self._scene else ())
         if self._writer is not None:
-            for topic in (contract.ROBOT_DESCRIPTION, contract.TF_STATIC):
+            for topic in latched:
                 self._writer.add_topic(topic, contract.MSG_TYPES[topic], qos_profiles=[LATCHED_QOS])
+        if self._scene:
+            self._emit(contract.SIM_SCENE, contract.MSG_TYPES[contract.SIM_SCENE], {'data': self._scene}, t_ns)
         self._emit(contract.ROBOT_DESCRIPTION, contract.MSG_TYPES[contract.ROBOT_DESCRIPTION],
                    {'data': urdf_xml(self._tf.robot)}, t_ns)
         self._emit(contract.TF_STATIC, contract.MSG_TYPES[contract.TF_STATIC],

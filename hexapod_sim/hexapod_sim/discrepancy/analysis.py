@@ -21,6 +21,7 @@ from hexapod_sim.discrepancy.segments import (PHASES, body_motion_share, gait_ph
                        swing_segments)
 from hexapod_sim.discrepancy.body_motion import body_motion_correction
 from hexapod_sim.discrepancy.simulate import Replay
+from hexapod_sim.discrepancy.whole_walk import whole_walk_check
 
 MODES = ('auto', 'stand', 'walk')
 # A walk's swing starts in motion from the reads around lift-off; reads in the first 0.1 s are left
@@ -138,6 +139,8 @@ class Analysis:
     min_drop_ticks: float = 0.0      # held-out RMS drop an effect had to reach (the "cannot show" bound)
     min_gain_ticks2: float = 0.0     # and held-out squared-error gain (fit.can_confirm)
     unexplained: list = field(default_factory=list)   # Unexplained: what no candidate explains
+    # walks: the whole walk replayed on the MuJoCo hexapod, nominal and with the effects (whole_walk.WholeWalk)
+    whole_walk: object | None = None
 
     @property
     def found(self) -> tuple[Effect, ...]:
@@ -204,15 +207,33 @@ def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: d
     return out, table
 
 
+def _add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
+    """The effects the whole walk's loaded phases show (whole_walk.search_loaded) join the found ones and
+    leave the "cannot show" list on their joints."""
+    found = list(found)
+    for f in finds:
+        e = f.effect
+        found.append(FoundEffect(e, scope_name(e.joints, joints), f'in the whole walk ({f.phase.replace("_", "-")})',
+                                 f.heldout_rmse_ticks_before, f.heldout_rmse_ticks_after))
+        if e.effect in blind:
+            rest = tuple(j for j in blind[e.effect] if j not in e.joints)
+            blind = {k: v for k, v in blind.items() if k != e.effect}
+            if rest:
+                blind[e.effect] = rest
+    return found, blind
+
+
 def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=None, mode: str = 'auto',
             settings: FitSettings | None = None, block_s: float | None = None, progress: bool = False,
-            workers: int = 2) -> Analysis:
+            workers: int = 2, ground=None, whole_walk: bool = True) -> Analysis:
     """Find what the nominal model of ``robot`` leaves out of ``rec`` (see the package docstring).
 
     ``joints``: restrict to these joints. ``windows``: list of (t_start, t_end) [s] to analyse
     (all legs), overriding the stand/walk choice. ``mode``: 'auto', 'stand' or 'walk'.
     ``block_s``: length of the alternating fit / held-out time blocks; default: 2 s on a stand or
     given windows, alternate swings of each leg on a walk (:func:`~.fit.make_split`).
+    ``whole_walk``: on a walk, also replay the whole walk on the MuJoCo hexapod (:mod:`.whole_walk`) on
+    ``ground`` (a :class:`~hexapod_sim.physics.terrain.Ground`; None: the recording's, else a flat floor).
     """
     t_start = time.perf_counter()
     if mode not in MODES:
@@ -340,9 +361,15 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             a, _ = _rmse(res1, split.hold, [j])
             jfit[j] = JointFit(b, a, n)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
-        phase_fit = {}
+        phase_fit, whole = {}, None
         if mode_used == 'walk':
             mism, phase_fit = _locate_phases(replay, phases, mism, res0, res1)
+            if whole_walk:
+                step('replaying the whole walk on the MuJoCo hexapod')
+                whole, ww_notes, finds = whole_walk_check(rec, robot, effects, ground, phases, replay.joints,
+                                                          progress=step)
+                notes.extend(ww_notes)
+                found, blind = _add_loaded(found, blind, finds, replay.joints)
         n_hold = sum(int(np.count_nonzero(m)) for m in split.hold.values())
         n_fit = sum(int(np.count_nonzero(m)) for m in split.fit.values())
         notes.append(f'fitted on {n_fit} reads, judged on {n_hold} held-out reads ('
@@ -353,7 +380,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                         runtime_s=time.perf_counter() - t_start, log=list(settings.log),
                         glitches=tuple(rec.glitches), phase_fit=phase_fit, blind=blind,
                         min_drop_ticks=settings.min_drop_ticks, min_gain_ticks2=settings.min_gain_ticks2,
-                        unexplained=unexplained)
+                        unexplained=unexplained, whole_walk=whole)
     finally:
         if bar is not None:
             bar.close()

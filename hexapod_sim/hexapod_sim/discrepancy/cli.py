@@ -11,7 +11,8 @@ import json
 import sys
 import warnings
 
-from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, interrupted, make_parser,
+from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, finite_float, interrupted,
+                                     make_parser, nonnegative_int,
                           open_for_writing, output_file, plot_extensions, positive_float, ratio_at_least_one)
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
 from hexapod_sim.discrepancy.analysis import MODES, analyse
@@ -20,6 +21,7 @@ from hexapod_sim.discrepancy.fit import FitSettings
 from hexapod_sim.bagio import BagWarning, one_warning
 from hexapod_sim.discrepancy.recording import RecordingError, load_recording
 from hexapod_sim.discrepancy.segments import parse_windows
+from hexapod_sim.physics.terrain import TERRAINS, Ground
 
 
 def build_parser():
@@ -45,6 +47,12 @@ def build_parser():
                          'alternate swings of each leg on a walk)')
     ap.add_argument('--min-ratio', type=ratio_at_least_one, default=FitSettings.min_ratio,
                     help='held-out RMS improvement factor an effect must reach')
+    ap.add_argument('--terrain', choices=(*TERRAINS, 'none'), default=None,
+                    help="what a walk was recorded on, for the whole-walk replay on the MuJoCo hexapod (default: "
+                         "the bag's /sim/scene, else flat: a calibration walk on a floor); none: no whole-walk replay")
+    ap.add_argument('--terrain-seed', type=nonnegative_int, default=0, metavar='N', help='the terrain\'s seed (with --terrain)')
+    ap.add_argument('--start-xy', type=finite_float, nargs=2, default=(0.0, 0.0), metavar=('X', 'Y'),
+                    help='where the trunk started on the terrain [m] (with --terrain)')
     add_no_progress_option(ap)
     return ap
 
@@ -78,8 +86,10 @@ def _main(ap, args) -> int:
         settings = FitSettings(min_ratio=args.min_ratio)
         if args.candidates:
             settings.candidates = tuple(args.candidates)
+        ground = None if args.terrain in (None, 'none') else Ground(args.terrain, args.terrain_seed, tuple(args.start_xy))
         result = analyse(rec, robot, joints=args.joints, windows=windows, mode=args.mode, settings=settings,
-                         block_s=args.holdout_block, progress=args.progress)
+                         block_s=args.holdout_block, progress=args.progress, ground=ground,
+                         whole_walk=args.terrain != 'none')
     except (RecordingError, DescriptionError, ValueError) as exc:
         print(f'{ap.prog}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         return 2

@@ -58,6 +58,8 @@ class Recording:
     # and angular velocity [rad/s] in the body frame; the walk replay takes the body's motion from it
     # (body_motion.py)
     imu: np.ndarray | None = None
+    # what a simulated robot walked on (hexapod_sim.physics.terrain.Ground), from the bag's /sim/scene
+    ground: object | None = None
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -150,6 +152,21 @@ def screen_imu(imu: np.ndarray, t0_s: float, duration_s: float) -> tuple[np.ndar
     return imu, ()
 
 
+def _ground(reader, p: Path):
+    """The ground of the bag's ``/sim/scene`` (a recording of the sim), None if it has none."""
+    from hexapod_model import contract
+    from hexapod_sim.physics.terrain import Ground, TerrainError
+    name = reader.resolve(contract.SIM_SCENE)
+    if name is None or reader.topics()[name] != contract.MSG_TYPES[contract.SIM_SCENE]:
+        return None
+    for _, _, _, msg in reader.messages(topics=[contract.SIM_SCENE]):
+        try:
+            return Ground.from_text(msg.data)
+        except TerrainError as exc:
+            raise RecordingError(f'{p}: /sim/scene: {exc}') from None
+    return None
+
+
 def load_recording(path: str | Path, robot=None) -> Recording:
     """Read ``/joint_commands`` and ``/joint_states`` from a rosbag2 directory or an ``.mcap`` file.
 
@@ -169,6 +186,7 @@ def load_recording(path: str | Path, robot=None) -> Recording:
         reader = BagReader(str(p))
         series = joint_series(reader, log_time=True)
         imu = imu_series(reader)
+        ground = _ground(reader, p)
     except BagError as exc:
         raise RecordingError(str(exc) if str(exc).startswith(str(p)) else f'{p}: {exc}') from None   # named once
     for topic, d in series.items():
@@ -202,4 +220,4 @@ def load_recording(path: str | Path, robot=None) -> Recording:
                              for topic, found in (('command', bad_c), ('read', bad_r))
                              for j, t, kind, detail in found), key=lambda g: (g.t_s, g.joint))) + imu_glitches
     return Recording(commands=conv(cmds, 'command'), states=conv(reads, 'read'), t0_ns=t0_ms * 1_000_000,
-                     source=str(p), glitches=glitches, imu=imu)
+                     source=str(p), glitches=glitches, imu=imu, ground=ground)

@@ -11,6 +11,7 @@ from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
 from hexapod_sim.discrepancy.fit import least_confirmable_change
 from hexapod_sim.discrepancy.glitches import summary_line
 from hexapod_sim.discrepancy.segments import PHASES
+from hexapod_sim.discrepancy.whole_walk import LIFT_OFF_S, TOUCHDOWN_S, WHOLE_PHASES
 from hexapod_sim.discrepancy.locate import CONDITION_WORDS, REVEALED_BY, WINDOW_S
 
 
@@ -47,7 +48,31 @@ def to_json(a: Analysis, bag: str | None = None) -> dict:
                             if u.nearest is not None else {})} for u in a.unexplained],
         'glitches': [{'topic': g.topic, 'joint': g.joint, 't': _f(g.t_s), 'kind': g.kind, 'detail': g.detail}
                      for g in a.glitches],
+        **({'whole_walk': _whole_walk_json(a.whole_walk)} if a.whole_walk is not None else {}),
     }
+
+
+def _whole_walk_json(w) -> dict:
+    g = w.ground
+    return {'ground': {'terrain': g.terrain, 'seed': int(g.seed), 'start_xy_m': [float(v) for v in g.start_xy_m]},
+            'in_step_until_s': _f(w.in_step_until_s), 'nominal_in_step_until_s': _f(w.nominal_in_step_until_s),
+            'runtime_s': _f(w.runtime_s),
+            'phases': {j: {ph: {'reads': v.n_reads, 'rmse_ticks_nominal': _f(v.rmse_ticks_nominal),
+                                'rmse_ticks_fitted': _f(v.rmse_ticks_fitted)} for ph, v in row.items()}
+                       for j, row in w.phases.items()}}
+
+
+def _whole_walk_lines(w) -> list[str]:
+    used = [ph for ph in WHOLE_PHASES if any(ph in row for row in w.phases.values())]
+    lines = ['', f'whole walk on the MuJoCo hexapod ({w.ground.describe()}): RMS error per joint and phase [ticks], '
+                 f'nominal -> with the effects (reads to {w.in_step_until_s:.1f} s; touchdown: the first '
+                 f'{TOUCHDOWN_S:g} s of stance, lift-off: the first {LIFT_OFF_S:g} s of swing-up):',
+             '  ' + f'{"":11s}' + ''.join(f'{ph.replace("_", "-"):>15s}' for ph in used)]
+    for j, row in w.phases.items():
+        cells = [(f'{row[ph].rmse_ticks_nominal:.2f}->{row[ph].rmse_ticks_fitted:.2f}' if ph in row else '-')
+                 for ph in used]
+        lines.append('  ' + f'{j:11s}' + ''.join(f'{c:>15s}' for c in cells))
+    return lines
 
 
 def text_report(a: Analysis, max_windows: int = 8) -> str:
@@ -131,6 +156,8 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
             cells = [(f'{row[ph].rmse_ticks_before:.2f}->{row[ph].rmse_ticks_after:.2f}' if ph in row else '-')
                      for ph in used]
             lines.append('  ' + f'{j:11s}' + ''.join(f'{c:>16s}' for c in cells))
+    if a.whole_walk is not None:
+        lines += _whole_walk_lines(a.whole_walk)
     if a.mismatches:
         lines.append('')
         close = not a.effects and judged and max(v.heldout_rmse_ticks_before for v in judged.values()) <= CLOSE_FIT_TICKS

@@ -63,6 +63,7 @@ from hexapod_sim.bagio.recorder import Recorder, RecorderProcess, RecorderThread
 from hexapod_sim.physics.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
 from hexapod_sim.node.bus_master_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
                        TruthSample, truth_vector)
+from hexapod_sim.physics.terrain import Ground
 from hexapod_sim.physics.truth_log import TruthLog
 
 TIMER_PERIOD_S = 0.002        # wall period of the stepping timer
@@ -105,10 +106,11 @@ class SimNode(Node):
             self.get_logger().info(f'Foxglove live view on {self.live.url}')
         if p.record or self.live is not None:     # the live view gets what a bag would hold
             path = resolve_bag_dir(p.record) if p.record else None
+            scene = Ground(p.terrain, p.seed, (p.start_x_m, p.start_y_m)).to_text()
             if self.live is None:       # the bag alone: written by a process of its own
-                self.recorder = RecorderProcess(path, robot=robot, on_error=self._recording_failed)
+                self.recorder = RecorderProcess(path, robot=robot, on_error=self._recording_failed, scene=scene)
             else:                       # the live view serves from this process
-                self.recorder = RecorderThread(Recorder(path, robot=robot, live=self.live),
+                self.recorder = RecorderThread(Recorder(path, robot=robot, live=self.live, scene=scene),
                                                on_error=self._recording_failed)
             if path is not None:
                 self.get_logger().info(f'recording to {path}')

@@ -325,3 +325,37 @@ def make_terrain(name: str, seed: int = 0) -> Terrain:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise TerrainError(f'terrain seed must be a non-negative integer, got {seed!r}')
     return TERRAINS[name](int(seed))
+
+
+@dataclass(frozen=True)
+class Ground:
+    """What a simulated robot walks on: a terrain of :data:`TERRAINS`, its seed, and the trunk's start
+    position on it [m]. Its text is the ``/sim/scene`` message a recording carries
+    (:data:`hexapod_model.contract.SIM_SCENE`), so the sim-vs-real tool replays a walk on its ground."""
+
+    terrain: str = 'flat'
+    seed: int = 0
+    start_xy_m: tuple[float, float] = (0.0, 0.0)
+
+    def describe(self) -> str:
+        x, y = self.start_xy_m
+        return f'{self.terrain} (seed {self.seed})' + ('' if (x, y) == (0.0, 0.0) else f' from x={x:g} y={y:g} m')
+
+    def to_text(self) -> str:
+        x, y = (float(v) for v in self.start_xy_m)
+        return f'{{terrain: {self.terrain}, seed: {int(self.seed)}, start_xy_m: [{x!r}, {y!r}]}}'
+
+    @classmethod
+    def from_text(cls, text: str) -> 'Ground':
+        """Parse :meth:`to_text`'s text; :class:`TerrainError` naming what is wrong."""
+        import yaml
+        try:
+            d = yaml.safe_load(text)
+            xy = d.get('start_xy_m', (0.0, 0.0))
+            g = cls(str(d['terrain']), d.get('seed', 0), (float(xy[0]), float(xy[1])))
+        except (yaml.YAMLError, AttributeError, KeyError, TypeError, ValueError, IndexError):
+            raise TerrainError(f'not a scene description: {str(text)[:80]!r}') from None
+        make_terrain(g.terrain, g.seed)          # a known terrain and a valid seed, or TerrainError
+        if not all(math.isfinite(v) for v in g.start_xy_m):
+            raise TerrainError(f'start position must be finite, got {g.start_xy_m}')
+        return g

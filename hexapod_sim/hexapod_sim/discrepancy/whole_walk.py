@@ -1,0 +1,354 @@
+"""The whole walk: the recorded goals replayed through the MuJoCo hexapod on the walk's ground.
+
+The free-leg model (:mod:`.simulate`) holds only while a leg swings. Stance, touchdown, lift-off and
+leveling are where the legs carry the body, so they need the whole robot: the trunk on its legs, the
+feet on the ground, every servo's firmware. This module replays every recorded goal write, at the
+firmware tick it acts on, through :class:`hexapod_sim.physics.plant.HexapodSim` on the ground the walk
+was recorded on (a :class:`Ground`: the terrain's name, its seed and where the robot started; a
+calibration walk of a real robot is on a flat floor) and predicts every recorded read from the
+replay's output-shaft angles (a readout delay of the description shifts the sample time, as the servo
+would). The replay is open loop: where it matches the recording it stays in step with it; where
+physics the replay leaves out moves the trunk (a foot that lands a block's edge away), the two part,
+and from then on every joint differs. :func:`in_step_until` finds that moment, and only reads before
+it are judged.
+
+Phases (:data:`WHOLE_PHASES`): the gait phases of :mod:`.segments`, with the first
+``TOUCHDOWN_S`` of a stance after a swing-down (the leg takes its share of the body's weight) and
+the first ``LIFT_OFF_S`` of a swing-up (it gives the share up) told apart.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hexapod_model.description import ALL_JOINTS, Robot, parse_joint_name
+from hexapod_model.servo import theta_to_tick
+from hexapod_sim.discrepancy.recording import Recording, RecordingError
+from hexapod_sim.discrepancy.segments import PHASES, LegPhases
+from hexapod_sim.physics.terrain import Ground
+
+WHOLE_PHASES = ('swing_up', 'swing_forward', 'swing_down', 'stance', 'touchdown', 'lift_off', 'leveling')
+TOUCHDOWN_S = 0.1          # [s] of stance after a swing-down stops: the leg takes up the body's weight
+LIFT_OFF_S = 0.1           # [s] of swing-up after it starts: the leg gives up its share
+STEP_WINDOW_S = 0.5        # [s] windows in which the replay is judged in step with the recording
+OUT_OF_STEP_TICKS = 1.0    # the median joint's RMS over a window above this: the trunk went elsewhere
+START_S = 0.2              # [s] at the start left out (the first reads settle the pose)
+LOADED_PHASES = ('stance', 'touchdown', 'lift_off', 'leveling')   # where the legs carry the body
+ROUNDING_TICKS = 0.5       # a phase's RMS error at most this is tick rounding (uniform rounding: 0.29)
+
+
+def whole_labels(phases: LegPhases, t: np.ndarray) -> np.ndarray:
+    """Index into :data:`WHOLE_PHASES` for every time in ``t`` [s]."""
+    t = np.asarray(t, dtype=float)
+    out = phases.label(t)                       # PHASES indices; the first five names are the same
+    assert WHOLE_PHASES[:3] == PHASES[:3] and PHASES[3] == 'stance' and PHASES[4] == 'leveling'
+    out = np.where(out == PHASES.index('leveling'), WHOLE_PHASES.index('leveling'), out)
+    for sw in phases.swings:
+        out[(t >= sw.t_up) & (t < min(sw.t_up + LIFT_OFF_S, sw.t_forward))] = WHOLE_PHASES.index('lift_off')
+        after = (t >= sw.t_stop) & (t < sw.t_stop + TOUCHDOWN_S) & (out == WHOLE_PHASES.index('stance'))
+        out[after] = WHOLE_PHASES.index('touchdown')
+    return out
+
+
+def _writes_by_tick(rec: Recording, dt: float) -> dict[int, dict[str, float]]:
+    """The recorded goal writes by the firmware tick they act on (the first at or after the write)."""
+    writes: dict[int, dict[str, float]] = {}
+    for j, cmd in rec.commands.items():
+        ks = np.ceil(cmd.t_s / dt - 1e-9).astype(np.int64)
+        for k, th in zip(ks.tolist(), cmd.theta_rad.tolist()):
+            writes.setdefault(k, {})[j] = th
+    return writes
+
+
+def _start_angles(rec: Recording, sim) -> dict[str, float] | None:
+    """The recording's first read of every joint, unless they are the plant's home pose (then None:
+    a recording of the sim from its start replays from exactly the state it was made from)."""
+    home = sim.true_joint_angles()
+    first = {j: float(s.theta_rad[0]) for j, s in rec.states.items() if len(s)}
+    tick = sim.robot.servo
+    off = max((abs(float(theta_to_tick(v, tick) - theta_to_tick(home[ALL_JOINTS.index(j)], tick)))
+               for j, v in first.items()), default=0.0)
+    return None if off <= 1.0 else first
+
+
+def replay_walk(rec: Recording, robot: Robot, ground: Ground, joints=None,
+                t_end_s: float | None = None) -> dict[str, np.ndarray]:
+    """Predicted ticks at every recorded read of ``joints`` (default all recorded) up to ``t_end_s``:
+    the recorded goals through the MuJoCo hexapod of ``robot`` (effects included) on ``ground``."""
+    from hexapod_sim.physics.plant import HexapodSim, SimError
+    joints = [j for j in (joints or rec.states) if j in rec.states]
+    try:
+        sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, imu_rate_hz=0.0,
+                         start_xy_m=ground.start_xy_m)
+    except SimError as exc:
+        raise RecordingError(f'whole-walk replay: {exc}') from None
+    sim.reset()
+    start = _start_angles(rec, sim)
+    if start is not None:
+        sim.reset(joint_angles=start)
+    dt = sim.dt
+    t_end = rec.duration_s if t_end_s is None else min(t_end_s, rec.duration_s)
+    n = int(math.ceil(t_end / dt)) + 2
+    writes = _writes_by_tick(rec, dt)
+    cols = np.array([ALL_JOINTS.index(j) for j in joints])
+    grid = np.empty((n, len(cols)))
+    for k in range(n):
+        grid[k] = sim.true_joint_angles()[cols]
+        goals = writes.get(k)
+        if goals:
+            sim.sync_write(goals)
+        sim.step(dt)
+    out = {}
+    for c, j in enumerate(joints):
+        s = rec.states[j]
+        keep = s.t_s <= t_end
+        delay = robot.joint_effects(j).readout_delay_s
+        x = np.clip((s.t_s[keep] - delay) / dt, 0.0, n - 1.0)
+        i0 = np.minimum(np.floor(x).astype(np.int64), n - 2)
+        f = x - i0
+        out[j] = theta_to_tick(grid[i0, c] * (1.0 - f) + grid[i0 + 1, c] * f, robot.servo)
+    return out
+
+
+def in_step_until(rec: Recording, res: dict[str, np.ndarray]) -> float:
+    """The end of the last window [s] before the replay first leaves the recording: the median joint's
+    RMS residual over a ``STEP_WINDOW_S`` window above ``OUT_OF_STEP_TICKS`` (physics left out of one
+    joint raises that joint; the trunk going elsewhere raises every joint). The recording's end if never."""
+    end = rec.duration_s
+    n_win = int(math.ceil(end / STEP_WINDOW_S))
+    per = np.full((len(res), n_win), np.nan)
+    for r, (j, v) in enumerate(res.items()):
+        t = rec.states[j].t_s[:len(v)]
+        w = np.minimum((t / STEP_WINDOW_S).astype(np.int64), n_win - 1)
+        sq = np.bincount(w, weights=v ** 2, minlength=n_win)
+        cnt = np.bincount(w, minlength=n_win)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            per[r] = np.sqrt(sq / cnt)
+    with np.errstate(all='ignore'):
+        med = np.nanmedian(per, axis=0) if len(res) else np.zeros(n_win)
+    bad = np.flatnonzero(med > OUT_OF_STEP_TICKS)
+    return end if not len(bad) else float(bad[0] * STEP_WINDOW_S)
+
+
+@dataclass(frozen=True)
+class PhaseRow:
+    """RMS error of one joint in one phase over the reads judged [ticks]: the nominal replay, and the
+    replay with the effects the tool found."""
+
+    n_reads: int
+    rmse_ticks_nominal: float
+    rmse_ticks_fitted: float
+
+
+@dataclass(frozen=True)
+class WholeWalk:
+    """The whole-walk comparison: the ground, the span judged (the replay in step with the recording
+    with the effects found), and per joint and phase the RMS errors."""
+
+    ground: Ground
+    in_step_until_s: float
+    nominal_in_step_until_s: float
+    phases: dict                 # joint -> {phase name: PhaseRow}
+    runtime_s: float
+
+    def worst(self, phase_names=WHOLE_PHASES) -> tuple[str, str, float]:
+        """(joint, phase, RMS) of the largest fitted RMS error over ``phase_names``."""
+        best = ('', '', 0.0)
+        for j, row in self.phases.items():
+            for ph, v in row.items():
+                if ph in phase_names and v.rmse_ticks_fitted > best[2]:
+                    best = (j, ph, v.rmse_ticks_fitted)
+        return best
+
+
+def compare(rec: Recording, robot: Robot, fitted: Robot | None, ground: Ground, phases: dict,
+            joints=None) -> WholeWalk:
+    """Replay the whole walk nominally and with the effects found (``fitted``; None: none found) and
+    tabulate the error per joint and phase over the reads in step (``phases``: leg -> LegPhases)."""
+    import time
+    t0 = time.perf_counter()
+    joints = [j for j in (joints or rec.states) if j in rec.states]
+    nominal = replay_walk(rec, robot, ground, joints)
+    res0 = {j: rec_ticks(rec, robot, j)[:len(p)] - p for j, p in nominal.items()}
+    until0 = in_step_until(rec, res0)
+    if fitted is None:
+        res1, until1 = res0, until0
+    else:
+        pred1 = replay_walk(rec, fitted, ground, joints)
+        res1 = {j: rec_ticks(rec, robot, j)[:len(p)] - p for j, p in pred1.items()}
+        until1 = in_step_until(rec, res1)
+    table = {}
+    for j in joints:
+        t = rec.states[j].t_s
+        lab = whole_labels(phases[parse_joint_name(j)[0]], t)
+        judged = (t >= START_S) & (t < until1)
+        row = {}
+        for k, name in enumerate(WHOLE_PHASES):
+            sel = judged & (lab == k)
+            n = int(np.count_nonzero(sel))
+            if n:
+                row[name] = PhaseRow(n, float(np.sqrt(np.mean(res0[j][sel] ** 2))),
+                                     float(np.sqrt(np.mean(res1[j][sel] ** 2))))
+        table[j] = row
+    return WholeWalk(ground, until1, until0, table, time.perf_counter() - t0)
+
+
+def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
+                     joints, search: bool = True, progress=lambda msg: None
+                     ) -> tuple[WholeWalk, list[str], list[LoadedFind]]:
+    """The whole-walk comparison of :func:`analyse`'s walk path, what :func:`search_loaded` finds in its
+    loaded phases (with ``search``), and the notes for the report. ``ground``: None takes the
+    recording's (``/sim/scene``), else a flat floor."""
+    if ground is not None:
+        origin = 'as given'
+    elif rec.ground is not None:
+        ground, origin = rec.ground, "from the bag's /sim/scene"
+    else:
+        ground, origin = Ground(), 'assumed: a flat floor, as for a calibration walk; --terrain sets it'
+    fitted = robot.with_effects(effects) if effects else None
+    ww = compare(rec, robot, fitted, ground, phases, joints)
+    finds = search_loaded(rec, robot, list(effects), ground, phases, ww, progress) if search else []
+    if finds:
+        ww = compare(rec, robot, robot.with_effects(list(effects) + [f.effect for f in finds]), ground, phases, joints)
+    notes = [f'whole walk: the recorded goals replayed through the MuJoCo hexapod on {ground.describe()} '
+             f'({origin}), {ww.runtime_s:.1f} s']
+    if ww.in_step_until_s < rec.duration_s:
+        notes.append(f'whole walk: the replay left the recording at {ww.in_step_until_s:.1f} s of '
+                     f'{rec.duration_s:.1f} s (every joint departs at once: the trunk went elsewhere); only reads '
+                     'before it are judged' + ('' if ww.in_step_until_s >= START_S + SEARCH_MIN_IN_STEP_S else
+                                               f'; under {SEARCH_MIN_IN_STEP_S:g} s in step, nothing is fitted on '
+                                               'it (is the ground right? --terrain)'))
+    j, ph, v = ww.worst(LOADED_PHASES)
+    if j:
+        notes.append(f'whole walk: largest RMS error where the legs carry the body: {j} in {ph.replace("_", "-")}, '
+                     f'{v:.2f} ticks' + (' (tick rounding)' if v <= ROUNDING_TICKS else ''))
+    return ww, notes, finds
+
+
+# Effects that show where a leg carries the body (a load reversal, a hold under load) more than in a free
+# swing, searched for on the whole walk when its loaded phases leave more than tick rounding.
+LOADED_CANDIDATES = ('backlash', 'static_friction', 'compliance_deadband')
+ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope is tried too
+SEARCH_BLOCK_S = 2.0          # alternating fit / held-out blocks of the search [s]
+SEARCH_GRID = 5               # log-spaced values over the candidate's range, then golden-section steps
+SEARCH_REFINE = 4
+SEARCH_MIN_RATIO = 1.3        # held-out RMS improvement an effect must reach on its joints
+SEARCH_MIN_EXPLAINED = 0.75   # and the share of their excess over rounding it must explain
+ROUNDING_RMS = 0.29           # uniform tick rounding: 1/sqrt(12)
+SEARCH_HORIZON_S = 20.0       # [s] of the walk (in step) the search replays: its cost does not grow with the walk
+SEARCH_MIN_IN_STEP_S = 5.0    # [s] in step the search needs (fewer: the ground is likely not the walk's)
+MAX_JOINT_SCOPES = 3          # single-joint scopes tried: the joints with the largest loaded-phase error
+
+
+@dataclass(frozen=True)
+class LoadedFind:
+    """An effect the whole walk shows: held-out RMS error on its joints [ticks] without and with it."""
+
+    effect: object                  # hexapod_model.description.Effect
+    phase: str                      # the loaded phase where its joints' error was largest
+    heldout_rmse_ticks_before: float
+    heldout_rmse_ticks_after: float
+
+
+def _loaded_excess(ww: WholeWalk) -> list[tuple[str, float]]:
+    """(joint, RMS) of the joints whose error over the loaded phases, with the effects found, is above tick
+    rounding, the largest first."""
+    out = []
+    for j, row in ww.phases.items():
+        rows = [row[ph] for ph in LOADED_PHASES if ph in row]
+        n = sum(r.n_reads for r in rows)
+        rms = math.sqrt(sum(r.n_reads * r.rmse_ticks_fitted ** 2 for r in rows) / n) if n else 0.0
+        if rms > ROUNDING_TICKS:
+            out.append((j, rms))
+    return sorted(out, key=lambda x: -x[1])
+
+
+def _masks(rec: Recording, joints, until_s: float):
+    """(fit, held-out) read masks per joint: alternating ``SEARCH_BLOCK_S`` blocks after ``START_S``."""
+    fit, hold = {}, {}
+    for j in joints:
+        t = rec.states[j].t_s
+        ok = (t >= START_S) & (t < until_s)
+        even = (np.floor(t / SEARCH_BLOCK_S).astype(np.int64) % 2) == 0
+        fit[j], hold[j] = ok & even, ok & ~even
+    return fit, hold
+
+
+def _rms(rec, robot, pred: dict, joints, masks) -> float:
+    sq, n = 0.0, 0
+    for j in joints:
+        r = (rec_ticks(rec, robot, j)[:len(pred[j])] - pred[j])[masks[j][:len(pred[j])]]
+        sq += float(np.sum(r ** 2))
+        n += len(r)
+    return math.sqrt(sq / n) if n else math.nan
+
+
+def _search_one(rec, robot, base: list, cand, scope, ground, until_s, fit, progress) -> tuple[float, float]:
+    """(value, fit RMS) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole walk."""
+    def cost(v):
+        progress(f'whole walk: {cand.effect} {v:.3g} on {len(scope)} joint(s)')
+        pred = replay_walk(rec, robot.with_effects(base + [cand.make(scope, v)]), ground, scope, t_end_s=until_s)
+        return _rms(rec, robot, pred, scope, fit)
+    grid = np.geomspace(max(cand.lo, 1e-6), cand.hi, SEARCH_GRID)
+    costs = [cost(float(v)) for v in grid]
+    k = int(np.nanargmin(costs))
+    a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    best = (float(grid[k]), costs[k])
+    g = (math.sqrt(5) - 1) / 2
+    for _ in range(SEARCH_REFINE):               # golden section in log space between the neighbours
+        la, lb = math.log(a), math.log(b)
+        x1, x2 = math.exp(lb - g * (lb - la)), math.exp(la + g * (lb - la))
+        c1, c2 = cost(x1), cost(x2)
+        for x, c in ((x1, c1), (x2, c2)):
+            if c < best[1]:
+                best = (x, c)
+        a, b = (a, x2) if c1 < c2 else (x1, b)
+    return best
+
+
+def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, ww: WholeWalk,
+                  progress=lambda msg: None) -> list[LoadedFind]:
+    """Effects of :data:`LOADED_CANDIDATES` that explain what the whole walk's loaded phases leave, on the
+    joints that leave more than tick rounding (each alone; and the whole robot when many do), fitted on
+    alternate 2 s blocks of the whole walk and judged on the others. At most one effect per joint."""
+    from hexapod_sim.discrepancy.effects import BY_NAME
+    excess = _loaded_excess(ww)
+    if not excess or ww.in_step_until_s < START_S + SEARCH_MIN_IN_STEP_S:
+        return []
+    joints = list(ww.phases)
+    until = min(ww.in_step_until_s, START_S + SEARCH_HORIZON_S)
+    fit, hold = _masks(rec, joints, until)
+    scopes = [(j,) for j, _ in excess[:MAX_JOINT_SCOPES]]
+    scopes += [tuple(joints)] if len(excess) >= ROBOT_WIDE_MIN_JOINTS else []
+    base = list(effects)
+    base_pred = replay_walk(rec, robot.with_effects(base), ground, joints, t_end_s=until)
+    found: list[LoadedFind] = []
+    for scope in sorted(scopes, key=len, reverse=True):
+        if any(j in f.effect.joints for f in found for j in scope):
+            continue
+        before = _rms(rec, robot, base_pred, scope, hold)
+        trials = []
+        for name in LOADED_CANDIDATES:
+            cand = BY_NAME[name]
+            v, _ = _search_one(rec, robot, base, cand, scope, ground, until, fit, progress)
+            pred = replay_walk(rec, robot.with_effects(base + [cand.make(scope, v)]), ground, scope, t_end_s=until)
+            trials.append((_rms(rec, robot, pred, scope, hold), cand.make(scope, v)))
+        after, eff = min(trials, key=lambda x: x[0])
+        explained = (before ** 2 - after ** 2) / max(before ** 2 - ROUNDING_RMS ** 2, 1e-9)
+        if before / max(after, 1e-9) >= SEARCH_MIN_RATIO and explained >= SEARCH_MIN_EXPLAINED:
+            worst = max(LOADED_PHASES, key=lambda ph: max((ww.phases[j][ph].rmse_ticks_fitted for j in scope
+                                                           if ph in ww.phases[j]), default=0.0))
+            found.append(LoadedFind(eff, worst, before, after))
+            base.append(eff)
+    return found
+
+
+def rec_ticks(rec: Recording, robot: Robot, joint: str) -> np.ndarray:
+    """The recorded reads of ``joint`` in ticks."""
+    return theta_to_tick(rec.states[joint].theta_rad, robot.servo)
+
+
+__all__ = ['Ground', 'PhaseRow', 'WHOLE_PHASES', 'WholeWalk', 'compare', 'in_step_until', 'replay_walk',
+           'search_loaded', 'whole_labels', 'whole_walk_check']
