@@ -446,14 +446,20 @@ def recover_bag(src: str | os.PathLike, dst: str | os.PathLike, **writer_kw) -> 
     tools such as rosbags refuse without its MCAP footer) into a new, properly closed bag ``dst``.
     Topic definitions and QoS are taken from ``src``. Returns the number of messages copied."""
     reader = BagReader(src)
-    n = 0
     with BagWriter(dst, **writer_kw) as w:
-        for topic, info in reader.topic_info().items():
-            w.add_topic(topic, info.msg_type, definition=reader.schema_text(topic),
-                        qos_profiles=list(info.offered_qos_profiles) or None)
-        for topic, msg_type, t_ns, data in reader.messages(raw=True):
-            w.write(topic, msg_type, data, t_ns)
-            n += 1
+        return copy_messages(reader, w)
+
+
+def copy_messages(reader: 'BagReader', w) -> int:
+    """Every readable message of ``reader`` into the open :class:`BagWriter` ``w``, with the topics'
+    definitions and QoS; the number of messages copied."""
+    n = 0
+    for topic, info in reader.topic_info().items():
+        w.add_topic(topic, info.msg_type, definition=reader.schema_text(topic),
+                    qos_profiles=list(info.offered_qos_profiles) or None)
+    for topic, msg_type, t_ns, data in reader.messages(raw=True):
+        w.write(topic, msg_type, data, t_ns)
+        n += 1
     return n
 
 

@@ -369,8 +369,18 @@ class _QueuedWrites:
     """The writing side of a recorder that queues (:class:`RecorderThread`, :class:`RecorderProcess`):
     both take messages and /tf requests through their own bounded queue, ``_put``."""
 
+    _wake_at = 1                # queued items at which the writer is woken (the process sends in batches)
+
     def _put(self, item) -> None:
-        raise NotImplementedError
+        """Queue ``item``, waiting for room; dropped once the queue is closed, ended or failed."""
+        with self._not_full:
+            while len(self._items) >= self._max and not (self._closed or self._ended):
+                self._not_full.wait()
+            if self._closed or self._ended or self.error is not None:
+                return
+            self._items.append(item)
+            if len(self._items) >= self._wake_at:   # otherwise the writer takes them at its next period
+                self._not_empty.notify()
 
     def write(self, topic: str, msg_type: str, msg: Any, t_s: float) -> None:
         """:meth:`Recorder.write`, queued; dropped once closed or failed."""
@@ -460,15 +470,6 @@ class RecorderThread(_QueuedWrites):
         """Messages written so far (those still queued not counted)."""
         return self.recorder.count
 
-    def _put(self, item) -> None:
-        with self._not_full:
-            while len(self._items) >= self._max and not (self._closed or self._ended):
-                self._not_full.wait()
-            if self._closed or self._ended or self.error is not None:
-                return
-            self._items.append(item)
-            self._not_empty.notify()
-
     def _take(self) -> list:
         """Everything queued, in order (waits for some); empty once closed and drained."""
         with self._not_empty:
@@ -556,6 +557,8 @@ class RecorderProcess(_QueuedWrites):
     :attr:`close_error` says why the bag could not be closed, if so.
     """
 
+    _wake_at = SEND_BATCH       # the sender takes batches: woken at a full one, else at its period
+
     def __init__(self, bag_dir: str | os.PathLike, robot: Robot | None = None, on_error=None,
                  max_queued: int = MAX_QUEUED, **recorder_kw: Any):
         if max_queued < 1:
@@ -595,15 +598,6 @@ class RecorderProcess(_QueuedWrites):
         """Messages written so far (the child reports after each batch; final once :meth:`close` returned)."""
         return self._count
 
-    def _put(self, item) -> None:
-        with self._not_full:
-            while len(self._items) >= self._max and not (self._closed or self._ended):
-                self._not_full.wait()
-            if self._closed or self._ended or self.error is not None:
-                return
-            self._items.append(item)
-            if len(self._items) == SEND_BATCH:      # otherwise the sender takes them at its next period
-                self._not_empty.notify()
 
     def _send(self) -> None:
         try:

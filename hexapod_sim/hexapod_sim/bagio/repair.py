@@ -26,7 +26,7 @@ from mcap.opcode import Opcode
 from mcap.records import ChunkIndex, DataEnd, Footer
 
 from hexapod_sim.bagio.common import MCAP_MAGIC, BagError, BagWarning
-from hexapod_sim.bagio.reader import BagReader
+from hexapod_sim.bagio.reader import BagReader, copy_messages
 from hexapod_sim.bagio.writer import BagWriter
 
 REINDEX_TMP = '.reindex'          # the rebuilt bag is written here inside the bag directory
@@ -170,12 +170,7 @@ def reindex_bag(path: str | os.PathLike, *, force: bool = False) -> ReindexResul
     n = 0
     try:
         with BagWriter(tmp, custom_data=custom if isinstance(custom, dict) else None) as w:
-            for topic, info in reader.topic_info().items():
-                w.add_topic(topic, info.msg_type, definition=reader.schema_text(topic),
-                            qos_profiles=list(info.offered_qos_profiles) or None)
-            for topic, msg_type, t_ns, data in reader.messages(raw=True):
-                w.write(topic, msg_type, data, t_ns)
-                n += 1
+            n = copy_messages(reader, w)
         new_mcap = tmp / f'{name}_0.mcap'
         os.replace(new_mcap, p / new_mcap.name)
         for old in old_files:
