@@ -131,7 +131,7 @@ def planar_fit(before: np.ndarray, after: np.ndarray) -> tuple[float, np.ndarray
 
 @dataclass
 class LegOdometry:
-    """Integrates the body pose from successive stance-foot sets (see the module doc)."""
+    """Integrates the body pose from the stance feet (see the module doc)."""
 
     config: OdometryConfig = field(default_factory=OdometryConfig)
 
@@ -145,14 +145,22 @@ class LegOdometry:
         self.roll = self.pitch = 0.0
         self.cov = np.zeros((6, 6))
         self.distance_m = 0.0
-        self._feet: np.ndarray | None = None       # level-frame feet of the last update (6 x 3)
-        self._contact: np.ndarray | None = None
+        self._key = None            # (feet level frame 6 x 3, contact, position, yaw, cov, imu yaw, t)
         self._imu_yaw: float | None = None
-        self._last = None
+        self._gyro_yaw = 0.0        # yaw integrated from the gyro since the keyframe
+        self._last: OdometryEstimate | None = None
+
+    def _rekey(self, level: np.ndarray, contact: np.ndarray, t_s: float) -> None:
+        self._key = (level, contact.copy(), self.position.copy(), self.yaw, self.cov.copy(), self._imu_yaw, t_s)
+        self._gyro_yaw = 0.0
 
     def update(self, t_s: float, feet_body, contact, imu: ImuReading | None = None) -> OdometryEstimate:
         """One update at time ``t_s`` from the six feet in the body frame (6 x 3, rows legs 1..6) and
-        which of them are on the ground (6 booleans); ``imu`` optional."""
+        which of them are on the ground (6 booleans); ``imu`` optional.
+
+        The feet are fitted against a *keyframe*: the feet in contact when the current stance began
+        (the last time a foot joined). Read noise (a tick is about 1 mm at the foot) then does not
+        add up update after update, only once per keyframe."""
         cfg = self.config
         feet = np.asarray(feet_body, dtype=float)
         contact = np.asarray(contact, dtype=bool)
@@ -162,9 +170,6 @@ class LegOdometry:
             raise OdometryError(f'odometry time must be finite and not go back, got {t_s!r} after {self.t_s!r}')
         if not np.all(np.isfinite(feet[contact])):
             raise OdometryError('odometry: a foot in contact has a non-finite position')
-        dt = 0.0 if self.t_s is None else t_s - self.t_s
-
-        # 1. tilt
         imu_quat = None if imu is None or imu.quat_wxyz is None else np.asarray(imu.quat_wxyz, dtype=float)
         if imu_quat is not None and not (imu_quat.shape == (4,) and np.all(np.isfinite(imu_quat))
                                          and np.linalg.norm(imu_quat) > 0):
@@ -172,11 +177,13 @@ class LegOdometry:
         gyro = None if imu is None or imu.ang_vel_rad_s is None else np.asarray(imu.ang_vel_rad_s, dtype=float)
         if gyro is not None and not (gyro.shape == (3,) and np.all(np.isfinite(gyro))):
             raise OdometryError(f'odometry: IMU angular velocity must be 3 finite numbers, got {gyro!r}')
-        imu_yaw = None
+        dt = 0.0 if self.t_s is None else t_s - self.t_s
+        prev_pos, prev_yaw = self.position.copy(), self.yaw
+
+        # 1. tilt
         if imu_quat is not None:
             w, x, y, z = imu_quat
-            rot = Rotation.from_quat([x, y, z, w]).as_matrix()
-            self.roll, self.pitch, imu_yaw = _rpy(rot)
+            self.roll, self.pitch, self._imu_yaw = _rpy(Rotation.from_quat([x, y, z, w]).as_matrix())
             tilt_var = cfg.imu_tilt_sigma_rad ** 2
         else:
             rp = plane_tilt(feet[contact]) if contact.sum() >= 3 else None
@@ -186,72 +193,83 @@ class LegOdometry:
             tilt_var = (cfg.foot_sigma_m / max(spread, 0.05)) ** 2 * 2
         tilt = Rotation.from_euler('YX', [self.pitch, self.roll]).as_matrix()
         level = feet @ tilt.T
+        if gyro is not None and dt > 0:
+            self._gyro_yaw += float((tilt @ gyro)[2]) * dt      # the level frame's yaw rate
 
-        # 2.-4. the fit
-        both = contact if self._contact is None else contact & self._contact
+        if self._key is None:
+            if contact.any():       # odom's origin on the ground under the start: z is the height above the feet
+                self.position[2] = -float(np.mean(level[contact, 2]))
+            self._rekey(level, contact, t_s)
+        key_feet, key_contact, key_pos, key_yaw, key_cov, key_imu_yaw, key_t = self._key
+        both = contact & key_contact
         n = int(both.sum())
-        dyaw, d_xy, dz, used, resid = 0.0, np.zeros(2), 0.0, 0, 0.0
-        var_yaw_leg = math.inf
-        if self._feet is not None and n >= cfg.min_feet:
-            dyaw, d_xy, resid = planar_fit(self._feet[both], level[both])
-            dz = float(np.mean(self._feet[both, 2] - level[both, 2]))
+        used, resid = 0, 0.0
+        if n >= cfg.min_feet:
+            # 2.-3. the motion since the keyframe
+            dyaw, d_xy, resid = planar_fit(key_feet[both], level[both])
+            dz = float(np.mean(key_feet[both, 2] - level[both, 2]))
             used = n
             spread2 = float(np.mean(np.sum((level[both, :2] - level[both, :2].mean(axis=0)) ** 2, axis=1)))
             sig2 = cfg.foot_sigma_m ** 2 + resid ** 2
-            var_yaw_leg = 2 * sig2 / (n * max(spread2, 1e-4)) + (cfg.yaw_slip_rad_per_m * float(np.hypot(*d_xy))) ** 2
-        if imu_yaw is not None and self._imu_yaw is not None:
-            imu_dyaw, var_imu = wrap_angle(imu_yaw - self._imu_yaw), (cfg.gyro_sigma_rad_s * dt) ** 2
-        elif gyro is not None and dt > 0:
-            # the body's yaw rate in the level frame from the body-frame rate: R_tilt @ omega, z
-            imu_dyaw, var_imu = float((tilt @ gyro)[2]) * dt, (cfg.gyro_sigma_rad_s * dt) ** 2
+            step = float(np.hypot(*d_xy))
+            var_legs = 2 * sig2 / (n * max(spread2, 1e-4)) + (cfg.yaw_slip_rad_per_m * step) ** 2
         else:
-            imu_dyaw, var_imu = None, math.inf
-        if imu_dyaw is not None and used:
-            w_leg = var_imu / (var_imu + var_yaw_leg) if var_imu + var_yaw_leg > 0 else 0.0
-            dyaw = w_leg * dyaw + (1 - w_leg) * imu_dyaw
-            var_yaw = var_imu * var_yaw_leg / (var_imu + var_yaw_leg) if var_imu + var_yaw_leg > 0 else 0.0
-        elif imu_dyaw is not None:
-            dyaw, var_yaw = imu_dyaw, var_imu
+            dyaw, d_xy, dz, step, var_legs = 0.0, np.zeros(2), 0.0, 0.0, math.inf
+        # 4. the IMU's yaw change since the keyframe
+        span = t_s - key_t
+        if imu_quat is not None and key_imu_yaw is not None:
+            d_imu, var_imu = wrap_angle(self._imu_yaw - key_imu_yaw), (cfg.gyro_sigma_rad_s * span) ** 2
+        elif gyro is not None:
+            d_imu, var_imu = self._gyro_yaw, (cfg.gyro_sigma_rad_s * span) ** 2
         else:
-            var_yaw = var_yaw_leg if used else 0.0
-        if imu_yaw is not None:
-            self._imu_yaw = imu_yaw
+            d_imu, var_imu = None, math.inf
+        if d_imu is not None and used:
+            tot = var_imu + var_legs
+            w_legs = var_imu / tot if tot > 0 else 0.0
+            dyaw = w_legs * dyaw + (1 - w_legs) * d_imu
+            var_yaw = var_imu * var_legs / tot if tot > 0 else 0.0
+        elif d_imu is not None:
+            dyaw, var_yaw = d_imu, var_imu
+        else:
+            var_yaw = var_legs if used else 0.0
 
-        # 5. integrate, propagate the covariance of (x, y, yaw) and z
-        c0, s0 = math.cos(self.yaw), math.sin(self.yaw)
+        # 5. the pose from the keyframe's, and its covariance
+        if not used:                 # no foot to fit: hold the pose (the keyframe is renewed below)
+            key_pos, key_yaw, key_cov = prev_pos, prev_yaw if d_imu is None else key_yaw, self.cov
+        c0, s0 = math.cos(key_yaw), math.sin(key_yaw)
         d_world = np.array([c0 * d_xy[0] - s0 * d_xy[1], s0 * d_xy[0] + c0 * d_xy[1]])
-        step = float(np.hypot(*d_xy))
+        self.position = key_pos + np.array([d_world[0], d_world[1], dz])
+        self.yaw = wrap_angle(key_yaw + dyaw)
         jac = np.eye(3)
         jac[0, 2], jac[1, 2] = -d_world[1], d_world[0]
         idx = [0, 1, 5]
-        P = self.cov[np.ix_(idx, idx)]
-        var_xy = ((cfg.foot_sigma_m ** 2 + resid ** 2) / max(used, 1) if used else 0.0) + (cfg.slip_fraction * step) ** 2
-        P = jac @ P @ jac.T + np.diag([var_xy, var_xy, var_yaw if math.isfinite(var_yaw) else 0.0])
-        self.cov[np.ix_(idx, idx)] = P
-        self.cov[2, 2] += (cfg.foot_sigma_m ** 2 / max(used, 1) if used else 0.0) + (cfg.slip_fraction * abs(dz)) ** 2
-        self.cov[3, 3] = self.cov[4, 4] = tilt_var
-        self.position[:2] += d_world
-        self.position[2] += dz
-        if self._feet is None and contact.any():
-            # odom's origin on the ground under the start: z is the body's height above its feet
-            self.position[2] = -float(np.mean(level[contact, 2]))
-        self.yaw = wrap_angle(self.yaw + dyaw)
-        self.distance_m += step
+        var_xy = (sig2 / used if used else 0.0) + (cfg.slip_fraction * step) ** 2
+        cov = key_cov.copy()
+        cov[np.ix_(idx, idx)] = jac @ key_cov[np.ix_(idx, idx)] @ jac.T + np.diag([var_xy, var_xy, var_yaw])
+        cov[2, 2] = key_cov[2, 2] + (cfg.foot_sigma_m ** 2 / used if used else 0.0) + (cfg.slip_fraction * dz) ** 2
+        cov[3, 3] = cov[4, 4] = tilt_var
+        self.cov = cov
+        moved = self.position - prev_pos
+        self.distance_m += float(np.hypot(moved[0], moved[1]))
+        if used < cfg.min_feet or bool(np.any(contact & ~key_contact)):
+            self._rekey(level, contact, t_s)          # a foot joined (or too few are left): a new keyframe
+        elif bool(np.any(key_contact & ~contact)):   # a foot left: its keyframe position is gone with it
+            self._key = (key_feet, both, *self._key[2:])
 
-        if dt > 0:
-            lin = np.array([d_xy[0], d_xy[1], dz]) / dt
-            ang = np.array([0.0, 0.0, dyaw / dt])
-        else:
-            lin, ang = (np.zeros(3), np.zeros(3)) if self._last is None else (self._last.linear, self._last.angular)
+        # the twist over the last update, in the body's heading frame
         tw = np.zeros((6, 6))
         if dt > 0:
-            v_var = (cfg.foot_sigma_m ** 2 + resid ** 2) / max(used, 1) * 2 / dt ** 2 + (cfg.slip_fraction * step / dt) ** 2
+            c, s = math.cos(prev_yaw), math.sin(prev_yaw)
+            lin = np.array([c * moved[0] + s * moved[1], -s * moved[0] + c * moved[1], moved[2]]) / dt
+            ang = np.array([0.0, 0.0, wrap_angle(self.yaw - prev_yaw) / dt])
+            v_var = 2 * (cfg.foot_sigma_m ** 2 + resid ** 2) / max(used, 1) / dt ** 2
             tw[0, 0] = tw[1, 1] = tw[2, 2] = v_var
             tw[3, 3] = tw[4, 4] = tilt_var / dt ** 2
-            tw[5, 5] = (var_yaw if math.isfinite(var_yaw) else 0.0) / dt ** 2
-        if not used and imu_dyaw is None and self._feet is not None:
-            tw[:] = np.diag([1e3] * 6)                      # no information on the motion at this update
-        self._feet, self._contact, self.t_s = level, contact.copy(), float(t_s)
+            tw[5, 5] = 2 * (var_legs if d_imu is None else min(var_legs, (cfg.gyro_sigma_rad_s * dt) ** 2)) / dt ** 2 \
+                if (used or d_imu is not None) else 1e3
+        else:
+            lin, ang = (np.zeros(3), np.zeros(3)) if self._last is None else (self._last.linear, self._last.angular)
+        self.t_s = float(t_s)
         self._last = OdometryEstimate(float(t_s), self.position.copy(), np.array([self.roll, self.pitch, self.yaw]),
                                       lin, ang, self.cov.copy(), tw, used, self.distance_m)
         return self._last

@@ -64,6 +64,17 @@ def test_only_feet_in_contact_at_both_updates_count():
     assert e.position == pytest.approx([0.05, 0.01, 0.1], abs=1e-12)
 
 
+def test_read_noise_does_not_add_up_within_a_stance():
+    """The same feet, read with alternating 1 mm errors at every update, while the body stands still: the
+    pose stays within the error of one read (no keyframe change), not a random walk."""
+    odo = LegOdometry()
+    rng = np.random.default_rng(0)
+    for k in range(200):
+        e = odo.update(0.01 * k, body_feet(WORLD, 0, 0, 0.1, 0) + rng.normal(0, 0.001, (6, 3)), ALL)
+    assert np.hypot(*e.position[:2]) < 0.002
+    assert e.distance_m > 0.02          # the path of the noisy estimate: the noise was there
+
+
 def test_no_fit_with_fewer_than_two_feet_holds_the_pose():
     odo = LegOdometry()
     odo.update(0.0, body_feet(WORLD, 0, 0, 0.1, 0), np.array([1, 0, 0, 0, 0, 0], bool))
@@ -136,13 +147,14 @@ def test_planar_fit_of_an_exact_rigid_motion():
 
 
 def test_heading_uncertainty_becomes_lateral_uncertainty():
-    """Walking along x with an uncertain heading: y's variance grows faster than x's (an error in yaw
-    moves the robot sideways)."""
-    odo = LegOdometry(OdometryConfig(yaw_slip_rad_per_m=0.05, slip_fraction=0.01))
+    """Walking along x with an uncertain heading (a tripod's stances: every landing starts a new keyframe):
+    y's variance grows faster than x's (an error in yaw moves the robot sideways)."""
+    odo = LegOdometry(OdometryConfig(foot_sigma_m=1e-4, yaw_slip_rad_per_m=0.5, slip_fraction=0.001))
     odo.update(0.0, body_feet(WORLD, 0, 0, 0.1, 0), ALL)
+    tripods = [np.array([1, 0, 1, 0, 1, 0], bool), ALL, np.array([0, 1, 0, 1, 0, 1], bool), ALL]
     e = None
     for k in range(1, 51):
-        e = odo.update(float(k), body_feet(WORLD, 0.02 * k, 0, 0.1, 0), ALL)
+        e = odo.update(float(k), body_feet(WORLD, 0.02 * k, 0, 0.1, 0), tripods[k % 4])
     assert e.position[0] == pytest.approx(1.0)
     assert e.pose_cov[1, 1] > 2 * e.pose_cov[0, 0] > 0
     assert e.pose_cov[5, 5] > 0
