@@ -1,0 +1,85 @@
+"""odometry_bench: leg-odometry drift and straight-walk course errors against the simulator's truth.
+
+Walks simulated trials (lock-stepped, no ROS) straight ahead for every gait x terrain x seed, with
+the course correction off (the paper's open loop) and, with ``--correction both``, on. Each trial
+runs two leg odometries side by side (with and without /imu). Prints per cell the median and worst
+odometry position error in % of the distance walked and yaw error in degrees per metre, and the
+walk's own final heading change [deg] and distance from the start line [cm] (truth).
+
+    ./hexapod run hexapod_locomotion odometry_bench --terrains flat blocks --seeds 3 --duration 40
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from hexapod_model.cli_common import make_parser, positive_float
+
+GAITS = ('tripod', 'tetrapod', 'pentapod')
+
+
+def build_parser():
+    ap = make_parser('odometry_bench', __doc__)
+    ap.add_argument('--gaits', nargs='+', default=list(GAITS), choices=GAITS, metavar='GAIT')
+    ap.add_argument('--terrains', nargs='+', default=['flat', 'blocks'], metavar='TERRAIN',
+                    help='terrains (hexapod_sim.terrain: flat, blocks, stairs, rough, mockup)')
+    ap.add_argument('--seeds', type=int, default=3, metavar='N', help='trials per cell (seeds 0..N-1)')
+    ap.add_argument('--duration', type=positive_float, default=40.0, metavar='S', help='simulated walking time')
+    ap.add_argument('--correction', choices=('off', 'on', 'both'), default='both',
+                    help='heading/lateral correction from odometry (off = the paper\'s open loop)')
+    ap.add_argument('--json', metavar='FILE', help='write every trial\'s figures to FILE')
+    return ap
+
+
+def _row(label: str, trials: list[dict]) -> str:
+    def stat(key, odo, scale=1.0):
+        v = np.array([t['odometry'][odo][key] for t in trials]) * scale
+        return f'{np.median(v):6.2f} {np.max(np.abs(v)):6.2f}'
+    head = np.array([abs(t['odometry']['imu']['heading_change_deg']) for t in trials])
+    line = np.array([abs(t['odometry']['imu']['line_offset_m']) * 100 for t in trials])
+    dist = np.median([t['odometry']['imu']['distance_m'] for t in trials])
+    return (f'{label:32s} {len(trials):2d} {dist:5.2f}  {stat("position_error_pct", "imu")}  '
+            f'{stat("yaw_error_deg_per_m", "imu")}  {stat("position_error_pct", "legs")}  '
+            f'{stat("yaw_error_deg_per_m", "legs")}  {np.median(head):5.2f} {head.max():5.2f}  '
+            f'{np.median(line):5.2f} {line.max():5.2f}')
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    from hexapod_sim.terrain import TERRAINS
+    bad = [t for t in args.terrains if t not in TERRAINS]
+    if bad or args.seeds < 1:
+        print(f'odometry_bench: {"unknown terrain " + bad[0] + "; known: " + ", ".join(TERRAINS) if bad else "--seeds must be >= 1"}',
+              file=sys.stderr)
+        return 2
+    from hexapod_locomotion.trial_runner import TrialConfig, run_trial
+    corrections = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.correction]
+    cells = [(g, t, c) for t in args.terrains for g in args.gaits for c in corrections]
+    results: dict = {}
+    n, total = 0, len(cells) * args.seeds
+    for g, t, c in cells:
+        trials = []
+        for seed in range(args.seeds):
+            n += 1
+            print(f'[{n}/{total}] {g} on {t}, seed {seed}, correction {"on" if c else "off"}', file=sys.stderr, flush=True)
+            r = run_trial(TrialConfig(gait=g, terrain=t, seed=seed, duration_s=args.duration, heading_correction=c))
+            if r.odometry is None or r.fell:
+                print(f'  no figures: {"fell" if r.fell else "no walk"}', file=sys.stderr)
+                continue
+            trials.append({'seed': seed, 'fell': r.fell, 'distance_m': r.distance_m, 'odometry': r.odometry})
+        results[f'{g}/{t}/{"on" if c else "off"}'] = trials
+    print(f'{"gait/terrain/correction":32s}  n  dist  pos%imu med/max  deg/m imu     pos% legs     deg/m legs  '
+          f'heading deg  line cm (med/max)')
+    for key, trials in results.items():
+        if trials:
+            print(_row(key, trials))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
