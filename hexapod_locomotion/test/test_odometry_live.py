@@ -115,3 +115,12 @@ def test_live_tf_from_odom_to_every_foot_while_the_robot_walks(tmp_path):
     assert r.topics().get('/odom', r.topics().get('odom')) == 'nav_msgs/msg/Odometry', r.topics()
     pairs = {(t.header.frame_id, t.child_frame_id) for m in r.messages(['/tf']) for t in m.msg.transforms}
     assert ('odom', 'base_link') in pairs and ('world', 'odom') in pairs, sorted(pairs)[:10]
+
+
+@pytest.mark.parametrize('param,named', [('odom_frame:=my odom', 'odom_frame'), ('base_frame:=', 'base_frame'),
+                                         ('heading_correction:=maybe', 'heading_correction')])
+def test_locomotion_node_refuses_a_bad_odometry_parameter_in_one_line(param, named):
+    p = _start('hexapod_locomotion', 'locomotion_node', param)
+    out = p.communicate(timeout=120)[0]
+    assert p.returncode != 0, out
+    assert named in out and 'Traceback' not in out, out
