@@ -30,6 +30,8 @@ def build_parser():
     ap.add_argument('--duration', type=positive_float, default=40.0, metavar='S', help='simulated walking time')
     ap.add_argument('--correction', choices=('off', 'on', 'both'), default='both',
                     help='heading/lateral correction from odometry (off = the paper\'s open loop)')
+    ap.add_argument('--turn', type=positive_float, metavar='WZ',
+                    help='instead: turn in place at WZ rad/s and print the truth\'s mean yaw rate against it')
     ap.add_argument('--json', metavar='FILE', help='write every trial\'s figures to FILE')
     return ap
 
@@ -47,6 +49,31 @@ def _row(label: str, trials: list[dict]) -> str:
             f'{np.median(line):5.2f} {line.max():5.2f}')
 
 
+def _turn(args, TrialConfig, run_trial) -> int:
+    corrections = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.correction]
+    print(f'{"gait/terrain/correction":32s}  n  commanded  truth rad/s (median, worst % off)', flush=True)
+    out = {}
+    for t in args.terrains:
+        for g in args.gaits:
+            for c in corrections:
+                rates = []
+                for seed in range(args.seeds):
+                    print(f'{g} on {t}, seed {seed}, turning, correction {"on" if c else "off"}', file=sys.stderr, flush=True)
+                    r = run_trial(TrialConfig(gait=g, terrain=t, seed=seed, duration_s=args.duration, vx_mps=0.0,
+                                              wz_rad_s=args.turn, heading_correction=c))
+                    o = r.odometry['imu'] if r.odometry else None
+                    if o is not None and o['duration_s'] > 0:
+                        rates.append(np.radians(o['heading_change_deg']) / o['duration_s'])
+                key = f'{g}/{t}/{"on" if c else "off"}'
+                out[key] = rates
+                if rates:
+                    off = 100 * np.abs(np.array(rates) / args.turn - 1)
+                    print(f'{key:32s} {len(rates):2d}  {args.turn:9.3f}  {np.median(rates):.4f}  {off.max():5.1f} %', flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     from hexapod_sim.terrain import TERRAINS
@@ -56,6 +83,8 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     from hexapod_locomotion.trial_runner import TrialConfig, run_trial
+    if args.turn:
+        return _turn(args, TrialConfig, run_trial)
     corrections = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.correction]
     cells = [(g, t, c) for t in args.terrains for g in args.gaits for c in corrections]
     results: dict = {}
