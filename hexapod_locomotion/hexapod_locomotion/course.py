@@ -13,6 +13,10 @@ asks for and adds to the command, once per gait phase:
   is added as sideways velocity over one gait cycle. Progress along the line is not corrected: the
   stride sets the speed.
 
+Both errors are means over the last gait cycle (the reference's too): a gait sways the body in yaw
+and sideways within each cycle as its groups are placed (pentapod on the blocks: +-4 degrees), and
+that sway is no drift to correct.
+
 A new command (a different velocity, or walking again after standing) starts a new reference. The
 reference heading stays within ``max_heading_error_rad`` of the estimate (a robot that cannot turn
 as fast as asked is not wound up without end).
@@ -57,6 +61,7 @@ class CourseKeeper:
         self._cmd, self._t = cmd, t_s
         self.yaw_ref = yaw
         self.anchor = np.array(xy, dtype=float)
+        self._hist: list[tuple[float, float, float, np.ndarray]] = []    # (t, yaw, yaw_ref unwrapped, xy)
 
     def errors(self, xy, yaw: float) -> tuple[float, float]:
         """(heading error [rad], cross-track error [m], left of the line positive) of a pose."""
@@ -78,9 +83,20 @@ class CourseKeeper:
             self._t = t_s
             if cmd.wz != 0.0:                  # turning: the line is rebuilt from the pose reached
                 self.anchor = np.array(xy, dtype=float)
-        e_yaw, e_lat = self.errors(xy, yaw)
+        if self._hist:
+            _, y0, r0, _ = self._hist[-1]
+            yaw_u, ref_u = y0 + wrap_angle(yaw - y0), r0 + wrap_angle(self.yaw_ref - r0)
+        else:
+            yaw_u, ref_u = yaw, self.yaw_ref
+        self._hist = [h for h in self._hist if h[0] > t_s - cycle_s + 1e-9] + [(t_s, yaw_u, ref_u, np.array(xy, float))]
+        yaw_m = float(np.mean([h[1] for h in self._hist]))
+        ref_m = float(np.mean([h[2] for h in self._hist]))
+        _, e_lat = self.errors(np.mean([h[3] for h in self._hist], axis=0), yaw_m)
+        e_yaw = wrap_angle(ref_m - yaw_m)
+        if abs(wrap_angle(self.yaw_ref - yaw)) > c.max_heading_error_rad:
+            self.yaw_ref = wrap_angle(yaw + math.copysign(c.max_heading_error_rad, wrap_angle(self.yaw_ref - yaw)))
+            self._hist[-1] = (t_s, yaw_u, yaw_u + wrap_angle(self.yaw_ref - yaw), self._hist[-1][3])
         if abs(e_yaw) > c.max_heading_error_rad:
-            self.yaw_ref = wrap_angle(yaw + math.copysign(c.max_heading_error_rad, e_yaw))
             e_yaw = math.copysign(c.max_heading_error_rad, e_yaw)
         wz = cmd.wz + c.heading_gain * e_yaw / cycle_s
         v_lat = float(np.clip(-c.lateral_gain * e_lat / cycle_s, -c.max_lateral_mps, c.max_lateral_mps))

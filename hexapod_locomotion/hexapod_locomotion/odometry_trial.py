@@ -50,9 +50,9 @@ class TrialOdometry:
         if self.recorder is not None:
             self.recorder.write(ODOM, MSG_TYPES[ODOM], odometry_dict(first, *self.frames), first.t_s)
 
-    def drift(self, truth_t, truth_xyz, truth_quat_wxyz) -> dict:
+    def drift(self, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0) -> dict:
         """Per odometry (``imu``, ``legs``): :func:`drift` of its track."""
-        return {k: drift(tr, truth_t, truth_xyz, truth_quat_wxyz) for k, tr in self.tracks.items() if tr}
+        return {k: drift(tr, truth_t, truth_xyz, truth_quat_wxyz, window_s) for k, tr in self.tracks.items() if tr}
 
 
 def _truth_yaw(quat_wxyz) -> np.ndarray:
@@ -60,13 +60,14 @@ def _truth_yaw(quat_wxyz) -> np.ndarray:
     return Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler('ZYX')[:, 0]
 
 
-def drift(track, truth_t, truth_xyz, truth_quat_wxyz) -> dict:
+def drift(track, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0) -> dict:
     """Odometry ``track`` [(t, x, y, yaw)] against the truth (times, positions, quaternions w x y z).
 
     Both poses are taken relative to their own at the track's first time. Returns the distance walked
     (truth path length at ``PATH_SAMPLE_S``), the final position error [m] and in % of that distance,
     the final yaw error [deg] and per metre, and the truth's own final heading change [deg] and
-    distance from the start line [m] (how straight the walk was)."""
+    distance from the start line [m] (how straight the walk was), at the end and as means over the last
+    ``window_s`` (a gait cycle: a gait sways the body within each cycle)."""
     tr = np.asarray(track, dtype=float)
     t = np.asarray(truth_t, dtype=float)
     xyz = np.asarray(truth_xyz, dtype=float)
@@ -87,8 +88,13 @@ def drift(track, truth_t, truth_xyz, truth_quat_wxyz) -> dict:
     odo_rel = np.array([[oc, os_], [-os_, oc]]) @ (tr[-1, 1:3] - tr[0, 1:3])
     err = float(np.linalg.norm(odo_rel - rel))
     yaw_err = math.degrees(abs(wrap_angle((tr[-1, 3] - tr[0, 3]) - (y1 - y0))))
+    ts = t[(t >= t1 - window_s) & (t <= t1)] if window_s > 0 else np.array([t1])
+    ts = ts if len(ts) else np.array([t1])
+    head_mean = float(np.mean([at(x)[1] for x in ts])) - y0
+    line_mean = float(np.mean([(np.array([[c, s], [-s, c]]) @ (at(x)[0] - p0))[1] for x in ts]))
     return {'distance_m': dist, 'position_error_m': err,
             'position_error_pct': 100.0 * err / dist if dist > 0 else math.nan,
             'yaw_error_deg': yaw_err, 'yaw_error_deg_per_m': yaw_err / dist if dist > 0 else math.nan,
             'heading_change_deg': math.degrees(y1 - y0), 'line_offset_m': float(rel[1]),
+            'heading_cycle_mean_deg': math.degrees(head_mean), 'line_cycle_mean_m': line_mean,
             'duration_s': float(t1 - t0)}

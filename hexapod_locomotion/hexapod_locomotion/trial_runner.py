@@ -443,5 +443,6 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
         stability=stability, temperature_femur_c=temps[::step, fem].mean(axis=1).tolist(),
         temperature_tibia_c=temps[::step, tib].mean(axis=1).tolist(), temperature_t_s=t[::step].tolist(),
         warnings=sorted(set(warnings)), events=[asdict(e) for e in events],
-        odometry=odo.drift(t[walk], xyz[walk], np.array(probe.pose_quat)[walk]) if walk.sum() > 1 else None)
+        odometry=odo.drift(t[walk], xyz[walk], np.array(probe.pose_quat)[walk], controller.params.cycle_s(controller.gait))
+        if walk.sum() > 1 else None)
 
