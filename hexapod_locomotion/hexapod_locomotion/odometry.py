@@ -154,9 +154,10 @@ class LegOdometry:
         self._key = (level, contact.copy(), self.position.copy(), self.yaw, self.cov.copy(), self._imu_yaw, t_s)
         self._gyro_yaw = 0.0
 
-    def update(self, t_s: float, feet_body, contact, imu: ImuReading | None = None) -> OdometryEstimate:
+    def update(self, t_s: float, feet_body, contact, imu: ImuReading | None = None, plane=None) -> OdometryEstimate:
         """One update at time ``t_s`` from the six feet in the body frame (6 x 3, rows legs 1..6) and
-        which of them are on the ground (6 booleans); ``imu`` optional.
+        which of them are on the ground (6 booleans); ``imu`` optional; ``plane``: the feet whose plane
+        gives roll and pitch without an IMU (default ``contact``; fewer than 3: the last tilt holds).
 
         The feet are fitted against a *keyframe*: the feet in contact when the current stance began
         (the last time a foot joined). Read noise (a tick is about 1 mm at the foot) then does not
@@ -186,7 +187,8 @@ class LegOdometry:
             self.roll, self.pitch, self._imu_yaw = _rpy(Rotation.from_quat([x, y, z, w]).as_matrix())
             tilt_var = cfg.imu_tilt_sigma_rad ** 2
         else:
-            rp = plane_tilt(feet[contact]) if contact.sum() >= 3 else None
+            on = contact if plane is None else np.asarray(plane, dtype=bool) & contact
+            rp = plane_tilt(feet[on]) if on.sum() >= 3 else None
             if rp is not None:
                 self.roll, self.pitch = rp
             spread = float(np.ptp(feet[contact, :2], axis=0).max()) if contact.sum() >= 2 else 0.1

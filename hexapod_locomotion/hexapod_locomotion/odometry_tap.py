@@ -20,8 +20,8 @@ from hexapod_model.kinematics import forward
 
 from hexapod_locomotion.odometry import ImuReading, LegOdometry, OdometryEstimate
 
-ODOMETRY_PERIOD_S = 0.02
-HANDOVER_S = 0.05            # longest time lifting feet stand in for landed ones not yet read     # update period [s of bus time]: the bus reads a leg's 3 joints in ~4 ms
+ODOMETRY_PERIOD_S = 0.02     # update period [s of bus time]: the bus reads a leg's 3 joints in ~4 ms
+HANDOVER_S = 0.05            # longest time lifting feet stand in for landed ones not yet read
 
 
 class OdometryTap:
@@ -132,7 +132,7 @@ class OdometryTap:
         imu = self.imu() if self.imu is not None else None
         first = None
         for odo, use_imu in self.estimators:
-            e = odo.update(t, feet, contact, imu if use_imu else None)
+            e = odo.update(t, feet, contact, imu if use_imu else None, plane=ctrl & fresh)
             first = e if first is None else first
         if first is not None and self.on_estimate is not None:
             self.on_estimate(first)
