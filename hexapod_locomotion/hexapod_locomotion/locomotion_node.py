@@ -47,6 +47,7 @@ from .course import CourseKeeper
 from .detector import DetectorConfig, DetectorError, swing_start_fields
 from .gait import GaitError, get_gait
 from .odometry import OdometryError
+from .odometry_tap import odometry_dict
 from .params import NODE, LocomotionNodeParams
 from .read_timing import ReadTiming
 from .ros_bus import RosBus
@@ -100,6 +101,7 @@ class LocomotionNode(Node):
         self._worker.start()
 
     def _setup_odometry(self, p) -> None:
+        from geometry_msgs.msg import TransformStamped
         from nav_msgs.msg import Odometry
         from sensor_msgs.msg import Imu, JointState
 
@@ -107,7 +109,7 @@ class LocomotionNode(Node):
 
         from .odometry import ImuReading, LegOdometry
         from .odometry_tap import OdometryTap
-        self._Odometry, self._ImuReading = Odometry, ImuReading
+        self._Odometry, self._ImuReading, self._TransformStamped = Odometry, ImuReading, TransformStamped
         self._imu = None
         self.odom_pub = self.create_publisher(Odometry, ODOM, 50)
         try:
@@ -135,9 +137,6 @@ class LocomotionNode(Node):
             self.tap.observe(msg.name, msg.position, msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
 
     def _publish_odom(self, e) -> None:
-        from geometry_msgs.msg import TransformStamped
-
-        from .odometry_tap import odometry_dict
         p = self.params
         d = odometry_dict(e, p.odom_frame, p.base_frame)
         m = self._Odometry()
@@ -153,7 +152,7 @@ class LocomotionNode(Node):
         m.pose.covariance, m.twist.covariance = d['pose']['covariance'], d['twist']['covariance']
         self.odom_pub.publish(m)
         if self.tf_pub is not None:
-            t = TransformStamped()
+            t = self._TransformStamped()
             t.header, t.child_frame_id = m.header, p.base_frame
             t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = (
                 float(v) for v in e.position)
