@@ -1,21 +1,23 @@
 """Leg odometry: the body's motion from the feet on the ground, fused with an IMU when one exists.
 Pure numpy: time, foot positions, contacts and IMU samples are arguments.
 
-A foot on the ground does not move in the world, so between two updates the body moved by the
-rigid motion that carries the feet in contact at both (their body-frame positions from the forward
-kinematics of the servo reads) from where they are now to where they were before. Each update:
+A foot on the ground does not move in the world, so since a *keyframe* (the last time a foot joined
+the feet on the ground) the body moved by the rigid motion that carries the feet in contact then and
+now (their body-frame positions from the forward kinematics of the servo reads) from where they are
+now to where they were then. Each update:
 
 1. roll and pitch: the IMU's orientation when given, else the plane of the feet in contact (the
    body leveled against the ground they stand on: exact on flat ground, the mean slope of the
    footholds on rough ground);
 2. the feet are rotated into the gravity-aligned heading frame (body frame without roll and pitch);
-3. a least-squares planar rigid fit (2-D Kabsch) between the feet in contact in both updates gives
-   the yaw increment and the horizontal displacement; the mean vertical offset of those feet the
-   height change;
-4. with an IMU, the yaw increment is fused with the IMU's (orientation difference, else the yaw rate
-   times the interval), weighted by their variances;
-5. the pose covariance grows by the fit's residual and a slip term per metre walked, propagated
-   through the heading (an error in yaw becomes a lateral error as the robot walks on).
+3. a least-squares planar rigid fit (2-D Kabsch) between the feet in contact at the keyframe and now
+   gives the yaw and horizontal displacement since the keyframe; the mean vertical offset of those
+   feet the height change;
+4. with an IMU, that yaw is fused with the IMU's since the keyframe (orientation difference, else the
+   integrated yaw rate), weighted by their variances;
+5. the pose covariance is the keyframe's grown by the fit's residual and a slip term per metre
+   walked, propagated through the heading (an error in yaw becomes a lateral error as the robot walks
+   on).
 
 Frames (REP 103/105): ``odom`` fixed where odometry started, z up; the body frame x forward, y left,
 z up. The pose is (x, y, z) and (roll, pitch, yaw) of the body in ``odom``; the twist is in the body
