@@ -31,6 +31,7 @@ setup(
             'analyse = hexapod_locomotion.trials.analyse:main',
             'cmd_vel_pub = hexapod_locomotion.nodes.cmd_vel_pub:main',
             'teleop_keyboard = hexapod_locomotion.nodes.teleop_keyboard:main',
+            'odometry_bench = hexapod_locomotion.bench.odometry_bench:main',
         ],
     },
 )

@@ -82,6 +82,7 @@ CLOCK = '/clock'                            # rosgraph_msgs/msg/Clock (sim, repl
 GROUND_DETECTION = 'ground_detection'       # hexapod_msgs/msg/LegGroundDetection (controller)
 SWING_DOWN = 'swing_down'                   # hexapod_msgs/msg/SwingDownStart (controller)
 CMD_VEL = 'cmd_vel'                         # geometry_msgs/msg/Twist (controller input)
+ODOM = 'odom'                               # nav_msgs/msg/Odometry (controller: leg odometry, odom -> base_link)
 PREDICT_SWING_DOWN = 'predict_swing_down'   # hexapod_msgs/srv/PredictSwingDown (model node)
 ROBOT_DESCRIPTION = 'robot_description'     # std_msgs/msg/String, the URDF, transient local (sim, robot_state)
 # tf and diagnostics keep the absolute names the ROS tools listen on (remap them for a namespaced robot)
@@ -117,6 +118,7 @@ MSG_TYPES = {
     GROUND_DETECTION: 'hexapod_msgs/msg/LegGroundDetection',
     SWING_DOWN: 'hexapod_msgs/msg/SwingDownStart',
     CMD_VEL: 'geometry_msgs/msg/Twist',
+    ODOM: 'nav_msgs/msg/Odometry',
     SIM_TRUTH_CONTACTS: 'std_msgs/msg/Float64MultiArray',
     SIM_TRUTH_POSE: 'geometry_msgs/msg/PoseStamped',
     SIM_SCENE: 'std_msgs/msg/String',

@@ -8,8 +8,9 @@ publishes one joint per read), hexapod_model.tf_tree. No body pose: without an e
 no ``world -> base_link``; RViz and Foxglove show the robot in ``base_link``.
 
 ``/tf`` needs the tf2_msgs Python package (ros-jazzy-tf2-msgs, part of every ROS 2 install). The
-PyPI wheels this workspace builds with have no tf2_msgs: there the node says so once and serves
-``/robot_description`` only (bags carry TF regardless, their writer has the definition built in).
+PyPI wheels have none: ``./hexapod setup`` then builds the workspace's one-message ``tf2_msgs``
+package. Without either, the node says so once and serves ``/robot_description`` only (bags carry
+TF regardless, their writer has the definition built in).
 
     ros2 run hexapod_model robot_state [--ros-args -p tf_rate_hz:=50.0]
 """

@@ -4,7 +4,8 @@ The transforms are the URDF's joints (:func:`hexapod_model.urdf.urdf_joints`), s
 the DH kinematics agree by construction (and a test checks all three with Pinocchio):
 
 * ``/tf_static``: the fixed joints (``base_link -> trunk``, ``leg{l}_tibia -> leg{l}_foot``);
-* ``/tf``: ``world -> base_link`` (the body pose, where one is known: the sim's truth) and
+* ``/tf``: ``world -> base_link`` (the body pose, where one is known: the sim's truth), or with
+  leg odometry ``odom -> base_link`` (and ``world -> odom`` so that the truth still places the body), and
   ``parent -> leg{l}_{role}`` for every joint whose position is known.
 
 Messages are dicts in the layout of ``tf2_msgs/msg/TFMessage`` (``transforms`` of
@@ -63,6 +64,8 @@ class TfTree:
                         for n, j in self._revolute.items()}
         self.positions: dict[str, float] = {}
         self.body_pose: tuple[tuple, tuple] | None = None    # (xyz, quat xyzw) in world
+        # (parent, child, xyz, quat xyzw): the odometry's pose of the body (``odom -> base_link``)
+        self.odom_pose: tuple[str, str, tuple, tuple] | None = None
 
     def set_positions(self, names: Iterable[str], positions: Iterable[float]) -> None:
         """Take the positions of the named joints (names foreign to the robot and NaN are ignored)."""
@@ -79,6 +82,14 @@ class TfTree:
             return
         self.body_pose = (tuple(float(v) for v in xyz), (x / n, y / n, z / n, w / n))
 
+    def set_odom_pose(self, parent: str, child: str, xyz, quat_xyzw_) -> None:
+        """The odometry's pose of ``child`` (the body) in ``parent`` (``odom``). With a world pose of the body
+        too, the world's link is then ``world -> odom`` (so ``base_link`` keeps one parent, REP 105)."""
+        xyz, q = np.asarray(xyz, dtype=float), np.asarray(quat_xyzw_, dtype=float)
+        n = float(np.linalg.norm(q))
+        if n > 0 and np.all(np.isfinite(xyz)) and np.all(np.isfinite(q)) and parent and child:
+            self.odom_pose = (parent, child, tuple(float(v) for v in xyz), tuple(float(v) for v in q / n))
+
     def static_entries(self) -> list[tuple[str, str, tuple, tuple]]:
         """(parent, child, translation xyz, rotation xyzw) of the fixed joints."""
         return [(j.parent, j.child, tuple(float(v) for v in j.origin[:3, 3]), quat_xyzw(j.origin[:3, :3]))
@@ -88,7 +99,16 @@ class TfTree:
         """(parent, child, translation xyz, rotation xyzw): the body pose if known, then every joint
         whose position is known."""
         out = []
-        if self.body_pose is not None:
+        if self.odom_pose is not None:
+            parent, child, xyz, q = self.odom_pose
+            if self.body_pose is not None:
+                # world -> odom = (world -> base_link) * (odom -> base_link)^-1
+                rw, ro = Rotation.from_quat(self.body_pose[1]), Rotation.from_quat(q)
+                r = rw * ro.inv()
+                out.append((WORLD_FRAME, parent, tuple(float(v) for v in np.asarray(self.body_pose[0]) - r.apply(xyz)),
+                            quat_xyzw(r.as_matrix())))
+            out.append((parent, child, xyz, q))
+        elif self.body_pose is not None:
             out.append((WORLD_FRAME, ROOT_LINK, tuple(self.body_pose[0]), tuple(self.body_pose[1])))
         for name, j in self._revolute.items():
             if name in self.positions:

@@ -186,13 +186,16 @@ def test_demo_foxglove_serves_the_walk():
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=_env(90))
     try:
         url, lines = _url_from(proc, r'live view: (ws://127\.0\.0\.1:\d+)')
-        client = Client(url, timeout=90.0)
+        client = Client(url, wanted=WANTED + (bag_topic(contract.ODOM),), timeout=90.0)
         client.wait()
     finally:
         proc.wait(timeout=180)
     assert proc.returncode == 0, ''.join(lines)
     tree, pose = check_robot_and_tf(robot, client)
-    assert tree['base_link'][0] == 'world'                 # the body pose of the sim's truth
+    # the leg odometry's odom -> base_link, placed in the world by the sim's truth (world -> odom)
+    assert tree['base_link'][0] == 'odom' and tree['odom'][0] == 'world'
+    (_, odom), *_ = client.decode(bag_topic(contract.ODOM))
+    assert odom.header.frame_id == 'odom' and odom.child_frame_id == 'base_link'
     assert client.decode(bag_topic(contract.GROUND_DETECTION))[0][1].detector == 'adaptive'
 
 

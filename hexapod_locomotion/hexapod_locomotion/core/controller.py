@@ -218,6 +218,10 @@ class GaitController:
         # (bus time, (femur, tibia) goals of the swinging legs) per write since the swing-up began
         self._goal_log: list[tuple[float, np.ndarray]] | None = None
         self._logged_legs: tuple[int, ...] = ()
+        # feet off the ground (leg odometry, contact_legs): the group swinging now, and the legs whose
+        # last swing-down found no ground (they hang at the nominal ground until they swing again)
+        self.swinging: tuple[int, ...] = ()
+        self.airborne: frozenset[int] = frozenset()
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the swing-down model now, before the robot moves: in
@@ -237,6 +241,11 @@ class GaitController:
     def leg_angles(self, leg: int) -> np.ndarray:
         """Commanded (coxa, femur, tibia) angles of ``leg``."""
         return np.array([self.goals[joint_name(leg, r)] for r in JOINT_ROLES])
+
+    def contact_legs(self) -> np.ndarray:
+        """Which feet (legs 1..6) are on the ground as far as the controller knows: not swinging, and
+        found ground at their last swing-down."""
+        return np.array([leg not in self.swinging and leg not in self.airborne for leg in LEGS])
 
     def foot(self, leg: int) -> np.ndarray:
         """Commanded foot-tip position of ``leg`` in the body frame."""
@@ -319,6 +328,7 @@ class GaitController:
         L = len(legs)
         warnings: list[str] = []
         t_start = bus.now()
+        self.swinging = legs
         cycle_s = p.cycle_s(self.gait)
         d = np.array([cmd.vx, cmd.vy]) * cycle_s
         stride = p.stride_m(self.gait) * self.start_ramp()
@@ -370,6 +380,7 @@ class GaitController:
             outcomes.append(LegOutcome(leg, st.stop_reason, st.stop_time_s - t_sd, st.stop_step,
                                        st.peak_err_tick, st.premature_suspects, phase.femur_step_tick(leg),
                                        phase.femur_step_tick(leg, max(st.stop_step, 0))))
+        self.swinging, self.airborne = (), frozenset((self.airborne - set(legs)) | no_ground)
 
         # 4. body leveling + explicit forward motion + turn (overlapped: with the next swing-up)
         landed = [o.leg for o in outcomes if o.stop_reason == STOP_CONTACT]

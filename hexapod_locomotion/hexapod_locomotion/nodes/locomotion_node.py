@@ -11,6 +11,12 @@ thread and talks to a servo bus:
 * composed with the driver or sim node in one process (``hexapod_locomotion robot``), through the
   bus object that node hands over: the controller then owns the bus as on the robot.
 
+Leg odometry (:mod:`hexapod_locomotion.core.odometry`): the feet on the ground, from the forward kinematics
+of the servo reads (the controller's and ``/joint_states``), fused with ``/imu`` when it is published,
+give ``nav_msgs/Odometry`` on ``odom`` and the ``odom_frame -> base_frame`` transform on ``/tf`` (when
+tf2_msgs is installed). With ``heading_correction`` the controller walks the commanded course
+(:mod:`hexapod_locomotion.core.course`); without, the command as it is (the paper's open loop).
+
 Whatever the route, each read the controller decides on is checked against Algorithm 1's timing
 (:mod:`hexapod_locomotion.core.read_timing`): a read taken longer after the bus master published it
 than the Eq. 17 margin allows, or sampled before the read taken just before it, is one warning
@@ -37,8 +43,11 @@ from hexapod_model.node_params import NodeParams, node_help, run_node
 from hexapod_model.param_schema import RobotSource
 
 from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
+from hexapod_locomotion.core.course import CourseKeeper
 from hexapod_locomotion.core.detector import DetectorConfig, DetectorError, swing_start_fields
 from hexapod_locomotion.core.gait import GaitError, get_gait
+from hexapod_locomotion.core.odometry import OdometryError
+from hexapod_locomotion.core.odometry_tap import odometry_dict
 from hexapod_locomotion.nodes.params import NODE, LocomotionNodeParams
 from hexapod_locomotion.core.read_timing import ReadTiming
 from hexapod_locomotion.nodes.ros_bus import RosBus
@@ -85,10 +94,70 @@ class LocomotionNode(Node):
             t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
             on_swing_start=self._publish_swing_start)
         self.controller.warm_up()
+        self._setup_odometry(p)
         self._swing_start = {}
         self.failed = False
         self._worker = threading.Thread(target=self._run, daemon=True)
         self._worker.start()
+
+    def _setup_odometry(self, p) -> None:
+        from geometry_msgs.msg import TransformStamped
+        from nav_msgs.msg import Odometry
+        from sensor_msgs.msg import Imu, JointState
+
+        from hexapod_model.contract import IMU, JOINT_STATES, ODOM, TF
+
+        from hexapod_locomotion.core.odometry import ImuReading, LegOdometry
+        from hexapod_locomotion.core.odometry_tap import OdometryTap
+        self._Odometry, self._ImuReading, self._TransformStamped = Odometry, ImuReading, TransformStamped
+        self._imu = None
+        self.odom_pub = self.create_publisher(Odometry, ODOM, 50)
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:            # the PyPI wheels have none; ./hexapod setup builds it where missing
+            TFMessage = None
+            self.get_logger().warning('tf2_msgs is not installed: odometry on /odom only, no /tf')
+        self._TFMessage = TFMessage
+        self.tf_pub = self.create_publisher(TFMessage, TF, 100) if TFMessage is not None else None
+        self.tap = OdometryTap(self.bus, self.robot, self.controller.contact_legs, [(LegOdometry(), True)],
+                               imu=lambda: self._imu, on_estimate=self._publish_odom)
+        self.keeper = CourseKeeper() if p.heading_correction else None
+        self.create_subscription(Imu, IMU, self._on_imu, 50)
+        self.create_subscription(JointState, JOINT_STATES, self._on_joint_states, 500)
+
+    def _on_imu(self, msg) -> None:
+        q, w = msg.orientation, msg.angular_velocity
+        quat = [q.w, q.x, q.y, q.z]
+        # sensor_msgs/Imu: orientation covariance[0] = -1 means no orientation
+        self._imu = self._ImuReading(quat_wxyz=None if msg.orientation_covariance[0] == -1 or not any(quat) else quat,
+                                     ang_vel_rad_s=[w.x, w.y, w.z])
+
+    def _on_joint_states(self, msg) -> None:
+        if len(msg.name) == len(msg.position):
+            self.tap.observe(msg.name, msg.position, msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+
+    def _publish_odom(self, e) -> None:
+        p = self.params
+        d = odometry_dict(e, p.odom_frame, p.base_frame)
+        m = self._Odometry()
+        m.header.stamp.sec, m.header.stamp.nanosec = stamp_parts(e.t_s)
+        m.header.frame_id, m.child_frame_id = p.odom_frame, p.base_frame
+        pose, twist = d['pose']['pose'], d['twist']['twist']
+        for k in 'xyz':
+            setattr(m.pose.pose.position, k, pose['position'][k])
+            setattr(m.twist.twist.linear, k, twist['linear'][k])
+            setattr(m.twist.twist.angular, k, twist['angular'][k])
+        for k in 'xyzw':
+            setattr(m.pose.pose.orientation, k, pose['orientation'][k])
+        m.pose.covariance, m.twist.covariance = d['pose']['covariance'], d['twist']['covariance']
+        self.odom_pub.publish(m)
+        if self.tf_pub is not None:
+            t = self._TransformStamped()
+            t.header, t.child_frame_id = m.header, p.base_frame
+            t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = (
+                float(v) for v in e.position)
+            t.transform.rotation = m.pose.pose.orientation
+            self.tf_pub.publish(self._TFMessage(transforms=[t]))
 
     def _on_cmd(self, msg) -> None:
         try:
@@ -163,12 +232,18 @@ class LocomotionNode(Node):
             while not self.bus.stopped.is_set():
                 cmd = self._current_cmd()
                 if cmd is None:
-                    self.controller.finish(self.bus)      # a leveling left for the next swing: stand level
+                    self.controller.finish(self.tap)      # a leveling left for the next swing: stand level
                     self.bus.wait_until(self.bus.now() + 0.05)
+                    self.tap.update(self.bus.now())
                     continue
-                self.controller.step_phase(self.bus, cmd)
+                est = self.tap.estimate
+                if self.keeper is not None and est is not None:
+                    cmd = self.keeper.command(self.bus.now(), cmd, est.position[:2], float(est.rpy[2]),
+                                              self.controller.params.cycle_s(self.controller.gait))
+                self.controller.step_phase(self.tap, cmd)
+                self.tap.phase_done()
                 self.bus.set_schedule(ALL_JOINTS)
-        except (BusError, LocomotionError, DetectorError) as exc:
+        except (BusError, LocomotionError, DetectorError, OdometryError) as exc:
             if not self.bus.stopped.is_set():
                 self.failed = True
                 self.get_logger().error(f'locomotion stopped: {exc}')

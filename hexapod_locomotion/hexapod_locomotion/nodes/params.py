@@ -7,6 +7,7 @@ them. ``cmd_vel_timeout_s`` is read at every use and may change at run time.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from hexapod_model.param_schema import NodeSpec, RobotSource, param
@@ -16,6 +17,13 @@ from hexapod_locomotion.core.detector import DETECTOR_KINDS, DetectorConfig
 from hexapod_locomotion.core.gait import load_gaits
 
 _GAIT = LocomotionParams()
+
+
+def _frame_id(value) -> str | None:
+    """A TF frame id: letters, digits, '_' and '/' (REP 105 names: odom, base_link), not empty."""
+    if not re.fullmatch(r'[A-Za-z_][A-Za-z0-9_/]*', value):
+        return 'must be a TF frame id: a letter or _ first, then letters, digits, _ or / (e.g. odom, base_link)'
+    return None
 _DET = DetectorConfig()
 
 
@@ -81,6 +89,14 @@ class LocomotionNodeParams:
     read_timeout_s: float = param(0.0, 'give up on a position read after this wall time [s]; 0 = 2 s, or 10 s in '
                                   'lockstep (over DDS a loaded machine delivers reads late; a lock-stepped sim '
                                   'answers late but surely)', min=0.0)
+    odom_frame: str = param('odom', 'frame of the leg odometry (REP 105): /odom\'s header.frame_id and the parent '
+                            'of the odometry transform on /tf', rule=_frame_id)
+    base_frame: str = param('base_link', 'the body frame (REP 105): /odom\'s child_frame_id and the child of the '
+                            'odometry transform; must be the robot description\'s root link for a connected TF tree',
+                            rule=_frame_id)
+    heading_correction: bool = param(True, 'follow /cmd_vel with the odometry (and /imu when it is published): '
+                                     'correct the heading towards the commanded yaw rate and the sideways drift off the '
+                                     'commanded line; false = the paper\'s open loop (the command as it is)')
     lockstep: bool = param(False, 'drive a lock-stepped bus master (sim_node lockstep:=true): advance it by '
                            'publishing commands instead of waiting for wall time (the time is the reads\' stamps: '
                            'use_sim_time is not needed and only adds a /clock subscription)')

@@ -66,6 +66,10 @@ class TrialConfig:
     start_x_m: float = 0.0              # where the robot stands at the start (along the course)
     video: str | None = None            # animated GIF of the walk (offscreen CPU rendering), or None
     video_fps: float = 10.0
+    # leg odometry (always run, with and without the IMU): the course correction (CourseKeeper) off =
+    # the paper's open loop; odometry_imu: the odometry it uses (and /odom in the bag) has the IMU
+    heading_correction: bool = False
+    odometry_imu: bool = True
 
 
 TIMING_FIELDS = ('t_swing_up_s', 't_swing_forward_s', 't_settle_s', 't_level_s', 'max_stride_m', 'ground_depth_m')
@@ -268,6 +272,7 @@ class TrialResult:
     temperature_t_s: list[float]
     warnings: list[str] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
+    odometry: dict | None = None        # per odometry ('imu', 'legs'): drift against the truth (odometry_trial.drift)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -365,6 +370,10 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     controller = GaitController(robot, get_gait(cfg.gait),
                                 locomotion_params(cfg),
                                 det, t_com_s=sim.t_com_s, on_read=probe.record_detection, on_swing_start=on_swing_start)
+    from hexapod_locomotion.core.course import CourseKeeper
+    from hexapod_locomotion.trials.odometry_trial import TrialOdometry
+    odo = TrialOdometry(probe, robot, controller, imu_first=cfg.odometry_imu, recorder=recorder)
+    keeper = CourseKeeper() if cfg.heading_correction else None
     warnings: list[str] = []
     fell = reached = False
     try:
@@ -373,8 +382,14 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
         walk_start = sim.now()
         probe.deadline_s = walk_start + cfg.duration_s
         while sim.now() - walk_start < cfg.duration_s:
+            cmd = VelocityCommand(cfg.vx_mps, 0.0, cfg.wz_rad_s)
+            est = odo.tap.estimate
+            if keeper is not None and est is not None:
+                cmd = keeper.command(sim.now(), cmd, est.position[:2], float(est.rpy[2]),
+                                     controller.params.cycle_s(controller.gait))
             try:
-                rep = controller.step_phase(probe, VelocityCommand(cfg.vx_mps, 0.0, cfg.wz_rad_s))
+                rep = controller.step_phase(odo.tap, cmd)
+                odo.tap.phase_done()
             except LocomotionError as exc:
                 warnings.append(f'controller stopped: {exc}')
                 break
@@ -440,5 +455,7 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
         fell=fell, reached_course_end=reached, phases=len(finished), cot=cot, detection=detection,
         stability=stability, temperature_femur_c=temps[::step, fem].mean(axis=1).tolist(),
         temperature_tibia_c=temps[::step, tib].mean(axis=1).tolist(), temperature_t_s=t[::step].tolist(),
-        warnings=sorted(set(warnings)), events=[asdict(e) for e in events])
+        warnings=sorted(set(warnings)), events=[asdict(e) for e in events],
+        odometry=odo.drift(t[walk], xyz[walk], np.array(probe.pose_quat)[walk], controller.params.cycle_s(controller.gait))
+        if walk.sum() > 1 else None)
 

@@ -303,6 +303,11 @@ class Recorder:
         get = (lambda o, k: o[k]) if isinstance(msg, dict) else getattr
         if topic == contract.JOINT_STATES and not self._tf_truth:
             self._tf.set_positions(get(msg, 'name'), get(msg, 'position'))
+        elif topic == contract.ODOM:
+            pose, h = get(get(msg, 'pose'), 'pose'), get(msg, 'header')
+            p, q = get(pose, 'position'), get(pose, 'orientation')
+            self._tf.set_odom_pose(get(h, 'frame_id'), get(msg, 'child_frame_id'), [get(p, k) for k in 'xyz'],
+                                   [get(q, k) for k in 'xyzw'])
         elif topic == contract.SIM_TRUTH_POSE and not self._tf_truth:
             pose = get(msg, 'pose')
             p, q = get(pose, 'position'), get(pose, 'orientation')

@@ -135,8 +135,10 @@ class SimNode(Node):
         self.create_service(SetReadSchedule, contract.SET_READ_SCHEDULE, self._on_set_schedule)
         self._recorded_subs = []          # (subscription, topic): the controller's topics in the bag
         if self.recorder is not None:     # record the controller's topics too
+            from nav_msgs.msg import Odometry
             for msg_type, topic, depth in ((LegGroundDetection, contract.GROUND_DETECTION, QOS_DEPTH),
-                                           (SwingDownStart, contract.SWING_DOWN, 100), (Twist, contract.CMD_VEL, 10)):
+                                           (SwingDownStart, contract.SWING_DOWN, 100), (Twist, contract.CMD_VEL, 10),
+                                           (Odometry, contract.ODOM, 100)):
                 sub = self.create_subscription(msg_type, topic, lambda m, t=topic: self._record(t, m, self.sim.now()),
                                                depth)
                 self._recorded_subs.append((sub, topic))

@@ -1,0 +1,106 @@
+"""Following the commanded velocity with odometry: heading and lateral correction. Pure numpy.
+
+Open loop, a velocity command becomes a foothold displacement and a yaw per gait cycle; feet that
+slip, a leg that stalls on a block or lands on an edge leave the body off that course, and nothing
+on board notices. :class:`CourseKeeper` compares the odometry's pose with the course the command
+asks for and adds to the command, once per gait phase:
+
+* heading: the reference heading integrates the commanded yaw rate from where the command began;
+  ``heading_gain`` of the difference to the estimated heading is added as yaw rate over one gait cycle
+  (turning in place then follows the commanded rate even where the open-loop turn falls short);
+* lateral (only while the command has no yaw rate): the reference line starts at the pose where the
+  command began, in the commanded direction of travel; ``lateral_gain`` of the cross-track distance
+  is added as sideways velocity over one gait cycle. Progress along the line is not corrected: the
+  stride sets the speed.
+
+Both errors are means over the last gait cycle (the reference's too): a gait sways the body in yaw
+and sideways within each cycle as its groups are placed (pentapod on the blocks: +-4 degrees), and
+that sway is no drift to correct.
+
+A new command (a different velocity, or walking again after standing) starts a new reference. The
+reference heading stays within ``max_heading_error_rad`` of the estimate (a robot that cannot turn
+as fast as asked is not wound up without end).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
+from hexapod_locomotion.core.odometry import wrap_angle
+
+
+@dataclass(frozen=True)
+class CourseConfig:
+    heading_gain: float = 0.5          # fraction of the heading error removed per gait cycle
+    lateral_gain: float = 0.5          # fraction of the cross-track error removed per gait cycle
+    max_heading_error_rad: float = 0.3
+    max_lateral_mps: float = 0.02      # largest sideways correction [m/s]
+    restart_after_s: float = 1.0       # a gap this long between commands starts a new reference
+
+    def __post_init__(self):
+        for name in self.__dataclass_fields__:
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise LocomotionError(f'course correction {name} must be a finite number >= 0, got {v!r}')
+
+
+@dataclass
+class CourseKeeper:
+    config: CourseConfig = CourseConfig()
+
+    def __post_init__(self):
+        self._cmd: VelocityCommand | None = None
+        self._t: float | None = None
+        self.yaw_ref = 0.0
+        self.anchor = np.zeros(2)
+
+    def _start(self, t_s: float, cmd: VelocityCommand, xy, yaw: float) -> None:
+        self._cmd, self._t = cmd, t_s
+        self.yaw_ref = yaw
+        self.anchor = np.array(xy, dtype=float)
+        self._hist: list[tuple[float, float, float, np.ndarray]] = []    # (t, yaw, yaw_ref unwrapped, xy)
+
+    def errors(self, xy, yaw: float) -> tuple[float, float]:
+        """(heading error [rad], cross-track error [m], left of the line positive) of a pose."""
+        cmd = self._cmd
+        e_yaw = wrap_angle(self.yaw_ref - yaw)
+        if cmd is None or cmd.wz != 0.0 or (cmd.vx == 0.0 and cmd.vy == 0.0):
+            return e_yaw, 0.0
+        phi = self.yaw_ref + math.atan2(cmd.vy, cmd.vx)
+        d = np.asarray(xy, dtype=float) - self.anchor
+        return e_yaw, float(-math.sin(phi) * d[0] + math.cos(phi) * d[1])
+
+    def command(self, t_s: float, cmd: VelocityCommand, xy, yaw: float, cycle_s: float) -> VelocityCommand:
+        """The command to walk this phase with: ``cmd`` corrected for the pose ``xy``, ``yaw`` (odom)."""
+        c = self.config
+        if self._cmd != cmd or self._t is None or t_s - self._t > c.restart_after_s + cycle_s:
+            self._start(t_s, cmd, xy, yaw)
+        else:
+            self.yaw_ref = wrap_angle(self.yaw_ref + cmd.wz * (t_s - self._t))
+            self._t = t_s
+            if cmd.wz != 0.0:                  # turning: the line is rebuilt from the pose reached
+                self.anchor = np.array(xy, dtype=float)
+        if self._hist:
+            _, y0, r0, _ = self._hist[-1]
+            yaw_u, ref_u = y0 + wrap_angle(yaw - y0), r0 + wrap_angle(self.yaw_ref - r0)
+        else:
+            yaw_u, ref_u = yaw, self.yaw_ref
+        self._hist = [h for h in self._hist if h[0] > t_s - cycle_s + 1e-9] + [(t_s, yaw_u, ref_u, np.array(xy, float))]
+        yaw_m = float(np.mean([h[1] for h in self._hist]))
+        ref_m = float(np.mean([h[2] for h in self._hist]))
+        _, e_lat = self.errors(np.mean([h[3] for h in self._hist], axis=0), yaw_m)
+        e_yaw = wrap_angle(ref_m - yaw_m)
+        if abs(wrap_angle(self.yaw_ref - yaw)) > c.max_heading_error_rad:
+            self.yaw_ref = wrap_angle(yaw + math.copysign(c.max_heading_error_rad, wrap_angle(self.yaw_ref - yaw)))
+            self._hist[-1] = (t_s, yaw_u, yaw_u + wrap_angle(self.yaw_ref - yaw), self._hist[-1][3])
+        if abs(e_yaw) > c.max_heading_error_rad:
+            e_yaw = math.copysign(c.max_heading_error_rad, e_yaw)
+        wz = cmd.wz + c.heading_gain * e_yaw / cycle_s
+        v_lat = float(np.clip(-c.lateral_gain * e_lat / cycle_s, -c.max_lateral_mps, c.max_lateral_mps))
+        # the sideways velocity, perpendicular to the line (left positive), in the body frame
+        phi = self.yaw_ref + math.atan2(cmd.vy, cmd.vx) if (cmd.vx or cmd.vy) else yaw
+        ang = phi + math.pi / 2 - yaw
+        return VelocityCommand(cmd.vx + v_lat * math.cos(ang), cmd.vy + v_lat * math.sin(ang), wz)

@@ -1,0 +1,283 @@
+"""Leg odometry: the body's motion from the feet on the ground, fused with an IMU when one exists.
+Pure numpy: time, foot positions, contacts and IMU samples are arguments.
+
+A foot on the ground does not move in the world, so since a *keyframe* (the last time a foot joined
+the feet on the ground) the body moved by the rigid motion that carries the feet in contact then and
+now (their body-frame positions from the forward kinematics of the servo reads) from where they are
+now to where they were then. Each update:
+
+1. roll and pitch: the IMU's orientation when given, else the plane of the feet in contact (the
+   body leveled against the ground they stand on: exact on flat ground, the mean slope of the
+   footholds on rough ground);
+2. the feet are rotated into the gravity-aligned heading frame (body frame without roll and pitch);
+3. a least-squares planar rigid fit (2-D Kabsch) between the feet in contact at the keyframe and now
+   gives the yaw and horizontal displacement since the keyframe; the mean vertical offset of those
+   feet the height change;
+4. with an IMU, that yaw is fused with the IMU's since the keyframe (orientation difference, else the
+   integrated yaw rate), weighted by their variances;
+5. the pose covariance is the keyframe's grown by the fit's residual and a slip term per metre
+   walked, propagated through the heading (an error in yaw becomes a lateral error as the robot walks
+   on).
+
+Frames (REP 103/105): ``odom`` fixed where odometry started, z up; the body frame x forward, y left,
+z up. The pose is (x, y, z) and (roll, pitch, yaw) of the body in ``odom``; the twist is in the body
+frame. Covariances are 6x6 in the order of ``nav_msgs/Odometry`` (x, y, z, roll, pitch, yaw).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+class OdometryError(ValueError):
+    """Bad input to the odometry (the message names it)."""
+
+
+@dataclass(frozen=True)
+class OdometryConfig:
+    """Noise model of the leg odometry (standard deviations)."""
+
+    # one foot's position from the servo reads [m]: a tick (0.29 deg) of each joint over a 12-18 cm
+    # leg is about 1 mm; compliance under load and the foot's rolling contact add a few
+    foot_sigma_m: float = 0.003
+    # slip of the feet on the ground, as a fraction of the distance walked (horizontal and vertical)
+    slip_fraction: float = 0.03
+    # heading slip per metre walked [rad/m] (feet twisting on their contact points)
+    yaw_slip_rad_per_m: float = 0.03
+    # IMU: yaw-rate noise [rad/s] (a MEMS gyro's white noise after its low-pass) and the
+    # orientation's roll/pitch uncertainty [rad]
+    gyro_sigma_rad_s: float = 0.005
+    imu_tilt_sigma_rad: float = 0.01
+    # fewer feet in contact at both updates than this: no fit, the pose holds (and its covariance grows)
+    min_feet: int = 2
+
+    def __post_init__(self):
+        for name in ('foot_sigma_m', 'slip_fraction', 'yaw_slip_rad_per_m', 'gyro_sigma_rad_s', 'imu_tilt_sigma_rad'):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise OdometryError(f'odometry {name} must be a finite number > 0, got {v!r}')
+        if not (isinstance(self.min_feet, int) and self.min_feet >= 2):
+            raise OdometryError(f'odometry min_feet must be an integer >= 2 (a yaw needs two feet), got {self.min_feet!r}')
+
+
+@dataclass(frozen=True)
+class ImuReading:
+    """What the odometry takes from an IMU: orientation in a gravity-aligned frame (w, x, y, z) and/or
+    the body-frame angular velocity [rad/s]. Either may be None."""
+
+    quat_wxyz: np.ndarray | None = None
+    ang_vel_rad_s: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class OdometryEstimate:
+    t_s: float
+    position: np.ndarray            # (x, y, z) of the body in odom [m]
+    rpy: np.ndarray                 # (roll, pitch, yaw) [rad]
+    linear: np.ndarray              # body-frame velocity (vx, vy, vz) [m/s] over the last update
+    angular: np.ndarray             # body-frame angular velocity (0, 0, wz) [rad/s] (yaw rate only)
+    pose_cov: np.ndarray            # 6x6 (x, y, z, roll, pitch, yaw)
+    twist_cov: np.ndarray           # 6x6 (vx, vy, vz, wx, wy, wz)
+    feet_used: int                  # feet in the last fit (0: no fit at this update)
+    distance_m: float               # horizontal path length so far
+
+    def quat_xyzw(self) -> tuple[float, float, float, float]:
+        q = Rotation.from_euler('ZYX', [self.rpy[2], self.rpy[1], self.rpy[0]]).as_quat()
+        return tuple(float(v) for v in q)
+
+
+def wrap_angle(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def tilt_of(rot: np.ndarray) -> np.ndarray:
+    """The roll-pitch part of a body orientation (yaw removed): R = Rz(yaw) @ tilt."""
+    r, p, _ = _rpy(rot)
+    return Rotation.from_euler('YX', [p, r]).as_matrix()
+
+
+def _rpy(rot: np.ndarray) -> tuple[float, float, float]:
+    yaw, pitch, roll = Rotation.from_matrix(rot).as_euler('ZYX')
+    return float(roll), float(pitch), float(yaw)
+
+
+def plane_tilt(feet_body: np.ndarray) -> tuple[float, float] | None:
+    """(roll, pitch) of a body standing on the plane through ``feet_body`` (n x 3, n >= 3) taken as
+    level; None when the feet are (nearly) collinear."""
+    c = feet_body - feet_body.mean(axis=0)
+    _, s, vt = np.linalg.svd(c)
+    if len(feet_body) < 3 or s[1] < 1e-6:
+        return None
+    n = vt[2] if vt[2, 2] > 0 else -vt[2]          # the ground's up, in the body frame
+    # body-frame up = R^T e_z = (-sin p, sin r cos p, cos r cos p)
+    pitch = math.asin(float(np.clip(-n[0], -1.0, 1.0)))
+    roll = math.atan2(float(n[1]), float(n[2]))
+    return roll, pitch
+
+
+def planar_fit(before: np.ndarray, after: np.ndarray) -> tuple[float, np.ndarray, float]:
+    """Least-squares rigid motion in the plane: (dyaw, d_xy, rms residual) with
+    ``before[:, :2] ~ Rz(dyaw) @ after[:, :2] + d_xy`` (2-D Kabsch; n >= 2 points)."""
+    p, q = before[:, :2], after[:, :2]
+    pc, qc = p - p.mean(axis=0), q - q.mean(axis=0)
+    dyaw = math.atan2(float(np.sum(qc[:, 0] * pc[:, 1] - qc[:, 1] * pc[:, 0])), float(np.sum(qc * pc)))
+    c, s = math.cos(dyaw), math.sin(dyaw)
+    rot = np.array([[c, -s], [s, c]])
+    d = p.mean(axis=0) - rot @ q.mean(axis=0)
+    res = p - (q @ rot.T + d)
+    return dyaw, d, float(math.sqrt(np.mean(np.sum(res ** 2, axis=1))))
+
+
+@dataclass
+class LegOdometry:
+    """Integrates the body pose from the stance feet (see the module doc)."""
+
+    config: OdometryConfig = field(default_factory=OdometryConfig)
+
+    def __post_init__(self):
+        self.reset()
+
+    def reset(self, t_s: float | None = None) -> None:
+        self.t_s = t_s
+        self.position = np.zeros(3)
+        self.yaw = 0.0
+        self.roll = self.pitch = 0.0
+        self.cov = np.zeros((6, 6))
+        self.distance_m = 0.0
+        self._key = None            # (feet level frame 6 x 3, contact, position, yaw, cov, imu yaw, t)
+        self._imu_yaw: float | None = None
+        self._gyro_yaw = 0.0        # yaw integrated from the gyro since the keyframe
+        self._last: OdometryEstimate | None = None
+
+    def _rekey(self, level: np.ndarray, contact: np.ndarray, t_s: float) -> None:
+        self._key = (level, contact.copy(), self.position.copy(), self.yaw, self.cov.copy(), self._imu_yaw, t_s)
+        self._gyro_yaw = 0.0
+
+    def update(self, t_s: float, feet_body, contact, imu: ImuReading | None = None, plane=None) -> OdometryEstimate:
+        """One update at time ``t_s`` from the six feet in the body frame (6 x 3, rows legs 1..6) and
+        which of them are on the ground (6 booleans); ``imu`` optional; ``plane``: the feet whose plane
+        gives roll and pitch without an IMU (default ``contact``; fewer than 3: the last tilt holds).
+
+        The feet are fitted against a *keyframe*: the feet in contact when the current stance began
+        (the last time a foot joined). Read noise (a tick is about 1 mm at the foot) then does not
+        add up update after update, only once per keyframe."""
+        cfg = self.config
+        feet = np.asarray(feet_body, dtype=float)
+        contact = np.asarray(contact, dtype=bool)
+        if feet.shape != (6, 3) or contact.shape != (6,):
+            raise OdometryError(f'odometry needs 6 feet (6 x 3) and 6 contact flags, got {feet.shape} and {contact.shape}')
+        if not math.isfinite(t_s) or (self.t_s is not None and t_s < self.t_s):
+            raise OdometryError(f'odometry time must be finite and not go back, got {t_s!r} after {self.t_s!r}')
+        if not np.all(np.isfinite(feet[contact])):
+            raise OdometryError('odometry: a foot in contact has a non-finite position')
+        imu_quat = None if imu is None or imu.quat_wxyz is None else np.asarray(imu.quat_wxyz, dtype=float)
+        if imu_quat is not None and not (imu_quat.shape == (4,) and np.all(np.isfinite(imu_quat))
+                                         and np.linalg.norm(imu_quat) > 0):
+            raise OdometryError(f'odometry: IMU orientation must be 4 finite numbers, not all 0, got {imu_quat!r}')
+        gyro = None if imu is None or imu.ang_vel_rad_s is None else np.asarray(imu.ang_vel_rad_s, dtype=float)
+        if gyro is not None and not (gyro.shape == (3,) and np.all(np.isfinite(gyro))):
+            raise OdometryError(f'odometry: IMU angular velocity must be 3 finite numbers, got {gyro!r}')
+        dt = 0.0 if self.t_s is None else t_s - self.t_s
+        prev_pos, prev_yaw = self.position.copy(), self.yaw
+
+        # 1. tilt
+        if imu_quat is not None:
+            w, x, y, z = imu_quat
+            self.roll, self.pitch, self._imu_yaw = _rpy(Rotation.from_quat([x, y, z, w]).as_matrix())
+            tilt_var = cfg.imu_tilt_sigma_rad ** 2
+        else:
+            on = contact if plane is None else np.asarray(plane, dtype=bool) & contact
+            rp = plane_tilt(feet[on]) if on.sum() >= 3 else None
+            if rp is not None:
+                self.roll, self.pitch = rp
+            spread = float(np.ptp(feet[contact, :2], axis=0).max()) if contact.sum() >= 2 else 0.1
+            tilt_var = (cfg.foot_sigma_m / max(spread, 0.05)) ** 2 * 2
+        tilt = Rotation.from_euler('YX', [self.pitch, self.roll]).as_matrix()
+        level = feet @ tilt.T
+        if gyro is not None and dt > 0:
+            self._gyro_yaw += float((tilt @ gyro)[2]) * dt      # the level frame's yaw rate
+
+        if self._key is None:
+            if contact.any():       # odom's origin on the ground under the start: z is the height above the feet
+                self.position[2] = -float(np.mean(level[contact, 2]))
+            self._rekey(level, contact, t_s)
+        key_feet, key_contact, key_pos, key_yaw, key_cov, key_imu_yaw, key_t = self._key
+        both = contact & key_contact
+        n = int(both.sum())
+        used, resid = 0, 0.0
+        if n >= cfg.min_feet:
+            # 2.-3. the motion since the keyframe
+            dyaw, d_xy, resid = planar_fit(key_feet[both], level[both])
+            dz = float(np.mean(key_feet[both, 2] - level[both, 2]))
+            used = n
+            spread2 = float(np.mean(np.sum((level[both, :2] - level[both, :2].mean(axis=0)) ** 2, axis=1)))
+            sig2 = cfg.foot_sigma_m ** 2 + resid ** 2
+            step = float(np.hypot(*d_xy))
+            var_legs = 2 * sig2 / (n * max(spread2, 1e-4)) + (cfg.yaw_slip_rad_per_m * step) ** 2
+        else:
+            dyaw, d_xy, dz, step, var_legs = 0.0, np.zeros(2), 0.0, 0.0, math.inf
+        # 4. the IMU's yaw change since the keyframe
+        span = t_s - key_t
+        if imu_quat is not None and key_imu_yaw is not None:
+            d_imu, var_imu = wrap_angle(self._imu_yaw - key_imu_yaw), (cfg.gyro_sigma_rad_s * span) ** 2
+        elif gyro is not None:
+            d_imu, var_imu = self._gyro_yaw, (cfg.gyro_sigma_rad_s * span) ** 2
+        else:
+            d_imu, var_imu = None, math.inf
+        if d_imu is not None and used:
+            tot = var_imu + var_legs
+            w_legs = var_imu / tot if tot > 0 else 0.0
+            dyaw = w_legs * dyaw + (1 - w_legs) * d_imu
+            var_yaw = var_imu * var_legs / tot if tot > 0 else 0.0
+        elif d_imu is not None:
+            dyaw, var_yaw = d_imu, var_imu
+        else:
+            var_yaw = var_legs if used else 0.0
+
+        # 5. the pose from the keyframe's, and its covariance
+        if not used:                 # no foot to fit: hold the pose (the keyframe is renewed below)
+            key_pos, key_yaw, key_cov = prev_pos, prev_yaw if d_imu is None else key_yaw, self.cov
+        c0, s0 = math.cos(key_yaw), math.sin(key_yaw)
+        d_world = np.array([c0 * d_xy[0] - s0 * d_xy[1], s0 * d_xy[0] + c0 * d_xy[1]])
+        self.position = key_pos + np.array([d_world[0], d_world[1], dz])
+        self.yaw = wrap_angle(key_yaw + dyaw)
+        jac = np.eye(3)
+        jac[0, 2], jac[1, 2] = -d_world[1], d_world[0]
+        idx = [0, 1, 5]
+        var_xy = (sig2 / used if used else 0.0) + (cfg.slip_fraction * step) ** 2
+        cov = key_cov.copy()
+        cov[np.ix_(idx, idx)] = jac @ key_cov[np.ix_(idx, idx)] @ jac.T + np.diag([var_xy, var_xy, var_yaw])
+        cov[2, 2] = key_cov[2, 2] + (cfg.foot_sigma_m ** 2 / used if used else 0.0) + (cfg.slip_fraction * dz) ** 2
+        cov[3, 3] = cov[4, 4] = tilt_var
+        self.cov = cov
+        moved = self.position - prev_pos
+        self.distance_m += float(np.hypot(moved[0], moved[1]))
+        if used < cfg.min_feet or bool(np.any(contact & ~key_contact)):
+            self._rekey(level, contact, t_s)          # a foot joined (or too few are left): a new keyframe
+        elif bool(np.any(key_contact & ~contact)):   # a foot left: its keyframe position is gone with it
+            self._key = (key_feet, both, *self._key[2:])
+
+        # the twist over the last update, in the body's heading frame
+        tw = np.zeros((6, 6))
+        if dt > 0:
+            c, s = math.cos(prev_yaw), math.sin(prev_yaw)
+            lin = np.array([c * moved[0] + s * moved[1], -s * moved[0] + c * moved[1], moved[2]]) / dt
+            ang = np.array([0.0, 0.0, wrap_angle(self.yaw - prev_yaw) / dt])
+            v_var = 2 * (cfg.foot_sigma_m ** 2 + resid ** 2) / max(used, 1) / dt ** 2
+            tw[0, 0] = tw[1, 1] = tw[2, 2] = v_var
+            tw[3, 3] = tw[4, 4] = tilt_var / dt ** 2
+            tw[5, 5] = 2 * (var_legs if d_imu is None else min(var_legs, (cfg.gyro_sigma_rad_s * dt) ** 2)) / dt ** 2 \
+                if (used or d_imu is not None) else 1e3
+        else:
+            lin, ang = (np.zeros(3), np.zeros(3)) if self._last is None else (self._last.linear, self._last.angular)
+        self.t_s = float(t_s)
+        self._last = OdometryEstimate(float(t_s), self.position.copy(), np.array([self.roll, self.pitch, self.yaw]),
+                                      lin, ang, self.cov.copy(), tw, used, self.distance_m)
+        return self._last
+
+    @property
+    def estimate(self) -> OdometryEstimate | None:
+        return self._last

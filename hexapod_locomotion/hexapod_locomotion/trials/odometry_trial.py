@@ -1,0 +1,100 @@
+"""Leg odometry in a simulated trial, and its drift against the simulator's truth. No rclpy.
+
+:class:`TrialOdometry` runs two leg odometries side by side on the trial's bus (one with the sim's
+IMU, one from the legs alone), records both tracks and writes the first to the bag as ``/odom``.
+:func:`drift` compares a track with the truth: position error as a percentage of the distance
+walked, yaw error per metre, and the walk's own heading and line errors against where it started.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hexapod_model.contract import MSG_TYPES, ODOM
+
+from hexapod_locomotion.core.odometry import ImuReading, LegOdometry, OdometryEstimate, wrap_angle
+from hexapod_locomotion.core.odometry_tap import OdometryTap, odometry_dict
+
+PATH_SAMPLE_S = 0.5          # the distance walked: truth path length sampled this often (no body sway)
+
+
+class TrialOdometry:
+    """``probe``: the trial's :class:`~hexapod_locomotion.trials.trial_runner.ProbeBus`; ``imu_first``: the
+    odometry the tap reports first (``estimate``, the course correction, ``/odom``) uses the IMU."""
+
+    def __init__(self, probe, robot, controller, imu_first: bool = True, recorder=None,
+                 frames: tuple[str, str] = ('odom', 'base_link')):
+        self.probe = probe
+        self.recorder = recorder
+        self.frames = frames
+        self.odometry = {'imu': LegOdometry(), 'legs': LegOdometry()}
+        order = ('imu', 'legs') if imu_first else ('legs', 'imu')
+        self.tracks: dict[str, list[tuple[float, float, float, float]]] = {k: [] for k in order}
+        self.tap = OdometryTap(probe, robot, controller.contact_legs,
+                               [(self.odometry[k], k == 'imu') for k in order], imu=self._imu,
+                               on_estimate=self._on_estimate)
+
+    def _imu(self) -> ImuReading | None:
+        if not self.probe.imu_rpy:
+            return None
+        r, p, y = self.probe.imu_rpy[-1]
+        x, y_, z, w = Rotation.from_euler('ZYX', [y, p, r]).as_quat()
+        return ImuReading(quat_wxyz=np.array([w, x, y_, z]))
+
+    def _on_estimate(self, first: OdometryEstimate) -> None:
+        for k in self.tracks:
+            e = self.odometry[k].estimate
+            self.tracks[k].append((e.t_s, float(e.position[0]), float(e.position[1]), float(e.rpy[2])))
+        if self.recorder is not None:
+            self.recorder.write(ODOM, MSG_TYPES[ODOM], odometry_dict(first, *self.frames), first.t_s)
+
+    def drift(self, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0) -> dict:
+        """Per odometry (``imu``, ``legs``): :func:`drift` of its track."""
+        return {k: drift(tr, truth_t, truth_xyz, truth_quat_wxyz, window_s) for k, tr in self.tracks.items() if tr}
+
+
+def _truth_yaw(quat_wxyz) -> np.ndarray:
+    q = np.asarray(quat_wxyz, dtype=float)
+    return Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler('ZYX')[:, 0]
+
+
+def drift(track, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0) -> dict:
+    """Odometry ``track`` [(t, x, y, yaw)] against the truth (times, positions, quaternions w x y z).
+
+    Both poses are taken relative to their own at the track's first time. Returns the distance walked
+    (truth path length at ``PATH_SAMPLE_S``), the final position error [m] and in % of that distance,
+    the final yaw error [deg] and per metre, and the truth's own final heading change [deg] and
+    distance from the start line [m] (how straight the walk was), at the end and as means over the last
+    ``window_s`` (a gait cycle: a gait sways the body within each cycle)."""
+    tr = np.asarray(track, dtype=float)
+    t = np.asarray(truth_t, dtype=float)
+    xyz = np.asarray(truth_xyz, dtype=float)
+    yaw = np.unwrap(_truth_yaw(truth_quat_wxyz))
+    t0, t1 = tr[0, 0], tr[-1, 0]
+
+    def at(ts):
+        return np.array([np.interp(ts, t, xyz[:, 0]), np.interp(ts, t, xyz[:, 1])]), float(np.interp(ts, t, yaw))
+    p0, y0 = at(t0)
+    p1, y1 = at(t1)
+    c, s = math.cos(y0), math.sin(y0)
+    rel = np.array([[c, s], [-s, c]]) @ (p1 - p0)           # truth displacement in the start heading frame
+    samples = np.arange(t0, t1, PATH_SAMPLE_S).tolist() + [t1]
+    pts = np.array([at(ts)[0] for ts in samples])
+    dist = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1))) if len(pts) > 1 else 0.0
+    # the odometry's displacement in its own start frame
+    oc, os_ = math.cos(tr[0, 3]), math.sin(tr[0, 3])
+    odo_rel = np.array([[oc, os_], [-os_, oc]]) @ (tr[-1, 1:3] - tr[0, 1:3])
+    err = float(np.linalg.norm(odo_rel - rel))
+    yaw_err = math.degrees(abs(wrap_angle((tr[-1, 3] - tr[0, 3]) - (y1 - y0))))
+    ts = t[(t >= t1 - window_s) & (t <= t1)] if window_s > 0 else np.array([t1])
+    ts = ts if len(ts) else np.array([t1])
+    head_mean = float(np.mean([at(x)[1] for x in ts])) - y0
+    line_mean = float(np.mean([(np.array([[c, s], [-s, c]]) @ (at(x)[0] - p0))[1] for x in ts]))
+    return {'distance_m': dist, 'position_error_m': err,
+            'position_error_pct': 100.0 * err / dist if dist > 0 else math.nan,
+            'yaw_error_deg': yaw_err, 'yaw_error_deg_per_m': yaw_err / dist if dist > 0 else math.nan,
+            'heading_change_deg': math.degrees(y1 - y0), 'line_offset_m': float(rel[1]),
+            'heading_cycle_mean_deg': math.degrees(head_mean), 'line_cycle_mean_m': line_mean,
+            'duration_s': float(t1 - t0)}

@@ -1,0 +1,83 @@
+"""Course correction (hexapod_locomotion.core.course) on poses whose errors are known."""
+import math
+
+import pytest
+
+from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
+from hexapod_locomotion.core.course import CourseConfig, CourseKeeper
+
+CYCLE = 2.0
+
+
+def test_on_course_the_command_is_unchanged():
+    k = CourseKeeper()
+    cmd = VelocityCommand(0.05, 0.0, 0.0)
+    assert k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE) == cmd
+    assert k.command(1.0, cmd, (0.05, 0.0), 0.0, CYCLE) == cmd
+
+
+def test_heading_error_becomes_yaw_rate():
+    """Start at yaw 0; the body has turned to -0.1 rad a second later. The errors are means over the last
+    cycle (2 s: both samples): heading -0.05 rad, half of it (gain 0.5) over the 2 s cycle is +0.0125 rad/s."""
+    k = CourseKeeper(CourseConfig(heading_gain=0.5, lateral_gain=0.0))
+    cmd = VelocityCommand(0.05, 0.0, 0.0)
+    k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE)
+    out = k.command(1.0, cmd, (0.05, 0.0), -0.1, CYCLE)
+    assert out.wz == pytest.approx(0.0125)
+    assert (out.vx, out.vy) == pytest.approx((0.05, 0.0))
+
+
+def test_left_of_the_line_walks_right():
+    """0 then 2 cm left of the start line (mean over the cycle 1 cm), heading straight: -0.5 * 0.01 / 2 s =
+    -2.5 mm/s sideways (body frame y)."""
+    k = CourseKeeper(CourseConfig(heading_gain=0.0, lateral_gain=0.5))
+    cmd = VelocityCommand(0.05, 0.0, 0.0)
+    k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE)
+    out = k.command(1.0, cmd, (0.05, 0.02), 0.0, CYCLE)
+    assert out.vy == pytest.approx(-0.0025)
+    assert out.vx == pytest.approx(0.05)
+    # the same error with the body turned by 90 degrees: the correction is -y in odom = +x in the body
+    k = CourseKeeper(CourseConfig(heading_gain=0.0, lateral_gain=0.5, max_heading_error_rad=4.0))
+    k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE)
+    out = k.command(1.0, cmd, (0.05, 0.02), -math.pi / 2, CYCLE)
+    assert out.vx == pytest.approx(0.05 + 0.0025)
+    assert out.vy == pytest.approx(0.0, abs=1e-12)
+
+
+def test_turning_in_place_follows_the_integrated_rate():
+    """Commanded 0.1 rad/s for 4 s: the reference is at 0.4 rad; a robot at 0.3 rad gets 0.1 + 0.5 * 0.1 / 2."""
+    k = CourseKeeper(CourseConfig(heading_gain=0.5))
+    cmd = VelocityCommand(0.0, 0.0, 0.1)
+    k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE)
+    k.command(2.0, cmd, (0.0, 0.0), 0.2, CYCLE)
+    out = k.command(4.0, cmd, (0.0, 0.0), 0.3, CYCLE)
+    assert out.wz == pytest.approx(0.1 + 0.025)
+    assert (out.vx, out.vy) == (0.0, 0.0)
+
+
+def test_the_sway_within_a_cycle_is_not_corrected():
+    """The heading swings +-0.07 rad around the reference within each 2 s cycle: the mean error is 0."""
+    k = CourseKeeper()
+    cmd = VelocityCommand(0.05, 0.0, 0.0)
+    outs = [k.command(0.5 * i, cmd, (0.01 * i, 0.0), 0.07 * round(math.sin(i * math.pi / 2)), CYCLE) for i in range(12)]
+    assert outs[-1].wz == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_new_command_starts_a_new_reference():
+    k = CourseKeeper(CourseConfig(heading_gain=0.5))
+    k.command(0.0, VelocityCommand(0.05, 0.0, 0.0), (0.0, 0.0), 0.0, CYCLE)
+    out = k.command(1.0, VelocityCommand(0.04, 0.0, 0.0), (0.05, 0.03), 0.2, CYCLE)
+    assert out == VelocityCommand(0.04, 0.0, 0.0)
+
+
+def test_the_reference_is_not_wound_up():
+    k = CourseKeeper(CourseConfig(heading_gain=0.5, max_heading_error_rad=0.3))
+    cmd = VelocityCommand(0.0, 0.0, 1.0)
+    k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE)
+    out = k.command(2.0, cmd, (0.0, 0.0), 0.0, CYCLE)     # asked for 2 rad, turned none
+    assert out.wz == pytest.approx(1.0 + 0.5 * 0.3 / CYCLE)
+
+
+def test_bad_gain_is_named():
+    with pytest.raises(LocomotionError, match='heading_gain'):
+        CourseConfig(heading_gain=math.nan)

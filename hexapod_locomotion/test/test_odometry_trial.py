@@ -1,0 +1,30 @@
+"""Leg odometry in a simulated walk, against the simulator's truth (lock-stepped, deterministic)."""
+import numpy as np
+import pytest
+
+from hexapod_locomotion.trials.odometry_trial import drift
+from hexapod_locomotion.trials.trial_runner import TrialConfig, run_trial
+
+
+def test_odometry_of_a_flat_walk_stays_within_the_drift_targets():
+    """10 s of tripod on flat ground: position error at most 5 % of the distance, yaw at most 3 deg/m,
+    with and without the IMU."""
+    r = run_trial(TrialConfig(gait='tripod', terrain='flat', seed=0, duration_s=10.0))
+    assert r.distance_m > 0.3
+    for name in ('imu', 'legs'):
+        o = r.odometry[name]
+        assert o['distance_m'] == pytest.approx(r.path_length_m, rel=0.2)
+        assert o['position_error_pct'] < 5.0, (name, o)
+        assert o['yaw_error_deg_per_m'] < 3.0, (name, o)
+
+
+def test_drift_of_a_track_that_is_the_truth_is_zero_and_of_a_short_one_is_its_error():
+    t = np.linspace(0, 10, 101)
+    xyz = np.c_[0.05 * t, np.zeros_like(t), np.full_like(t, 0.1)]
+    quat = np.tile([1.0, 0, 0, 0], (len(t), 1))
+    exact = [(ti, 0.05 * ti, 0.0, 0.0) for ti in t]
+    d = drift(exact, t, xyz, quat, window_s=2.0)
+    assert d['position_error_m'] == pytest.approx(0.0, abs=1e-12)
+    assert d['distance_m'] == pytest.approx(0.5)
+    short = [(ti, 0.045 * ti, 0.0, 0.0) for ti in t]           # 10 % short: 5 cm of 50
+    assert drift(short, t, xyz, quat)['position_error_pct'] == pytest.approx(10.0)
