@@ -32,6 +32,7 @@ setup(
             'cmd_vel_pub = hexapod_locomotion.nodes.cmd_vel_pub:main',
             'teleop_keyboard = hexapod_locomotion.nodes.teleop_keyboard:main',
             'odometry_bench = hexapod_locomotion.bench.odometry_bench:main',
+            'fuzz_inputs = hexapod_locomotion.bench.fuzz_inputs:main',
         ],
     },
 )

@@ -25,7 +25,6 @@ setup(
             'reindex = hexapod_sim.bagio.reindex:main',
             'bench_replay = hexapod_sim.bench.bench_replay:main',
             'bench_kills = hexapod_sim.bench.kill_bench:main',
-            'fuzz_inputs = hexapod_sim.bench.fuzz_inputs:main',
             'sim = hexapod_sim.node.cli:main',
             'sim_node = hexapod_sim.node.sim_node:main',
             'bench_sim = hexapod_sim.bench.bench_sim:main',

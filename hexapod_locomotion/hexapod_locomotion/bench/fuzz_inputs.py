@@ -1,6 +1,6 @@
 """A seeded fuzzer over bags and robot descriptions: do the tools fail in one line, or read what they can?
 
-    ./hexapod run hexapod_sim fuzz_inputs [--cases 1000] [--seed 0] [--out DIR]
+    ./hexapod run hexapod_locomotion fuzz_inputs [--cases 1000] [--seed 0] [--out DIR]
 
 Each case damages a small valid input and runs the tools on it in this process:
 

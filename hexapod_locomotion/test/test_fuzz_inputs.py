@@ -1,4 +1,4 @@
-"""The seeded fuzzer over bags and robot descriptions (hexapod_sim.bench.fuzz_inputs), and the defects it found."""
+"""The seeded fuzzer over bags and robot descriptions (hexapod_locomotion.bench.fuzz_inputs), and the defects it found."""
 from __future__ import annotations
 
 import random
