@@ -20,12 +20,13 @@ def test_discovery_confined_to_localhost():
 
 
 def test_interfaces_import():
-    from hexapod_msgs.msg import LegGroundDetection
-    from hexapod_msgs.srv import PredictSwingDown
-    from sensor_msgs.msg import JointState  # noqa: F401
-    from std_srvs.srv import Trigger  # noqa: F401
     from diagnostic_msgs.msg import DiagnosticArray  # noqa: F401
     from rosgraph_msgs.msg import Clock  # noqa: F401
+    from sensor_msgs.msg import JointState  # noqa: F401
+    from std_srvs.srv import Trigger  # noqa: F401
+
+    from hexapod_msgs.msg import LegGroundDetection
+    from hexapod_msgs.srv import PredictSwingDown
 
     assert LegGroundDetection().stopped is False
     assert PredictSwingDown.Request().max_steps == 0

@@ -266,6 +266,7 @@ def _members(launch: Path) -> list:
 @pytest.mark.parametrize('launch', LAUNCH_FILES, ids=lambda p: p.name)
 def test_launch_file_names_installed_executables_files_and_declared_parameters(launch):
     import yaml
+
     from hexapod_locomotion.nodes.params import ComposedParams
     from hexapod_model.param_schema import specs as schema_specs
     nodes = launch_nodes(launch)

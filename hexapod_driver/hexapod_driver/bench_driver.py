@@ -30,11 +30,10 @@ import tty
 import numpy as np
 from tqdm import tqdm
 
-from hexapod_model.description import load_robot
-
 from hexapod_driver import protocol as p
 from hexapod_driver.config import DriverConfig
 from hexapod_driver.dynamixel_bus import DynamixelBus
+from hexapod_model.description import load_robot
 
 
 def _start_emulator(wire_time: bool, robot_path: str | None, timing_out: str) -> tuple[subprocess.Popen, str]:

@@ -30,6 +30,9 @@ from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from hexapod_driver.config import NODE, DriverConfig, DriverNodeParams, robot_defaults
+from hexapod_driver.dynamixel_bus import CommandError, DynamixelBus
+from hexapod_driver.local_bus import LocalDriverBus
 from hexapod_model import contract, diagnostics
 from hexapod_model.bus import BusError
 from hexapod_model.cli_common import prog_name
@@ -38,11 +41,6 @@ from hexapod_model.node_params import NodeParams, init_node_process, node_comman
 from hexapod_model.param_schema import ParameterError, RobotSource, help_lines
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics, ServoStatus
 from hexapod_msgs.srv import SetReadSchedule
-
-from hexapod_driver.config import NODE, DriverConfig, DriverNodeParams, robot_defaults
-from hexapod_driver.dynamixel_bus import CommandError, DynamixelBus
-from hexapod_driver.local_bus import LocalDriverBus
-
 
 EXIT_OK = 0                 # clean shutdown (Ctrl-C, SIGTERM)
 EXIT_STARTUP = 1            # bad parameter or start-up failure (nothing enabled, or torque turned off)

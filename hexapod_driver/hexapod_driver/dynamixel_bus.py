@@ -39,14 +39,13 @@ import numpy as np
 import serial
 from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler
 
-from hexapod_model.bus import BusError
-from hexapod_model.description import ALL_JOINTS, BusJoint, DescriptionError, Robot, parse_joint_name
-from hexapod_model.servo import servo_theta, servo_tick
-
 from hexapod_driver import protocol as p
 from hexapod_driver.config import DriverConfig
 from hexapod_driver.port import LowLatencyPortHandler, in_waiting, write_all
 from hexapod_driver.timing import TimingStats
+from hexapod_model.bus import BusError
+from hexapod_model.description import ALL_JOINTS, BusJoint, DescriptionError, Robot, parse_joint_name
+from hexapod_model.servo import servo_theta, servo_tick
 
 ALARM_BITS = p.ERR_OVERHEATING | p.ERR_OVERLOAD
 DIAG_START = 24                       # torque_enable .. moving in one READ

@@ -15,9 +15,8 @@ from __future__ import annotations
 import threading
 from typing import Callable, Mapping, Sequence
 
-from hexapod_model.bus import BusError
-
 from hexapod_driver.dynamixel_bus import DynamixelBus, StepResult
+from hexapod_model.bus import BusError
 
 
 class LocalDriverBus:

@@ -21,8 +21,17 @@ from dataclasses import dataclass
 from typing import Iterable, Iterator
 
 # Status-packet error bits: defined once with the servo in hexapod_model, re-exported here (p.ERR_*)
-from hexapod_model.servo import (ERR_ANGLE_LIMIT, ERR_CHECKSUM, ERR_INPUT_VOLTAGE, ERR_INSTRUCTION,  # noqa: F401
-                                 ERR_OVERHEATING, ERR_OVERLOAD, ERR_RANGE, ERROR_BIT_NAMES, describe_error)
+from hexapod_model.servo import (  # noqa: F401
+    ERR_ANGLE_LIMIT,
+    ERR_CHECKSUM,
+    ERR_INPUT_VOLTAGE,
+    ERR_INSTRUCTION,
+    ERR_OVERHEATING,
+    ERR_OVERLOAD,
+    ERR_RANGE,
+    ERROR_BIT_NAMES,
+    describe_error,
+)
 
 HEADER = b'\xff\xff'
 BROADCAST_ID = 0xFE

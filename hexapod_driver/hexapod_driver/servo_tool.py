@@ -20,11 +20,10 @@ import sys
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler
 from tqdm import tqdm
 
-from hexapod_model.cli_common import ArgumentParser, make_parser, nonnegative_int, positive_int
-from hexapod_model.description import load_robot
-
 from hexapod_driver import protocol as p
 from hexapod_driver.port import LowLatencyPortHandler
+from hexapod_model.cli_common import ArgumentParser, make_parser, nonnegative_int, positive_int
+from hexapod_model.description import load_robot
 
 
 class ServoToolError(RuntimeError):

@@ -16,12 +16,12 @@ rclpy = pytest.importorskip('rclpy')
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from hexapod_model import contract  # noqa: E402
 import hexapod_testing as testing  # noqa: E402
+from hexapod_driver.emulator import BusEmulator  # noqa: E402
+from hexapod_model import contract  # noqa: E402
 from hexapod_model.description import ALL_JOINTS, load_robot  # noqa: E402
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics  # noqa: E402
 from hexapod_msgs.srv import SetReadSchedule  # noqa: E402
-from hexapod_driver.emulator import BusEmulator  # noqa: E402
 
 DOMAIN_ID = 20 + os.getpid() % 20          # 20..39: this package's node tests
 PARAMS = ['timeout_margin_ms:=25.0', 'diagnostics_period_s:=0.3', 'timing_period_s:=0.3',
@@ -223,8 +223,8 @@ def test_missing_servo_fails_startup_naming_it(robot):
 # ----------------------------------------------------------------------------- faults through the node
 import threading  # noqa: E402
 
-from hexapod_model.servo import servo_tick  # noqa: E402
 from hexapod_driver import protocol as p  # noqa: E402
+from hexapod_model.servo import servo_tick  # noqa: E402
 
 
 class Output:
@@ -297,7 +297,7 @@ def test_noisy_bus_keeps_reading_and_never_invents_a_position(robot, ros):
     clean = [e for e in log if e.instruction == p.READ and e.replied and len(e.tx) >= 6
              and p.checksum(e.tx[2:-1]) == e.tx[-1]]
     bad = [e for e in log if e.instruction == p.READ and e.address is not None and e.servo_id != p.BROADCAST_ID
-           and not (e in clean)]
+           and e not in clean]
     assert bad, 'the fault injection did nothing'
     # every published position is the answer the servo gave to exactly that request
     by_id = {bj.joint: bj.servo_id for bj in robot.bus.joints}

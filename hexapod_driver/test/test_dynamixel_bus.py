@@ -5,12 +5,12 @@ import time
 
 import pytest
 
-from hexapod_model.bus import BusError
-from hexapod_model.description import ALL_JOINTS, load_robot
 from hexapod_driver import protocol as p
 from hexapod_driver.config import DriverConfig
 from hexapod_driver.dynamixel_bus import CommandError, DynamixelBus, ServoVerificationError
 from hexapod_driver.emulator import BusEmulator
+from hexapod_model.bus import BusError
+from hexapod_model.description import ALL_JOINTS, load_robot
 
 # Generous reply timeout: the CI machine is shared and loaded; a lost reply then costs ~30 ms.
 BASE = dict(timeout_margin_ms=25.0, read_retries=1, missing_after_failures=2, reprobe_period_s=0.05,

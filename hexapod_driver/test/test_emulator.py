@@ -5,10 +5,10 @@ import time
 import pytest
 import serial
 
-from hexapod_model.description import ALL_JOINTS, load_robot
-from hexapod_model.servo import servo_tick
 from hexapod_driver import protocol as p
 from hexapod_driver.emulator import BusEmulator, IdealServoBackend, ServoBusBackend
+from hexapod_model.description import ALL_JOINTS, load_robot
+from hexapod_model.servo import servo_tick
 
 
 class Line:

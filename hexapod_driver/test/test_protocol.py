@@ -82,9 +82,9 @@ def test_bus_time_of_a_position_read_at_1mbps():
 def test_error_bit_masks_of_the_diagnostics_are_the_protocols():
     """/diagnostics names error bits with hexapod_model.diagnostics' table: the same masks."""
     pytest.importorskip('rclpy')
+    from hexapod_driver import protocol
     from hexapod_model import diagnostics as dg
     from hexapod_msgs.msg import ServoStatus
-    from hexapod_driver import protocol
     for bit, (name, _) in dg.ERROR_BITS.items():
         const = 'ERR_' + name.upper().replace(' ', '_')
         assert getattr(ServoStatus, const) == bit and getattr(protocol, const) == bit

@@ -1,9 +1,9 @@
 """Provisioning servo IDs (servo_tool) against the emulated bus."""
 import pytest
 
-from hexapod_model.description import load_robot
 from hexapod_driver.emulator import BusEmulator
 from hexapod_driver.servo_tool import ServoToolError, main, open_port, scan, set_id
+from hexapod_model.description import load_robot
 
 
 @pytest.fixture

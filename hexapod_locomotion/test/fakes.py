@@ -6,7 +6,6 @@ Reads cost t_com of bus time and sample at their start, like the real bus.
 """
 import math
 
-import numpy as np
 from scipy.optimize import brentq
 
 from hexapod_model.description import JOINT_ROLES, parse_joint_name
@@ -40,8 +39,9 @@ class KinematicGroundBus:
         ground = self.ground_z_m.get(leg) if isinstance(self.ground_z_m, dict) else self.ground_z_m
         if ground is None or forward(self.robot, leg, g)[2] >= ground:
             return g[1]
-        f = lambda th2: forward(self.robot, leg, [g[0], th2, g[2]])[2] - ground
-        return brentq(f, g[1], g[1] + 1.5)
+        def height_above_ground(th2):
+            return forward(self.robot, leg, [g[0], th2, g[2]])[2] - ground
+        return brentq(height_above_ground, g[1], g[1] + 1.5)
 
     def read_position(self, joint):
         leg, role = parse_joint_name(joint)

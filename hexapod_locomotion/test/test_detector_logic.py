@@ -2,11 +2,17 @@
 contact tests live in test_sim_locomotion.py)."""
 import numpy as np
 import pytest
-
 from fakes import KinematicGroundBus
+
 from hexapod_locomotion.core.controller import GaitController, LocomotionParams, VelocityCommand
-from hexapod_locomotion.core.detector import (STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, DetectorError,
-                                         SwingDownPhase, run_swing_down)
+from hexapod_locomotion.core.detector import (
+    STOP_CONTACT,
+    STOP_THETA_FIN,
+    DetectorConfig,
+    DetectorError,
+    SwingDownPhase,
+    run_swing_down,
+)
 from hexapod_locomotion.core.gait import get_gait
 from hexapod_model.description import LEGS, load_robot
 from hexapod_model.kinematics import forward

@@ -1,7 +1,7 @@
 """Scoring of the discrepancy benchmark: an injected effect the tool did not find counts only where
 the tool said the recording cannot show it AND the bench's check with the hidden truth agrees."""
-from hexapod_model.description import Effect
 from hexapod_locomotion.bench.discrepancy_bench import Case, score
+from hexapod_model.description import Effect
 
 LEG6 = ('leg6_coxa', 'leg6_femur', 'leg6_tibia')
 CASE = Case('backlash@leg', (Effect('backlash', LEG6, {'width_rad': 0.02}),), walk=('pentapod', 'flat'))

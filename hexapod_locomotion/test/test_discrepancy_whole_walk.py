@@ -37,8 +37,8 @@ def test_the_ground_reads_back_from_its_text_and_bad_text_is_named():
 
 def _walk(tmp_path_factory, name, effects=()):
     """A short tripod calibration walk on flat ground, recorded by the trial runner (with /sim/scene)."""
-    from hexapod_locomotion.bench.discrepancy_bench import Case, record_walk
     import hexapod_locomotion.bench.discrepancy_bench as bench
+    from hexapod_locomotion.bench.discrepancy_bench import Case, record_walk
     out = tmp_path_factory.mktemp(name)
     mp = pytest.MonkeyPatch()
     mp.setattr(bench, 'WALK_S', WALK_S)

@@ -9,9 +9,9 @@ import json
 import pytest
 
 from hexapod_locomotion.trials import sweep
+from hexapod_locomotion.trials.executor import map_jobs
 from hexapod_locomotion.trials.experiments import run_many
 from hexapod_locomotion.trials.trial_runner import TrialConfig
-from hexapod_locomotion.trials.executor import map_jobs
 
 SHORT = dict(duration_s=2.0, course_end_m=2.6)
 

@@ -4,8 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from hexapod_locomotion.core.odometry import (ImuReading, LegOdometry, OdometryConfig, OdometryError, planar_fit,
-                                         plane_tilt)
+from hexapod_locomotion.core.odometry import ImuReading, LegOdometry, OdometryConfig, OdometryError, planar_fit, plane_tilt
 
 # six feet on flat ground, world frame, the body 0.1 m above them at the start
 WORLD = np.array([[0.2, 0.15, 0.0], [0.0, 0.2, 0.0], [-0.2, 0.15, 0.0],

@@ -32,6 +32,7 @@ class TfProbe:
         from nav_msgs.msg import Odometry
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import DurabilityPolicy, QoSProfile
+
         from tf2_msgs.msg import TFMessage
         self.ctx = rclpy.context.Context()
         rclpy.init(context=self.ctx, domain_id=DOMAIN_ID)

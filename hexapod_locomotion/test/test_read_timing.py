@@ -2,9 +2,9 @@
 (the ones the controller took, in its order)."""
 import pytest
 
-from hexapod_locomotion.trials.analyse import controller_reads
 from hexapod_locomotion.core.detector import DetectorConfig, SwingDownPhase
 from hexapod_locomotion.core.read_timing import ReadTiming
+from hexapod_locomotion.trials.analyse import controller_reads
 from hexapod_model import diagnostics
 from hexapod_model.description import load_robot
 

@@ -117,6 +117,7 @@ def test_reads_delayed_in_the_subscriber_are_a_warning_and_a_diagnostics_count(c
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
+
     from hexapod_locomotion.nodes.locomotion_node import LocomotionNode
     from hexapod_locomotion.nodes.ros_bus import RosBus
     from hexapod_sim.node.sim_node import SimNode

@@ -17,7 +17,6 @@ rclpy = pytest.importorskip('rclpy')
 from hexapod_model.contract import stamp_seconds  # noqa: E402
 from hexapod_testing import installed_executable  # noqa: E402
 
-
 _exe = installed_executable
 DOMAIN_ID = 1 + os.getpid() % 19          # 1..19: this file's processes and probe; DDS stays on loopback
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'    # the probe's context too
@@ -36,8 +35,9 @@ class Probe:
 
     def __init__(self, vx=0.05, wz=0.0, ns=''):
         from geometry_msgs.msg import PoseStamped, Twist
-        from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from rclpy.executors import SingleThreadedExecutor
+
+        from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         self.ctx = rclpy.context.Context()
         rclpy.init(context=self.ctx, domain_id=DOMAIN_ID)
         self.node = rclpy.create_node('graph_probe', context=self.ctx)

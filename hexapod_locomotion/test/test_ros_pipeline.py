@@ -16,7 +16,6 @@ rclpy = pytest.importorskip('rclpy')
 from hexapod_model.contract import stamp_seconds  # noqa: E402
 from hexapod_testing import installed_executable, node_env  # noqa: E402
 
-
 _exe = installed_executable
 
 
@@ -43,8 +42,9 @@ def nodes():
 
 def test_locomotion_node_walks_the_sim_node(nodes):
     from geometry_msgs.msg import PoseStamped
-    from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
     from rclpy.executors import SingleThreadedExecutor
+
+    from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
 
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx, domain_id=DOMAIN_ID)

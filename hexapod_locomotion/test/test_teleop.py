@@ -6,20 +6,18 @@ limits below are failure bounds only; assertions are on message contents and ord
 """
 import math
 import os
-import pty
 import signal
 import subprocess
 import termios
 import threading
 import time
-
 from pathlib import Path
 
 import pytest
 
-from hexapod_locomotion.nodes.cmd_vel_pub import CliError, check_velocity, rate_warning
 from hexapod_locomotion.core.controller import LocomotionParams
 from hexapod_locomotion.core.gait import get_gait
+from hexapod_locomotion.nodes.cmd_vel_pub import CliError, check_velocity, rate_warning
 from hexapod_locomotion.nodes.teleop_keyboard import Teleop, controller_limits, keys_from_bytes
 
 REPO = Path(__file__).resolve().parents[2]

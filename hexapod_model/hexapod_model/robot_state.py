@@ -30,6 +30,7 @@ from hexapod_model.urdf import urdf_xml
 
 try:
     from geometry_msgs.msg import TransformStamped
+
     from tf2_msgs.msg import TFMessage
 except ImportError:                 # the PyPI wheels have no tf2_msgs (see the module doc)
     TFMessage = None

@@ -37,8 +37,18 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hexapod_model.description import JOINT_ROLES, LEGS, DescriptionError, Robot, joint_name
-from hexapod_model.shapes import (FOOT_RADIUS_M, FOOT_RGBA, LINK_RADIUS_M, LINK_RGBA, ROBOT_RGBA, SERVO_HALF_SIZE_M,
-                     link_inertial, link_principal_inertia, trunk_geometry, trunk_inertia)
+from hexapod_model.shapes import (
+    FOOT_RADIUS_M,
+    FOOT_RGBA,
+    LINK_RADIUS_M,
+    LINK_RGBA,
+    ROBOT_RGBA,
+    SERVO_HALF_SIZE_M,
+    link_inertial,
+    link_principal_inertia,
+    trunk_geometry,
+    trunk_inertia,
+)
 
 ROOT_LINK = 'base_link'
 TRUNK_LINK = 'trunk'

@@ -23,8 +23,7 @@ def test_topic_names_are_relative_so_the_stack_runs_under_a_namespace():
 def test_stamp_conversions_are_one_pair_in_every_form():
     from builtin_interfaces.msg import Time
 
-    from hexapod_model.contract import (stamp_dict, stamp_dict_ns, stamp_msg, stamp_ns, stamp_parts_ns,
-                                        stamp_seconds)
+    from hexapod_model.contract import stamp_dict, stamp_dict_ns, stamp_msg, stamp_ns, stamp_parts_ns, stamp_seconds
     for t in (0.0, 0.001, 12.000345, 1.9999999999, 1234.5678901):
         sec, nanosec = stamp_parts(t)
         msg = stamp_msg(t)

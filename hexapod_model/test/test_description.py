@@ -5,9 +5,17 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hexapod_model.description import (ALL_JOINTS, LEGS, DescriptionError, Effect, effects_to_overlay,
-                                       load_robot, parse_joint_name, default_description_path,
-                                       robot_from_dict)
+from hexapod_model.description import (
+    ALL_JOINTS,
+    LEGS,
+    DescriptionError,
+    Effect,
+    default_description_path,
+    effects_to_overlay,
+    load_robot,
+    parse_joint_name,
+    robot_from_dict,
+)
 
 
 @pytest.fixture(scope='module')

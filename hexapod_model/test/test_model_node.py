@@ -14,10 +14,10 @@ from hexapod_model.swing_model import predict_swing_down  # noqa: E402
 
 @pytest.fixture(scope='module')
 def client():
-    from hexapod_msgs.srv import PredictSwingDown
     from rclpy.executors import MultiThreadedExecutor
 
     from hexapod_model.model_node import ModelNode
+    from hexapod_msgs.srv import PredictSwingDown
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)     # ROS_DOMAIN_ID: the test run's own (./hexapod test sets it)
@@ -87,7 +87,6 @@ def test_the_running_model_node_refuses_bad_start_speeds_and_serves_on():
     import subprocess
 
     from hexapod_msgs.srv import PredictSwingDown
-
     from hexapod_testing import installed_executable, node_env, ros_probe, stop_process
     domain = 220 + os.getpid() % 13                  # 220..232 (Fast DDS refuses above 232): this test's own
     proc = subprocess.Popen([installed_executable('hexapod_model', 'model_node')], env=node_env(domain),

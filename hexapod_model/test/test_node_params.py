@@ -7,8 +7,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from hexapod_model.param_schema import (ParameterError, RobotSource, check, help_lines, param, specs,
-                                        validate)
+from hexapod_model.param_schema import ParameterError, RobotSource, check, help_lines, param, specs, validate
 
 rclpy = pytest.importorskip('rclpy')
 from rcl_interfaces.msg import ParameterType  # noqa: E402

@@ -6,8 +6,7 @@ import pytest
 
 from hexapod_model import servo
 from hexapod_model.description import BusJoint, load_robot
-from hexapod_model.servo import (joint_tick_of_servo_tick, servo_theta, servo_tick, theta_to_tick,
-                                 tick_to_theta)
+from hexapod_model.servo import joint_tick_of_servo_tick, servo_theta, servo_tick, theta_to_tick, tick_to_theta
 
 
 @pytest.fixture(scope='module')

@@ -6,8 +6,15 @@ import pytest
 
 from hexapod_model.description import Effect, load_robot
 from hexapod_model.servo import theta_to_tick
-from hexapod_model.swing_model import (LegModel, SwingDownError, goal_fraction, goals_per_period,
-                                      interpolated_goals, predict_swing_down, steps_to_fin)
+from hexapod_model.swing_model import (
+    LegModel,
+    SwingDownError,
+    goal_fraction,
+    goals_per_period,
+    interpolated_goals,
+    predict_swing_down,
+    steps_to_fin,
+)
 
 RAISED = [0.45, 0.1]     # femur, tibia at the end of swing-forward [rad]
 BELOW = [-0.15, -0.05]   # theta_fin: below the expected ground

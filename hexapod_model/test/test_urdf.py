@@ -13,8 +13,17 @@ from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Description
 from hexapod_model.kinematics import leg_frames
 from hexapod_model.shapes import INERTIA_AXIAL_FRACTION
 from hexapod_model.swing_model import LegModel, coxa_axis_inertia_kgm2
-from hexapod_model.urdf import (ROOT_LINK, check_robot, foot_link, frame_poses, link_transforms, no_load_speed_rad_s,
-                                urdf_joints, urdf_xml, write_urdf)
+from hexapod_model.urdf import (
+    ROOT_LINK,
+    check_robot,
+    foot_link,
+    frame_poses,
+    link_transforms,
+    no_load_speed_rad_s,
+    urdf_joints,
+    urdf_xml,
+    write_urdf,
+)
 
 pin = pytest.importorskip('pinocchio', reason='pin (Pinocchio) is pinned in requirements/py.txt')
 

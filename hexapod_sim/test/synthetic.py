@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-
 from hexapod_model.description import Robot
 from hexapod_model.servo import quantize_tick, theta_to_tick, tick_to_theta
-
 from hexapod_sim.calibration.plan import CalibrationPlan
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.simulate import Replay

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from hexapod_testing import node_env
 from hexapod_sim.bagio import BagError, BagReader, BagWarning, BagWriter
 from hexapod_sim.bagio.repair import reindex_bag
 from hexapod_sim.bench.kill_bench import command, kill_one, rosbags_read
+from hexapod_testing import node_env
 
 FSIZE_LIMIT = 400_000      # bytes: the sim node's bag (~150 kB per second of sim time) hits it within seconds
 

@@ -133,7 +133,8 @@ def test_round_trip_layout_and_metadata(tmp_path):
         assert_subset(m[2], as_plain(g.msg))
     # time window and topic filter
     sel = list(reader.messages(topics=[contract.IMU], start_ns=T0 + 1, end_ns=T0 + 200_000_000))
-    assert [g.t_ns for g in sel] == [m[3] for m in expected if m[0] == contract.bag_topic(contract.IMU) and T0 + 1 <= m[3] < T0 + 200_000_000]
+    imu = contract.bag_topic(contract.IMU)
+    assert [g.t_ns for g in sel] == [m[3] for m in expected if m[0] == imu and T0 + 1 <= m[3] < T0 + 200_000_000]
     assert list(reader.messages(topics=['/not_recorded'])) == []
     # single .mcap path reads the same
     assert [(g.topic, g.t_ns) for g in BagReader(bag / 'run1_0.mcap').messages()] == [(g.topic, g.t_ns) for g in got]

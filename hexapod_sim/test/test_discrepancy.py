@@ -10,15 +10,15 @@ import math
 
 import numpy as np
 import pytest
+from synthetic import model_recording
 
-from hexapod_sim.calibration.plan import calibration_plan
 from hexapod_model.description import JOINT_ROLES, Effect, load_robot
+from hexapod_sim.calibration.plan import calibration_plan
 from hexapod_sim.discrepancy import analyse
 from hexapod_sim.discrepancy.effects import CANDIDATES
 from hexapod_sim.discrepancy.locate import Mismatch
 from hexapod_sim.discrepancy.plot import _mark_clipped, save_plot
 from hexapod_sim.discrepancy.report import text_report, to_json
-from synthetic import model_recording
 
 LEG2 = ('leg2_coxa', 'leg2_femur', 'leg2_tibia')
 

@@ -5,15 +5,15 @@ import math
 
 import numpy as np
 import pytest
+from synthetic import model_recording
 
+from hexapod_model.description import JOINT_ROLES, Effect, load_robot
 from hexapod_sim.bagio import BagWriter
 from hexapod_sim.calibration.plan import calibration_plan
-from hexapod_model.description import JOINT_ROLES, Effect, load_robot
 from hexapod_sim.discrepancy.cli import main
 from hexapod_sim.discrepancy.recording import Recording, RecordingError, load_recording
 from hexapod_sim.discrepancy.segments import looks_like_walk, parse_windows, swing_segments
 from hexapod_sim.discrepancy.simulate import Replay
-from synthetic import model_recording
 
 WIDTH = math.radians(1.3)
 

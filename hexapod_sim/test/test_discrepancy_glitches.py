@@ -5,16 +5,16 @@ import math
 
 import numpy as np
 import pytest
+from synthetic import model_recording
 
-from hexapod_sim.bagio import BagWriter
-from hexapod_sim.calibration.plan import calibration_plan
 from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES
 from hexapod_model.description import ALL_JOINTS, Effect, load_robot
+from hexapod_sim.bagio import BagWriter
+from hexapod_sim.calibration.plan import calibration_plan
 from hexapod_sim.discrepancy.analysis import analyse
 from hexapod_sim.discrepancy.cli import main
 from hexapod_sim.discrepancy.glitches import GlitchSettings, no_load_speed_rad_s, screen
 from hexapod_sim.discrepancy.recording import Recording, load_recording
-from synthetic import model_recording
 
 WIDTH = math.radians(1.3)
 JOINT = 'leg5_tibia'

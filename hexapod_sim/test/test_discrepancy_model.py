@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from hexapod_sim.calibration.plan import PHASES, CalibrationError, calibration_plan, run_calibration
 from hexapod_model.description import JOINT_ROLES, LEGS, Effect, load_robot
 from hexapod_model.servo import theta_to_tick
 from hexapod_model.swing_model import CoxaModel, LegModel, coxa_axis_inertia_kgm2
+from hexapod_sim.calibration.plan import PHASES, CalibrationError, calibration_plan, run_calibration
 
 
 @pytest.fixture(scope='module')

@@ -5,8 +5,8 @@ import math
 
 import pytest
 
-from hexapod_sim.calibration.plan import calibration_plan, run_calibration
 from hexapod_model.description import JOINT_ROLES, Effect, joint_name, load_robot
+from hexapod_sim.calibration.plan import calibration_plan, run_calibration
 from hexapod_sim.discrepancy import analyse
 from hexapod_sim.discrepancy.report import text_report
 
@@ -90,6 +90,7 @@ def test_physics_outside_the_library_is_reported_unexplained_not_misnamed(monkey
     slower motor's nearest candidate, a torque limit, took the femur only from 3.94 to 2.22 ticks) and
     reports the mismatch as unexplained on that joint, with where it shows."""
     import dataclasses
+
     from hexapod_sim.discrepancy.report import to_json
     orig = sim_mod.build_scene
 

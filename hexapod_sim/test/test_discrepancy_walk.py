@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexapod_sim.bagio import BagReader
 from hexapod_model.description import load_robot
+from hexapod_sim.bagio import BagReader
 from hexapod_sim.discrepancy.analysis import analyse
 from hexapod_sim.discrepancy.recording import load_recording
 from hexapod_sim.discrepancy.report import to_json

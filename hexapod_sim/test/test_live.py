@@ -25,8 +25,9 @@ websockets = pytest.importorskip('websockets')
 pytest.importorskip('foxglove')
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
 
-from hexapod_sim.node.live import LiveView, LiveViewError  # noqa: E402
 from hexapod_sim.bagio.recorder import Recorder  # noqa: E402
+from hexapod_sim.node.live import LiveView, LiveViewError  # noqa: E402
+
 
 def bag_topic(name: str) -> str:
     return contract.bag_topic(name)

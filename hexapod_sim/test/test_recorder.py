@@ -5,9 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from hexapod_sim.bagio import BagReader
 from hexapod_model.contract import stamp_dict
-from hexapod_sim.bagio import recorder
+from hexapod_sim.bagio import BagReader, recorder
 from hexapod_sim.bagio.recorder import Recorder, resolve_bag_dir, ros_to_plain
 
 
@@ -56,6 +55,7 @@ def test_fast_cdr_packers_match_the_bag_writers_encoder(tmp_path):
     import numpy as np
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
+
     from hexapod_sim.bagio import BagWriter
     rng = np.random.default_rng(0)
     w = BagWriter(tmp_path / 'enc')
@@ -82,6 +82,7 @@ def test_fast_cdr_packers_for_imu_pose_and_arrays(tmp_path):
     from geometry_msgs.msg import PoseStamped
     from sensor_msgs.msg import Imu
     from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
     from hexapod_sim.bagio import BagWriter
     rng = np.random.default_rng(1)
     w = BagWriter(tmp_path / 'enc')
@@ -111,6 +112,7 @@ def test_fast_cdr_packers_for_imu_pose_and_arrays(tmp_path):
 def _calls(n_ms: int):
     """The sim node's recording calls for ``n_ms`` of a run, as plain data: (kind, args)."""
     import numpy as np
+
     from hexapod_model.description import ALL_JOINTS
     rng = np.random.default_rng(3)
     for k in range(n_ms):

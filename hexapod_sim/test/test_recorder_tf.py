@@ -12,11 +12,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hexapod_model import contract
-from hexapod_sim.bagio import BagWriter
 from hexapod_model.description import ALL_JOINTS, LEGS, load_robot
 from hexapod_model.kinematics import leg_frames
 from hexapod_model.tf_tree import TfTree, matrix_of
 from hexapod_model.urdf import urdf_xml
+from hexapod_sim.bagio import BagWriter
 from hexapod_sim.bagio.recorder import TF_RATE_HZ, Recorder, cdr_tf_entries
 
 rosbags = pytest.importorskip('rosbags')
@@ -203,8 +203,8 @@ def test_tf_of_a_simulated_walk_puts_the_feet_where_mujoco_has_them(tmp_path, ro
     own foot-tip sites: URDF, DH and MJCF agree on where every foot is."""
     import mujoco
 
-    from hexapod_sim.tools.render import scripted_tripod
     from hexapod_sim.physics.plant import HexapodSim, run_trajectory
+    from hexapod_sim.tools.render import scripted_tripod
     sim = HexapodSim(robot, terrain='flat')
     sites = [mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_SITE, f'leg{leg}_foot_tip') for leg in LEGS]
     feet = {}

@@ -5,8 +5,8 @@ from PIL import Image
 
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, load_robot
 from hexapod_sim.node import cli
-from hexapod_sim.tools.render import RenderError, record_video, render_png, scripted_tripod
 from hexapod_sim.physics.plant import HexapodSim
+from hexapod_sim.tools.render import RenderError, record_video, render_png, scripted_tripod
 
 
 @pytest.fixture(scope='module')
@@ -51,8 +51,8 @@ def test_video_is_driven_by_a_goal_callback(robot, tmp_path):
 
 def test_scripted_tripod_lifts_one_tripod_at_a_time(robot):
     g = scripted_tripod(robot, settle_s=0.0)
-    from hexapod_sim.tools.render import TRIPODS
     from hexapod_model.kinematics import forward
+    from hexapod_sim.tools.render import TRIPODS
     for t in np.linspace(1.3, 2.3, 9):                    # after the first (ramp) cycle
         goals = g(t)
         assert set(goals) == set(ALL_JOINTS)

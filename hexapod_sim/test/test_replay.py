@@ -22,8 +22,8 @@ from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
 from hexapod_model import contract  # noqa: E402
-from hexapod_sim.bagio import BagReader, BagWarning, BagWriter  # noqa: E402
 from hexapod_msgs.msg import ReadSchedule  # noqa: E402
+from hexapod_sim.bagio import BagReader, BagWarning, BagWriter  # noqa: E402
 from hexapod_sim.tools.replay import BagPlayer, Pacer, playback_window  # noqa: E402
 
 T0 = 1_700_000_000_000_000_000

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 import hexapod_testing as testing
-from hexapod_model.description import ALL_JOINTS, load_robot
-from hexapod_sim.discrepancy.recording import load_recording
 from hexapod_driver.emulator import BusEmulator
+from hexapod_model.description import ALL_JOINTS, load_robot
 from hexapod_sim.calibration.stand import main as stand_calibration
+from hexapod_sim.discrepancy.recording import load_recording
 
 DOMAIN_ID = 40 + os.getpid() % 20          # 40..59: clear of test_driver_node's 20..39
 

@@ -18,8 +18,8 @@ from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import BatteryState, Imu, JointState  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from hexapod_model import contract  # noqa: E402
 import hexapod_testing as testing  # noqa: E402
+from hexapod_model import contract  # noqa: E402
 from hexapod_model.description import ALL_JOINTS, load_robot  # noqa: E402
 from hexapod_model.servo import theta_to_tick  # noqa: E402
 from hexapod_msgs.msg import ReadSchedule, ServoDiagnostics  # noqa: E402
@@ -217,6 +217,7 @@ def test_diagnostics_and_robot_description_over_ros(ctx):
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import DurabilityPolicy, QoSProfile
     from std_msgs.msg import String
+
     from hexapod_model.urdf import urdf_xml
     sim = SimNode(context=ctx, parameter_overrides=[
         Parameter('real_time_factor', value=0.0), Parameter('bus_timing_rate_hz', value=10.0)])
@@ -253,7 +254,9 @@ def test_recording_callbacks_do_not_wait_for_a_bus_transaction(ctx, tmp_path):
     robot's controller thread does for every read (they used to wait for that lock, so the executor
     thread waited for the controller). The bag holds every /cmd_vel sent, in order."""
     import threading
+
     from geometry_msgs.msg import Twist, Vector3
+
     from hexapod_sim.bagio import BagReader
     bag = tmp_path / 'bag'
     sim = SimNode(context=ctx, parameter_overrides=[Parameter('lockstep', value=True),

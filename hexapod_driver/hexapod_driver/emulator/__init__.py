@@ -42,8 +42,14 @@ The package by job: :mod:`.control_table` (one servo's registers and error condi
 injection), :mod:`.pty_server` (:class:`BusEmulator`: the pseudo-terminal, packet handling,
 timing), :mod:`.cli` (``bus_emulator``).
 """
-from hexapod_driver.emulator.backends import (BACKEND_GROUP, IdealServoBackend, ServoBackend, ServoBusBackend, backend_plugins,
-                       firmware_tick_at_or_after)
+from hexapod_driver.emulator.backends import (
+                       BACKEND_GROUP,
+                       IdealServoBackend,
+                       ServoBackend,
+                       ServoBusBackend,
+                       backend_plugins,
+                       firmware_tick_at_or_after,
+)
 from hexapod_driver.emulator.control_table import EmulatedServo, EmulatorError
 from hexapod_driver.emulator.faults import Faults
 from hexapod_driver.emulator.pty_server import BusEmulator, LogEntry

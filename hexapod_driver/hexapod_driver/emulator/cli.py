@@ -9,11 +9,10 @@ import threading
 
 import numpy as np
 
-from hexapod_model.description import load_robot
-
 from hexapod_driver import protocol as p
 from hexapod_driver.emulator.backends import BACKEND_GROUP, backend_plugins
 from hexapod_driver.emulator.pty_server import BusEmulator
+from hexapod_model.description import load_robot
 
 
 def _load_plugins(ap: argparse.ArgumentParser) -> dict:

@@ -16,12 +16,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping
 
-from hexapod_model.description import ALL_JOINTS, Robot, load_robot
-
 from hexapod_driver import protocol as p
 from hexapod_driver.emulator.backends import IdealServoBackend, ServoBackend
 from hexapod_driver.emulator.control_table import EmulatedServo, EmulatorError
 from hexapod_driver.emulator.faults import Faults
+from hexapod_model.description import ALL_JOINTS, Robot, load_robot
 
 AX12A_NO_LOAD_SPEED_RPM = 59.0     # e-manual: no-load speed at 12 V; the ideal servo's top speed
 

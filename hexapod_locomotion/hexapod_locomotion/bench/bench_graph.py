@@ -268,8 +268,8 @@ def _last_error(log) -> str:
 
 def figures(probe: _Probe, gait: str) -> dict:
     """Distance, t_con and detection delay from what the probe saw."""
-    from hexapod_model.description import load_robot
     from hexapod_locomotion.core.gait import get_gait
+    from hexapod_model.description import load_robot
     t_com = load_robot().bus.t_com_s
     L = len(get_gait(gait).swing_legs(0))
     gaps, delays = [], []

@@ -46,8 +46,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from hexapod_model.description import Effect, JOINT_ROLES, LEGS, effects_to_overlay, joint_name, load_robot, parse_joint_name
-
+from hexapod_model.description import JOINT_ROLES, LEGS, Effect, effects_to_overlay, joint_name, load_robot, parse_joint_name
 from hexapod_sim.calibration.plan import calibration_plan, run_calibration
 from hexapod_sim.discrepancy.effects import BY_NAME
 
@@ -482,9 +481,15 @@ def _record_named_walk(case: Case, out_dir: Path, name: str) -> tuple[Path, floa
 
 
 def main(argv=None) -> int:
-    from hexapod_model.cli_common import (add_no_progress_option, interrupted, make_parser, nonnegative_int,
-                                          output_directory, output_file)
     from hexapod_locomotion.trials.executor import ExecutorError, add_executor_options
+    from hexapod_model.cli_common import (
+        add_no_progress_option,
+        interrupted,
+        make_parser,
+        nonnegative_int,
+        output_directory,
+        output_file,
+    )
     ap = make_parser('discrepancy_bench', __doc__.splitlines()[0])
     ap.add_argument('--seed', type=nonnegative_int, default=0, help='draws the magnitudes and joints of the cases')
     ap.add_argument('--cases', nargs='+', metavar='NAME', help='run only these cases (names as in the table)')

@@ -19,16 +19,21 @@ from typing import Callable
 
 import numpy as np
 
+from hexapod_locomotion.core.detector import (
+    STOP_CONTACT,
+    STOP_THETA_FIN,
+    DetectorConfig,
+    ReadResult,
+    SwingDownPhase,
+    run_swing_down,
+)
+from hexapod_locomotion.core.gait import Gait
 from hexapod_model.bus import ServoBus
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import UnreachableTargetError, forward, inverse, stance_feet
 from hexapod_model.leveling import LevelingError, level_body
 from hexapod_model.servo import theta_to_tick
 from hexapod_model.swing_model import LegModel, predict_swing_down
-
-from hexapod_locomotion.core.detector import (STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, ReadResult, SwingDownPhase,
-                       run_swing_down)
-from hexapod_locomotion.core.gait import Gait
 
 
 class LocomotionError(RuntimeError):

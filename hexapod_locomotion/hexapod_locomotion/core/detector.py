@@ -25,8 +25,17 @@ from hexapod_model.bus import ServoBus
 from hexapod_model.description import Robot, joint_name
 from hexapod_model.kinematics import forward
 from hexapod_model.servo import theta_to_tick, tick_to_theta
-from hexapod_model.swing_model import (LegModel, Rollout, SwingDownError, SwingDownPrediction, check_approach,
-                                       goal_fraction, interpolated_goals, predict_swing_down, steps_to_fin)
+from hexapod_model.swing_model import (
+    LegModel,
+    Rollout,
+    SwingDownError,
+    SwingDownPrediction,
+    check_approach,
+    goal_fraction,
+    interpolated_goals,
+    predict_swing_down,
+    steps_to_fin,
+)
 
 STOP_NONE, STOP_CONTACT, STOP_THETA_FIN = 0, 1, 2     # as in hexapod_msgs/LegGroundDetection
 STAMP_RESOLUTION_S = 1e-9                            # ROS stamps are whole nanoseconds

@@ -16,7 +16,6 @@ import yaml
 
 from hexapod_model.description import LEGS, source_path, yaml_problem
 
-
 # stride of a gait whose definition gives none [m] (reach: about 11 cm). A 10 cm stride stalled the
 # real-time ROS graph at the first blocks of the mockup (docs/architecture.md); 9 cm is what tetrapod
 # needs for the paper's speed at t_des = 1 s.

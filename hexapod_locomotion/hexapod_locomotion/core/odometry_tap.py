@@ -14,11 +14,10 @@ from typing import Callable
 
 import numpy as np
 
+from hexapod_locomotion.core.odometry import ImuReading, LegOdometry, OdometryEstimate
 from hexapod_model.contract import stamp_dict
 from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import forward
-
-from hexapod_locomotion.core.odometry import ImuReading, LegOdometry, OdometryEstimate
 
 ODOMETRY_PERIOD_S = 0.02     # update period [s of bus time]: the bus reads a leg's 3 joints in ~4 ms
 HANDOVER_S = 0.05            # longest time lifting feet stand in for landed ones not yet read

@@ -22,10 +22,9 @@ import sys
 import threading
 import time
 
+from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
 from hexapod_model.cli_common import make_parser, prog_name
 from hexapod_model.contract import CMD_VEL
-
-from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
 
 TOPIC = CMD_VEL        # relative: resolved in the node's namespace (--ros-args -r __ns:=/hexa)
 ACK_TIMEOUT_S = 1.0    # wait this long for subscribers to acknowledge the final zero Twist

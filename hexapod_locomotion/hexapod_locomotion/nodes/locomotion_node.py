@@ -35,6 +35,15 @@ from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
+from hexapod_locomotion.core.course import CourseKeeper
+from hexapod_locomotion.core.detector import DetectorConfig, DetectorError, swing_start_fields
+from hexapod_locomotion.core.gait import GaitError, get_gait
+from hexapod_locomotion.core.odometry import OdometryError
+from hexapod_locomotion.core.odometry_tap import odometry_dict
+from hexapod_locomotion.core.read_timing import ReadTiming
+from hexapod_locomotion.nodes.params import NODE, LocomotionNodeParams
+from hexapod_locomotion.nodes.ros_bus import RosBus
 from hexapod_model import diagnostics
 from hexapod_model.bus import BusError
 from hexapod_model.contract import CMD_VEL, DIAGNOSTICS, GROUND_DETECTION, SWING_DOWN, stamp_msg, stamp_parts
@@ -42,15 +51,6 @@ from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
 from hexapod_model.node_params import NodeParams, node_help, run_node
 from hexapod_model.param_schema import RobotSource
 
-from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
-from hexapod_locomotion.core.course import CourseKeeper
-from hexapod_locomotion.core.detector import DetectorConfig, DetectorError, swing_start_fields
-from hexapod_locomotion.core.gait import GaitError, get_gait
-from hexapod_locomotion.core.odometry import OdometryError
-from hexapod_locomotion.core.odometry_tap import odometry_dict
-from hexapod_locomotion.nodes.params import NODE, LocomotionNodeParams
-from hexapod_locomotion.core.read_timing import ReadTiming
-from hexapod_locomotion.nodes.ros_bus import RosBus
 
 class LocomotionNode(Node):
     def __init__(self, bus=None, **node_kwargs):
@@ -67,8 +67,9 @@ class LocomotionNode(Node):
             t_com = p.t_com_s or self.robot.bus.t_com_s
             timeout = p.read_timeout_s or (10.0 if p.lockstep else 2.0)
             self.bus = RosBus(self, t_com, read_timeout_s=timeout, lockstep=p.lockstep)
-        from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         from geometry_msgs.msg import Twist
+
+        from hexapod_msgs.msg import LegGroundDetection, SwingDownStart
         self._LGD = LegGroundDetection
         self._SDS = SwingDownStart
         from diagnostic_msgs.msg import DiagnosticArray
@@ -105,10 +106,9 @@ class LocomotionNode(Node):
         from nav_msgs.msg import Odometry
         from sensor_msgs.msg import Imu, JointState
 
-        from hexapod_model.contract import IMU, JOINT_STATES, ODOM, TF
-
         from hexapod_locomotion.core.odometry import ImuReading, LegOdometry
         from hexapod_locomotion.core.odometry_tap import OdometryTap
+        from hexapod_model.contract import IMU, JOINT_STATES, ODOM, TF
         self._Odometry, self._ImuReading, self._TransformStamped = Odometry, ImuReading, TransformStamped
         self._imu = None
         self.odom_pub = self.create_publisher(Odometry, ODOM, 50)

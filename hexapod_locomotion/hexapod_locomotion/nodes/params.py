@@ -10,11 +10,10 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from hexapod_model.param_schema import NodeSpec, RobotSource, param
-
 from hexapod_locomotion.core.controller import MAX_STEP_S, LocomotionParams
 from hexapod_locomotion.core.detector import DETECTOR_KINDS, DetectorConfig
 from hexapod_locomotion.core.gait import load_gaits
+from hexapod_model.param_schema import NodeSpec, RobotSource, param
 
 _GAIT = LocomotionParams()
 

@@ -22,15 +22,13 @@ import sys
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
-from hexapod_model.bus import BusError
-from hexapod_model.description import DescriptionError
-from hexapod_model.node_params import NodeParams, init_node_process, node_command_line, stopping_cleanly
-
 from hexapod_locomotion.core.controller import LocomotionError
 from hexapod_locomotion.core.detector import DetectorError
 from hexapod_locomotion.core.gait import GaitError
 from hexapod_locomotion.nodes.params import ComposedParams
-
+from hexapod_model.bus import BusError
+from hexapod_model.description import DescriptionError
+from hexapod_model.node_params import NodeParams, init_node_process, node_command_line, stopping_cleanly
 
 
 def _declared(context, node_name: str, schema):
@@ -54,11 +52,10 @@ def _check_parameter_names(context, hardware: str) -> None:
     other bus master's (``record`` with ``hardware:=driver``: it would do nothing), before any node
     starts. ``-p`` reaches every node; a parameter file's entries addressed to one node must be its own."""
     from hexapod_driver.config import NODE as DRIVER
-    from hexapod_model.node_params import parameters_given, unknown_parameter
-    from hexapod_model.param_schema import MODEL_NODE, ParameterError, specs
-    from hexapod_sim.node.params import NODE as SIM
-
     from hexapod_locomotion.nodes.params import NODE as LOCOMOTION
+    from hexapod_model.node_params import parameters_given, unknown_parameter
+    from hexapod_model.param_schema import MODEL_NODE, specs
+    from hexapod_sim.node.params import NODE as SIM
     master, other = (DRIVER, SIM) if hardware == 'driver' else (SIM, DRIVER)
     members = (master, MODEL_NODE, LOCOMOTION)
     known = set(specs(ComposedParams)).union(*(m.names() for m in members))
@@ -94,10 +91,9 @@ def _bus_master(hardware: str):
 
 
 def help_text() -> str:
+    from hexapod_locomotion.nodes.params import NODE
     from hexapod_model.cli_common import prog_name
     from hexapod_model.param_schema import help_lines
-
-    from hexapod_locomotion.nodes.params import NODE
     lines = [f'usage: {prog_name("robot")} [-h] [--ros-args -p NAME:=VALUE ...]', '', __doc__.strip(), '',
              'Parameters (-p NAME:=VALUE), besides those of sim_node / driver_node and model_node:',
              *help_lines((ComposedParams, *NODE.schemas))]
@@ -108,11 +104,10 @@ def main(args=None) -> None:
     rc = node_command_line(None if args is None else list(args)[1:], 'robot', help_text)
     if rc is not None:
         raise SystemExit(rc)
+    from hexapod_locomotion.nodes.locomotion_node import LocomotionNode, spin_while_walking
     from hexapod_model.model_node import ModelNode
     from hexapod_sim.bagio import BagError
     from hexapod_sim.physics.plant import SimError
-
-    from hexapod_locomotion.nodes.locomotion_node import LocomotionNode, spin_while_walking
     init_node_process(args)
     nodes, cleanups, loco = [], [], None
     try:

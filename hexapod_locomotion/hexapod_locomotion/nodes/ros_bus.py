@@ -35,16 +35,16 @@ import time
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
 from hexapod_model.bus import BusError
-from hexapod_model.contract import (JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE, SET_READ_SCHEDULE, stamp_parts,
-                                    stamp_seconds)
+from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE, SET_READ_SCHEDULE, stamp_parts, stamp_seconds
 from hexapod_model.description import ALL_JOINTS
 
 
 class RosBus:
     def __init__(self, node, t_com_s: float, read_timeout_s: float = 0.5, lockstep: bool = False):
+        from sensor_msgs.msg import JointState
+
         from hexapod_msgs.msg import ReadSchedule
         from hexapod_msgs.srv import SetReadSchedule
-        from sensor_msgs.msg import JointState
         self._JointState = JointState
         self._ReadSchedule = ReadSchedule
         self._SetReadSchedule = SetReadSchedule

@@ -29,16 +29,31 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_sim.bagio import BagError, BagReader, BagWarning, one_warning
-from hexapod_model.cli_common import (add_no_progress_option, interrupted, make_parser, open_for_writing, output_file,
-                                      plot_extensions)
-from hexapod_model.contract import (GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER, SIM_TRUTH_POSE,
-                                   SWING_DOWN, stamp_seconds, topic_key)
-from hexapod_model.description import LEGS, DescriptionError, joint_name, load_robot, parse_joint_name
-from hexapod_model.swing_model import LegModel
-
 from hexapod_locomotion.core.detector import STOP_THETA_FIN, DetectorError, phase_from_fields, replay_swing_down
 from hexapod_locomotion.core.metrics import MetricsError, roll_pitch_yaw, swing_down_variances, walk_cost_of_transport
+from hexapod_model.cli_common import (
+    add_no_progress_option,
+    interrupted,
+    make_parser,
+    open_for_writing,
+    output_file,
+    plot_extensions,
+)
+from hexapod_model.contract import (
+    GROUND_DETECTION,
+    IMU,
+    JOINT_COMMANDS,
+    JOINT_STATES,
+    MSG_TYPES,
+    POWER,
+    SIM_TRUTH_POSE,
+    SWING_DOWN,
+    stamp_seconds,
+    topic_key,
+)
+from hexapod_model.description import LEGS, DescriptionError, joint_name, load_robot, parse_joint_name
+from hexapod_model.swing_model import LegModel
+from hexapod_sim.bagio import BagError, BagReader, BagWarning, one_warning
 
 
 class AnalysisError(RuntimeError):

@@ -12,13 +12,22 @@ import sys
 import time
 from pathlib import Path
 
-from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, fail, finite_float, interrupted,
-                                      make_parser, nonnegative_int, output_file, port_number, positive_float,
-                                      positive_float_at_most)
-from hexapod_sim.physics.terrain import MOCKUP_COURSE_END_M
-
 from hexapod_locomotion.core.metrics import COT_WINDOW_S
 from hexapod_locomotion.trials.trial_runner import TrialConfig, run_trial
+from hexapod_model.cli_common import (
+    add_no_progress_option,
+    add_overlay_option,
+    fail,
+    finite_float,
+    interrupted,
+    make_parser,
+    nonnegative_int,
+    output_file,
+    port_number,
+    positive_float,
+    positive_float_at_most,
+)
+from hexapod_sim.physics.terrain import MOCKUP_COURSE_END_M
 
 # The walk's time limit counts from the stand-up; the first swing-down comes within about a second.
 STAND_UP_MARGIN_S = 1.0
@@ -52,13 +61,12 @@ def summary_lines(res) -> list[str]:
 
 
 def build_parser():
-    from hexapod_sim.node.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
-    from hexapod_sim.tools.render import VIDEO_EXTENSIONS
-    from hexapod_sim.physics.terrain import MOCKUP_BLOCKS_X_M, MOCKUP_STAIRS_X_M, TERRAINS
-
     from hexapod_locomotion.core.controller import MAX_STEP_S
     from hexapod_locomotion.core.detector import DETECTOR_KINDS
     from hexapod_locomotion.core.gait import load_gaits
+    from hexapod_sim.node.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
+    from hexapod_sim.physics.terrain import MOCKUP_BLOCKS_X_M, MOCKUP_STAIRS_X_M, TERRAINS
+    from hexapod_sim.tools.render import VIDEO_EXTENSIONS
     ap = make_parser('demo', __doc__)
     ap.add_argument('--gait', default='tripod', choices=sorted(load_gaits()), help='gait (data/gaits.yaml)')
     ap.add_argument('--detector', default='adaptive', choices=DETECTOR_KINDS, help='ground detector')

@@ -27,12 +27,17 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.cli_common import (add_no_progress_option, interrupted, make_parser, output_directory, positive_float,
-                                      positive_int)
 from hexapod_locomotion.trials.executor import ExecutorError, JobsInterrupted, add_executor_options, map_jobs
-from hexapod_sim.physics.terrain import MOCKUP_COURSE_END_M
-
 from hexapod_locomotion.trials.trial_runner import TrialConfig, detector_config, locomotion_params, run_trial
+from hexapod_model.cli_common import (
+    add_no_progress_option,
+    interrupted,
+    make_parser,
+    output_directory,
+    positive_float,
+    positive_int,
+)
+from hexapod_sim.physics.terrain import MOCKUP_COURSE_END_M
 
 GAITS = ('tripod', 'tetrapod', 'pentapod')
 DETECTORS = ('fixed', 'adaptive')
@@ -263,13 +268,13 @@ def plot_fig12(results: list[dict], path: Path) -> None:
 # ----------------------------------------------------------------------------- free swing on a stand
 def free_swing_quality(t_des_values=(0.5, 1.0, 2.0), phases_per_gait: int = 6) -> list[dict]:
     """Robot on a stand (no ground): every swing-down must run to theta_fin; a contact stop is premature."""
-    from hexapod_model.description import load_robot
-    from hexapod_sim.physics.plant import HexapodSim
+    from tqdm import tqdm
 
     from hexapod_locomotion.core.controller import GaitController, VelocityCommand
     from hexapod_locomotion.core.detector import STOP_CONTACT
     from hexapod_locomotion.core.gait import get_gait
-    from tqdm import tqdm
+    from hexapod_model.description import load_robot
+    from hexapod_sim.physics.plant import HexapodSim
     robot = load_robot()
     out = []
     bar = tqdm(total=len(GAITS) * len(t_des_values) * len(VARIANTS), desc='free swing on a stand', unit='cell',

@@ -20,13 +20,18 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_model.cli_common import (add_no_progress_option, interrupted, make_parser, output_directory, positive_float,
-                                      positive_int)
 from hexapod_locomotion.trials.executor import ExecutorError, JobsInterrupted, add_executor_options, map_jobs
-from hexapod_sim.physics.terrain import MOCKUP_COURSE_END_M
-
 from hexapod_locomotion.trials.experiments import DETECTORS, GAITS, _trial_job
 from hexapod_locomotion.trials.trial_runner import TrialConfig
+from hexapod_model.cli_common import (
+    add_no_progress_option,
+    interrupted,
+    make_parser,
+    output_directory,
+    positive_float,
+    positive_int,
+)
+from hexapod_sim.physics.terrain import MOCKUP_COURSE_END_M
 
 NOT_SWEPT = ('seed', 'record', 'video', 'video_fps')    # seeds are --trials; the rest are outputs
 METRICS = (  # (key in a value's summary, axis label)
@@ -74,12 +79,11 @@ def parse_value(param: str, text: str):
 
 def check_config(cfg: TrialConfig) -> None:
     """Build what a trial builds from its config, without walking: a bad value fails here, named."""
+    from hexapod_locomotion.core.controller import LocomotionError
+    from hexapod_locomotion.core.gait import get_gait
+    from hexapod_locomotion.trials.trial_runner import detector_config, locomotion_params
     from hexapod_model.description import load_robot
     from hexapod_sim.physics.terrain import TERRAINS
-
-    from hexapod_locomotion.core.controller import LocomotionError
-    from hexapod_locomotion.trials.trial_runner import detector_config, locomotion_params
-    from hexapod_locomotion.core.gait import get_gait
     if cfg.terrain not in TERRAINS:
         raise SweepError(f'terrain: unknown terrain {cfg.terrain!r}; known: {sorted(TERRAINS)}')
     for p in cfg.overlays:

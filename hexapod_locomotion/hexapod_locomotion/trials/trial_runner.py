@@ -15,17 +15,34 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_model import diagnostics
-from hexapod_model.contract import (DIAGNOSTICS, GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, POWER,
-                                    SERVO_DIAGNOSTICS, SIM_TRUTH_CONTACTS, SIM_TRUTH_POSE, SWING_DOWN, stamp_dict, stamp_parts)
-from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name, load_robot, parse_joint_name
-from hexapod_model.kinematics import forward
-
 from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
 from hexapod_locomotion.core.detector import DetectorConfig, ReadResult, SwingDownPhase, swing_start_fields
 from hexapod_locomotion.core.gait import get_gait
-from hexapod_locomotion.core.metrics import (DetectionEvent, MetricsError, detection_quality, roll_pitch_yaw, swing_down_variances,
-                      walk_cost_of_transport)
+from hexapod_locomotion.core.metrics import (
+    DetectionEvent,
+    MetricsError,
+    detection_quality,
+    roll_pitch_yaw,
+    swing_down_variances,
+    walk_cost_of_transport,
+)
+from hexapod_model import diagnostics
+from hexapod_model.contract import (
+    DIAGNOSTICS,
+    GROUND_DETECTION,
+    IMU,
+    JOINT_COMMANDS,
+    JOINT_STATES,
+    MSG_TYPES,
+    POWER,
+    SERVO_DIAGNOSTICS,
+    SIM_TRUTH_CONTACTS,
+    SIM_TRUTH_POSE,
+    SWING_DOWN,
+    stamp_dict,
+)
+from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name, load_robot, parse_joint_name
+from hexapod_model.kinematics import forward
 
 FALL_TILT_RAD = 0.6          # roll or pitch beyond this counts as a fall
 FALL_HEIGHT_M = 0.035        # trunk this close to the ground counts as a fall
@@ -401,7 +418,8 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
             warnings.extend(rep.warnings)
             pos, quat = sim.body_pose()
             roll, pitch, _ = roll_pitch_yaw(quat)
-            if abs(roll) > FALL_TILT_RAD or abs(pitch) > FALL_TILT_RAD or pos[2] - sim.scene.terrain.height_at(pos[0], pos[1]) < FALL_HEIGHT_M:
+            clearance = pos[2] - sim.scene.terrain.height_at(pos[0], pos[1])
+            if abs(roll) > FALL_TILT_RAD or abs(pitch) > FALL_TILT_RAD or clearance < FALL_HEIGHT_M:
                 fell = True
                 warnings.append(f'robot fell at t={sim.now():.1f} s (roll {roll:.2f}, pitch {pitch:.2f} rad)')
                 break

@@ -29,7 +29,15 @@ definition lookup and type hashes), :mod:`.cdr` (message conversion and CDR enco
 :mod:`.writer` (:class:`BagWriter`), :mod:`.reader` (:class:`BagReader`, :func:`recover_bag`,
 :func:`joint_series`).
 """
-from hexapod_sim.bagio.common import DEFAULT_QOS_PROFILE, BagError, BagMessage, BagWarning, MessageEncodeError, TopicInfo, one_warning
+from hexapod_sim.bagio.common import (
+    DEFAULT_QOS_PROFILE,
+    BagError,
+    BagMessage,
+    BagWarning,
+    MessageEncodeError,
+    TopicInfo,
+    one_warning,
+)
 from hexapod_sim.bagio.definitions import _EMBEDDED_PATH, message_definition, normalize_type_name, type_hash  # noqa: F401
 from hexapod_sim.bagio.reader import BagReader, imu_series, joint_series, recover_bag
 from hexapod_sim.bagio.writer import BagWriter, encode_message

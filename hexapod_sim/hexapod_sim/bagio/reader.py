@@ -20,12 +20,10 @@ from mcap.records import Channel, Chunk, Footer, Message, Schema
 from mcap.stream_reader import breakup_chunk
 
 from hexapod_model import contract
-
 from hexapod_sim.bagio.cdr import decoder_for
 from hexapod_sim.bagio.common import MCAP_MAGIC, BagError, BagMessage, BagWarning, TopicInfo
 from hexapod_sim.bagio.definitions import message_definition, normalize_type_name
 from hexapod_sim.bagio.writer import BagWriter
-
 
 _KNOWN_OPCODES = {int(o) for o in Opcode}
 

@@ -17,7 +17,6 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
 from hexapod_model import contract
-
 from hexapod_sim.bagio.cdr import encoder_for, normalize, parse_definitions, ros_message_type
 from hexapod_sim.bagio.common import DEFAULT_QOS_PROFILE, ROS_DISTRO, ROSBAG2_VERSION, BagError, MessageEncodeError
 from hexapod_sim.bagio.definitions import message_definition, normalize_type_name, type_hash

@@ -25,8 +25,8 @@ import time
 from pathlib import Path
 
 from hexapod_model import contract
-from hexapod_sim.bagio import BagReader, BagWriter
 from hexapod_model.description import ALL_JOINTS
+from hexapod_sim.bagio import BagReader, BagWriter
 
 try:
     from tqdm import tqdm

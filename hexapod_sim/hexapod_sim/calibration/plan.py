@@ -274,9 +274,9 @@ def run_calibration(bus, plan: CalibrationPlan, progress: bool = True, robot: Ro
     sees integer goals, so nothing is lost, and the bus time goes to reads); ``robot`` gives the
     tick size (default: the packaged description).
     """
-    from hexapod_sim.discrepancy.recording import Recording
     from hexapod_model.description import load_robot
     from hexapod_model.servo import theta_to_tick
+    from hexapod_sim.discrepancy.recording import Recording
     servo = (robot or load_robot()).servo
     last_ticks = None
     commands, reads = [], []

@@ -12,13 +12,19 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, make_parser,
-                                      new_directory, positive_float)
+from hexapod_model.cli_common import (
+    add_no_progress_option,
+    add_overlay_option,
+    existing_file,
+    make_parser,
+    new_directory,
+    positive_float,
+)
 
 
 def build_parser():
-    from hexapod_sim.calibration.plan import PHASES
     from hexapod_model.description import LEGS
+    from hexapod_sim.calibration.plan import PHASES
     ap = make_parser('stand_calibration', __doc__)
     ap.add_argument('--device', default='/dev/hexapod_dynamixel', help='serial device of the Dynamixel bus')
     ap.add_argument('--out', required=True, metavar='BAG', type=new_directory,
@@ -39,12 +45,11 @@ def build_parser():
 def main(argv=None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    from hexapod_model.bus import BusError
-    from hexapod_sim.calibration.plan import CalibrationError, calibration_plan, run_calibration
-    from hexapod_model.description import DescriptionError, load_robot
-
     from hexapod_driver.config import DriverConfig
     from hexapod_driver.dynamixel_bus import DynamixelBus
+    from hexapod_model.bus import BusError
+    from hexapod_model.description import DescriptionError, load_robot
+    from hexapod_sim.calibration.plan import CalibrationError, calibration_plan, run_calibration
     out = Path(args.out)
     try:
         robot = load_robot(args.robot, overlays=args.overlay)

@@ -11,14 +11,25 @@ import json
 import sys
 import warnings
 
-from hexapod_model.cli_common import (add_no_progress_option, add_overlay_option, existing_file, finite_float, interrupted,
-                                     make_parser, nonnegative_int,
-                          open_for_writing, output_file, plot_extensions, positive_float, ratio_at_least_one)
+from hexapod_model.cli_common import (
+    add_no_progress_option,
+    add_overlay_option,
+    existing_file,
+    finite_float,
+    interrupted,
+    make_parser,
+    nonnegative_int,
+    open_for_writing,
+    output_file,
+    plot_extensions,
+    positive_float,
+    ratio_at_least_one,
+)
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
+from hexapod_sim.bagio import BagWarning, one_warning
 from hexapod_sim.discrepancy.analysis import MODES, analyse
 from hexapod_sim.discrepancy.effects import BY_NAME
 from hexapod_sim.discrepancy.fit import FitSettings
-from hexapod_sim.bagio import BagWarning, one_warning
 from hexapod_sim.discrepancy.recording import RecordingError, load_recording
 from hexapod_sim.discrepancy.segments import parse_windows
 from hexapod_sim.physics.terrain import TERRAINS, Ground
@@ -27,8 +38,10 @@ from hexapod_sim.physics.terrain import TERRAINS, Ground
 def build_parser():
     ap = make_parser('discrepancy', __doc__)
     ap.add_argument('bag', help='rosbag2 directory or .mcap file following the recording contract')
-    ap.add_argument('--json', metavar='OUT.json', type=output_file(('.json',), create_parent=True), help='write the machine-readable result here')
-    ap.add_argument('--plot', metavar='OUT.png', type=output_file(plot_extensions, create_parent=True), help='write the before/after figure here')
+    ap.add_argument('--json', metavar='OUT.json', type=output_file(('.json',), create_parent=True),
+                    help='write the machine-readable result here')
+    ap.add_argument('--plot', metavar='OUT.png', type=output_file(plot_extensions, create_parent=True),
+                    help='write the before/after figure here')
     ap.add_argument('--write-overlay', metavar='OUT.yaml', type=output_file(('.yaml', '.yml'), create_parent=True),
                     help='write the fitted effects as a robot-description overlay (read it back with --overlay)')
     ap.add_argument('--joints', nargs='+', metavar='JOINT', help='analyse only these joints (e.g. leg3_tibia)')

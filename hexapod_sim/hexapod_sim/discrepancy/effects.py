@@ -25,8 +25,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hexapod_model.description import (EFFECT_PARAMS, JOINT_ROLES, SERVO_LAW_EFFECTS, Effect, Robot, joint_name,
-                                       parse_joint_name)
+from hexapod_model.description import EFFECT_PARAMS, JOINT_ROLES, SERVO_LAW_EFFECTS, Effect, Robot, joint_name, parse_joint_name
 
 
 @dataclass(frozen=True)

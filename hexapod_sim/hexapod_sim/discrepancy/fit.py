@@ -54,7 +54,6 @@ from hexapod_model.description import Effect, Robot, joint_name, parse_joint_nam
 from hexapod_sim.discrepancy.effects import BY_NAME, CANDIDATES, Candidate, leg_joints
 from hexapod_sim.discrepancy.simulate import Replay
 
-
 ROUNDING_VAR = 1.0 / 12.0   # variance [tick^2] of rounding to whole ticks (uniform in +-0.5)
 NONLINEAR = ('static_friction', 'backlash', 'compliance_deadband', 'torque_saturation')
 TIME_SHIFTS = ('readout_delay', 'goal_latency')     # predicted as a shift of the prediction (simulate.Replay.sample)

@@ -28,11 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
-from hexapod_model.description import Robot, joint_name, parse_joint_name
+from hexapod_model.description import JOINT_ROLES, Robot, joint_name, parse_joint_name
+from hexapod_model.servo import theta_to_tick, tick_to_theta
 from hexapod_model.swing_model import LegModel
 from hexapod_sim.discrepancy.simulate import Replay
-from hexapod_model.description import JOINT_ROLES
-from hexapod_model.servo import theta_to_tick, tick_to_theta
 
 CONDITIONS = ('load_reversal', 'direction_reversal', 'start_from_rest', 'large_error', 'high_speed',
               'steady_hold', 'gravity_load_high', 'gravity_load_low', 'moving')

@@ -18,10 +18,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, bag_topic
+from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, bag_topic, stamp_parts_ns
 from hexapod_model.description import ALL_JOINTS, DescriptionError, parse_joint_name
-from hexapod_model.contract import stamp_parts_ns
-
 
 IMU_MIN_SPECIFIC_FORCE = 1.0     # [m/s^2]: /imu samples below are left out (see load_recording)
 
@@ -87,7 +85,7 @@ class Recording:
 
     def write_bag(self, path: str | Path) -> None:
         """Write this recording as a contract bag (``/joint_commands`` per write, ``/joint_states`` per read)."""
-        from hexapod_sim.bagio import BagWriter   # only needed when bags are written
+        from hexapod_sim.bagio import BagWriter  # only needed when bags are written
         events = []
         writes: dict[float, dict[str, float]] = {}
         for j, s in self.commands.items():

@@ -23,10 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, Robot, joint_name, parse_joint_name
-from hexapod_model.servo import quantize_tick, servo_tick, theta_to_tick
+from hexapod_model.servo import joint_tick_of_servo_tick, quantize_tick, servo_tick, theta_to_tick, tick_to_theta
 from hexapod_model.swing_model import CoxaModel, LegModel
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
-from hexapod_model.servo import joint_tick_of_servo_tick, tick_to_theta
 
 
 def goal_joint_ticks(theta_rad, robot: Robot, joint: str) -> np.ndarray:

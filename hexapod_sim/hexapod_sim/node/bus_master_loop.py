@@ -24,7 +24,6 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from hexapod_model.description import ALL_JOINTS, LEGS
-
 from hexapod_sim.physics.plant import FootContacts, HexapodSim, ImuSample, PowerMeter, ServoTelemetry, SimError
 from hexapod_sim.physics.truth_log import TruthLog
 

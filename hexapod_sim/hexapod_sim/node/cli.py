@@ -21,13 +21,20 @@ os.environ.setdefault('MUJOCO_GL', 'osmesa')
 if os.environ['MUJOCO_GL'] == 'osmesa':
     os.environ.setdefault('PYOPENGL_PLATFORM', 'osmesa')
 
-import argparse  # noqa: E402
 import sys  # noqa: E402
 
-from hexapod_model.cli_common import (add_overlay_option, finite_float, make_parser, nonnegative_float,  # noqa: E402
-                                      nonnegative_int, output_file, port_number, positive_float, positive_int)
+from hexapod_model.cli_common import (  # noqa: E402
+    add_overlay_option,
+    finite_float,
+    make_parser,
+    nonnegative_float,
+    nonnegative_int,
+    output_file,
+    port_number,
+    positive_float,
+    positive_int,
+)
 from hexapod_model.description import DescriptionError, load_robot  # noqa: E402
-
 from hexapod_sim.node.live import DEFAULT_PORT as DEFAULT_LIVE_PORT  # noqa: E402
 from hexapod_sim.physics.mjcf import write_mjcf  # noqa: E402
 from hexapod_sim.physics.terrain import TERRAINS  # noqa: E402
@@ -97,8 +104,8 @@ def main(argv=None) -> int:
         sim_node.main(ros)
         return 0
 
-    from hexapod_sim.tools.render import RenderError, record_video, render_png
     from hexapod_sim.physics.plant import HexapodSim, SimError
+    from hexapod_sim.tools.render import RenderError, record_video, render_png
     try:
         robot = load_robot(overlays=args.overlay)
         if args.mjcf:

@@ -12,7 +12,6 @@ import argparse
 
 from hexapod_driver.emulator import ServoBusBackend
 from hexapod_model.description import Robot
-
 from hexapod_sim.physics.truth_log import TruthLog
 
 
@@ -55,7 +54,7 @@ class SimBackend:
     def create(robot: Robot, args: argparse.Namespace) -> ServoBusBackend:
         if not args.max_catch_up_ms > 0:
             raise SystemExit(f'bus_emulator: --max-catch-up-ms must be > 0, got {args.max_catch_up_ms}')
-        from hexapod_sim.physics.plant import HexapodSim, SimError      # MuJoCo is imported only when this backend is chosen
+        from hexapod_sim.physics.plant import HexapodSim, SimError  # MuJoCo is imported only when this backend is chosen
         truth = None
         if args.truth_out is not None:
             try:

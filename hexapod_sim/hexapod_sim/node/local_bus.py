@@ -25,9 +25,8 @@ from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
 from hexapod_model.bus import BusError
-
-from hexapod_sim.physics.plant import SimError
 from hexapod_sim.node.bus_master_loop import JointSample, SimBusLoop
+from hexapod_sim.physics.plant import SimError
 
 IDLE_CHUNK_S = 0.002          # background reads are run in slices this long (sim time), lock released between
 

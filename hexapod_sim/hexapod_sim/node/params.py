@@ -6,7 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hexapod_model.param_schema import NodeSpec, RobotSource, param
-
 from hexapod_sim.node.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
 from hexapod_sim.physics.plant import DEFAULT_AMBIENT_C, DEFAULT_START_TEMPERATURE_C
 from hexapod_sim.physics.terrain import TERRAINS

@@ -46,23 +46,29 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 from std_srvs.srv import Trigger
 
 from hexapod_model import contract, diagnostics
+from hexapod_model.contract import stamp_msg
 from hexapod_model.description import ALL_JOINTS, DescriptionError
 from hexapod_model.node_params import EXIT_BAD_PARAMETER, NodeParams, node_help, run_node, spin_until_shutdown
 from hexapod_model.param_schema import RobotSource
 from hexapod_model.urdf import urdf_xml
-from hexapod_model.contract import stamp_msg
-from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus,
-                              SwingDownStart)
+from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus, SwingDownStart
 from hexapod_msgs.srv import SetReadSchedule
-
-from hexapod_sim.node.live import LiveView, LiveViewError
-from hexapod_sim.node.params import NODE, SimParams
-from hexapod_sim.node.local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from hexapod_sim.bagio import BagError
 from hexapod_sim.bagio.recorder import Recorder, RecorderProcess, RecorderThread, resolve_bag_dir
+from hexapod_sim.node.bus_master_loop import (
+    TRUTH_LAYOUT,
+    BusTimingSample,
+    ClockTick,
+    JointSample,
+    PowerSample,
+    SimBusLoop,
+    TruthSample,
+    truth_vector,
+)
+from hexapod_sim.node.live import LiveView, LiveViewError
+from hexapod_sim.node.local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
+from hexapod_sim.node.params import NODE, SimParams
 from hexapod_sim.physics.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
-from hexapod_sim.node.bus_master_loop import (TRUTH_LAYOUT, BusTimingSample, ClockTick, JointSample, PowerSample, SimBusLoop,
-                       TruthSample, truth_vector)
 from hexapod_sim.physics.terrain import Ground
 from hexapod_sim.physics.truth_log import TruthLog
 

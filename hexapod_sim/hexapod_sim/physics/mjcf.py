@@ -40,13 +40,21 @@ import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import forward
-from hexapod_model.shapes import (FOOT_RADIUS_M, FOOT_RGBA, LINK_RADIUS_M, LINK_RGBA, ROBOT_RGBA,  # noqa: F401
-                                  SERVO_HALF_SIZE_M, link_inertial, link_principal_inertia, trunk_geometry,
-                                  trunk_inertia)
 from hexapod_model.servo import tick_to_theta
+from hexapod_model.shapes import (  # noqa: F401
+    FOOT_RADIUS_M,
+    FOOT_RGBA,
+    LINK_RADIUS_M,
+    LINK_RGBA,
+    ROBOT_RGBA,
+    SERVO_HALF_SIZE_M,
+    link_inertial,
+    link_principal_inertia,
+    trunk_geometry,
+    trunk_inertia,
+)
 from hexapod_model.swing_model import joint_damping_nms_per_rad
-
-from hexapod_sim.physics.terrain import Terrain, make_terrain, _mat_to_quat
+from hexapod_sim.physics.terrain import Terrain, _mat_to_quat, make_terrain
 
 # ----------------------------------------------------------------------------- sim nominal values [N]
 TIMESTEP_S = 0.001             # physics step = the firmware period (1 ms or finer keeps the firmware grid)

@@ -46,11 +46,16 @@ import mujoco
 import numpy as np
 
 from hexapod_model.description import ALL_JOINTS, LEGS, Robot, load_robot
-from hexapod_model.servo import (ERR_ANGLE_LIMIT, ERR_OVERHEATING, electrical_power_w, firmware_torque_nm,
-                                  quantize_tick, winding_loss_w)
-
+from hexapod_model.servo import (
+    ERR_ANGLE_LIMIT,
+    ERR_OVERHEATING,
+    electrical_power_w,
+    firmware_torque_nm,
+    winding_loss_w,
+)
 from hexapod_sim.physics import firmware
-from hexapod_sim.physics.mjcf import TIMESTEP_S, Scene, scene as build_scene
+from hexapod_sim.physics.mjcf import TIMESTEP_S, Scene
+from hexapod_sim.physics.mjcf import scene as build_scene
 from hexapod_sim.physics.terrain import Terrain
 
 POWER_WINDOW = 50             # firmware ticks per battery/thermal evaluation block (50 ms)

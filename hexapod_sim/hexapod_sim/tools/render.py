@@ -19,7 +19,6 @@ import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import forward, inverse
-
 from hexapod_sim.physics.plant import HexapodSim, run_trajectory
 
 TRIPODS = ((1, 6, 3), (2, 5, 4))     # front-left, middle-right, rear-left / the other three

@@ -57,8 +57,8 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
 
     from hexapod_sim.bagio.recorder import Recorder
-    from hexapod_sim.tools.render import RenderError, _renderer, render_frame, scripted_tripod
     from hexapod_sim.physics.plant import HexapodSim, run_trajectory
+    from hexapod_sim.tools.render import RenderError, _renderer, render_frame, scripted_tripod
     robot = load_robot()
     sim = HexapodSim(robot, terrain='flat')
     run_trajectory(sim, scripted_tripod(robot), args.time, period_s=0.01)   # mid-swing of one tripod
