@@ -13,13 +13,20 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hexapod_model.description import Effect, Robot, load_robot, parse_joint_name
+from hexapod_sim.discrepancy.body_motion import body_motion_correction
 from hexapod_sim.discrepancy.effects import scope_name
 from hexapod_sim.discrepancy.fit import ROUNDING_VAR, FitSettings, Hypothesis, Namer, make_split, unobservable
 from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
-from hexapod_sim.discrepancy.segments import (PHASES, body_motion_share, gait_phases, looks_like_walk, median_swing_up_s, obstructed_swings,
-                       swing_segments)
-from hexapod_sim.discrepancy.body_motion import body_motion_correction
+from hexapod_sim.discrepancy.segments import (
+    PHASES,
+    body_motion_share,
+    gait_phases,
+    looks_like_walk,
+    median_swing_up_s,
+    obstructed_swings,
+    swing_segments,
+)
 from hexapod_sim.discrepancy.simulate import Replay
 from hexapod_sim.discrepancy.whole_walk import whole_walk_check
 
@@ -207,6 +214,29 @@ def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: d
     return out, table
 
 
+def _widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple[list, list]:
+    """Found effects of a kind the whole walk put on every joint (whole_walk.widen) become one effect of the
+    whole robot, judged on the whole walk (all joints and phases, nominal -> fitted); what was left
+    unexplained on joints the whole walk now fits leaves the list."""
+    if not wide:
+        return found, unexplained
+    rows = [v for row in whole.phases.values() for v in row.values()]
+    n = sum(v.n_reads for v in rows)
+    before = math.sqrt(sum(v.n_reads * v.rmse_ticks_nominal ** 2 for v in rows) / n) if n else math.nan
+    after = math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in rows) / n) if n else math.nan
+    out = [f for f in found if f.effect.effect not in wide]
+    out += [FoundEffect(e, scope_name(e.joints, joints), 'in the whole walk (it keeps the replay in step)', before, after)
+            for e in wide.values()]
+
+    def fitted_rms(j):
+        row = whole.phases.get(j, {})
+        m = sum(v.n_reads for v in row.values())
+        return math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in row.values()) / m) if m else math.inf
+
+    kept = [u for u in unexplained if max(fitted_rms(j) for j in u.joints) > UNEXPLAINED_TICKS]
+    return out, kept
+
+
 def _add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
     """The effects the whole walk's loaded phases show (whole_walk.search_loaded) join the found ones and
     leave the "cannot show" list on their joints."""
@@ -366,9 +396,10 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             mism, phase_fit = _locate_phases(replay, phases, mism, res0, res1)
             if whole_walk:
                 step('replaying the whole walk on the MuJoCo hexapod')
-                whole, ww_notes, finds = whole_walk_check(rec, robot, effects, ground, phases, replay.joints,
-                                                          progress=step)
+                whole, ww_notes, finds, wide = whole_walk_check(rec, robot, effects, ground, phases, replay.joints,
+                                                                progress=step)
                 notes.extend(ww_notes)
+                found, unexplained = _widened(found, unexplained, wide, whole, replay.joints)
                 found, blind = _add_loaded(found, blind, finds, replay.joints)
         n_hold = sum(int(np.count_nonzero(m)) for m in split.hold.values())
         n_fit = sum(int(np.count_nonzero(m)) for m in split.fit.values())

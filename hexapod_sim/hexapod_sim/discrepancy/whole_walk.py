@@ -195,12 +195,48 @@ def compare(rec: Recording, robot: Robot, fitted: Robot | None, ground: Ground, 
     return WholeWalk(ground, until1, until0, table, time.perf_counter() - t0)
 
 
+WIDEN_MIN_GAIN_S = 2.0        # [s] longer in step for an effect found on some joints to be put on all
+
+
+def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, joints, ww: WholeWalk,
+          progress=lambda msg: None) -> tuple[list, dict, WholeWalk]:
+    """Effects the swings found on some joints that the whole walk wants on every joint: where the replay
+    with the effects leaves the recording, each kind found on part of the robot (not the servo law, not a
+    payload) is tried on every analysed joint at the mean of its fitted values; kept when the replay then
+    stays in step ``WIDEN_MIN_GAIN_S`` longer. -> (effects, {kind: the robot-wide effect}, comparison)."""
+    from hexapod_sim.discrepancy.effects import BY_NAME
+    wide: dict = {}
+    if ww.in_step_until_s >= rec.duration_s:
+        return list(effects), wide, ww
+    out = list(effects)
+    for kind in dict.fromkeys(e.effect for e in effects):
+        same = [e for e in out if e.effect == kind]
+        if BY_NAME[kind].servo_law or kind == 'mass_error' or set().union(*(e.joints for e in same)) >= set(joints):
+            continue
+        key = BY_NAME[kind].key
+        mean = float(np.mean([e.params[key] for e in same]))
+        rest = [e for e in out if e.effect != kind]
+        progress(f'whole walk: {kind} on every joint')
+        ww2 = compare(rec, robot, robot.with_effects(rest + [BY_NAME[kind].make(joints, mean)]), ground, phases, joints)
+        if ww2.in_step_until_s < ww.in_step_until_s + WIDEN_MIN_GAIN_S:
+            continue
+        until = min(ww2.in_step_until_s, START_S + SEARCH_HORIZON_S)       # the value, refitted on the whole walk
+        fit, _ = _masks(rec, joints, until)
+        v, _ = _search_one(rec, robot, rest, BY_NAME[kind], tuple(joints), ground, until, fit, progress,
+                           bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)))
+        trial_e = BY_NAME[kind].make(joints, v)
+        out, wide[kind] = rest + [trial_e], trial_e
+        ww = compare(rec, robot, robot.with_effects(out), ground, phases, joints)
+    return out, wide, ww
+
+
 def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
                      joints, search: bool = True, progress=lambda msg: None
-                     ) -> tuple[WholeWalk, list[str], list[LoadedFind]]:
-    """The whole-walk comparison of :func:`analyse`'s walk path, what :func:`search_loaded` finds in its
-    loaded phases (with ``search``), and the notes for the report. ``ground``: None takes the
-    recording's (``/sim/scene``), else a flat floor."""
+                     ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict]:
+    """The whole-walk comparison of :func:`analyse`'s walk path, the effects found on part of the robot
+    that it puts on every joint (:func:`widen`), what :func:`search_loaded` finds in its loaded phases
+    (with ``search``), and the notes for the report. ``ground``: None takes the recording's
+    (``/sim/scene``), else a flat floor."""
     if ground is not None:
         origin = 'as given'
     elif rec.ground is not None:
@@ -209,6 +245,7 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
         ground, origin = Ground(), 'assumed: a flat floor, as for a calibration walk; --terrain sets it'
     fitted = robot.with_effects(effects) if effects else None
     ww = compare(rec, robot, fitted, ground, phases, joints)
+    effects, wide, ww = widen(rec, robot, list(effects), ground, phases, joints, ww, progress)
     finds = search_loaded(rec, robot, list(effects), ground, phases, ww, progress) if search else []
     if finds:
         ww = compare(rec, robot, robot.with_effects(list(effects) + [f.effect for f in finds]), ground, phases, joints)
@@ -224,7 +261,10 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     if j:
         notes.append(f'whole walk: largest RMS error where the legs carry the body: {j} in {ph.replace("_", "-")}, '
                      f'{v:.2f} ticks' + (' (tick rounding)' if v <= ROUNDING_TICKS else ''))
-    return ww, notes, finds
+    for kind in wide:
+        notes.append(f'whole walk: {kind.replace("_", " ")} found on part of the robot keeps the replay in step only '
+                     'when it acts on every joint: put on the whole robot')
+    return ww, notes, finds, wide
 
 
 # Effects that show where a leg carries the body (a load reversal, a hold under load) more than in a free
@@ -234,9 +274,11 @@ ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope i
 SEARCH_BLOCK_S = 2.0          # alternating fit / held-out blocks of the search [s]
 SEARCH_GRID = 5               # log-spaced values over the candidate's range, then golden-section steps
 SEARCH_REFINE = 4
-SEARCH_MIN_RATIO = 1.3        # held-out RMS improvement an effect must reach on its joints
+SEARCH_MIN_RATIO = 1.5        # held-out RMS improvement an effect must reach on its joints
 SEARCH_MIN_EXPLAINED = 0.75   # and the share of their excess over rounding it must explain
 ROUNDING_RMS = 0.29           # uniform tick rounding: 1/sqrt(12)
+EDGE_FACTOR = 1.1             # a fit within this factor of its range's low end is no measurement: not named
+WIDEN_BRACKET = 0.2           # a widened effect's value is refitted within +-20 % of the parts' mean
 SEARCH_HORIZON_S = 20.0       # [s] of the walk (in step) the search replays: its cost does not grow with the walk
 SEARCH_MIN_IN_STEP_S = 5.0    # [s] in step the search needs (fewer: the ground is likely not the walk's)
 MAX_JOINT_SCOPES = 3          # single-joint scopes tried: the joints with the largest loaded-phase error
@@ -285,13 +327,16 @@ def _rms(rec, robot, pred: dict, joints, masks) -> float:
     return math.sqrt(sq / n) if n else math.nan
 
 
-def _search_one(rec, robot, base: list, cand, scope, ground, until_s, fit, progress) -> tuple[float, float]:
-    """(value, fit RMS) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole walk."""
+def _search_one(rec, robot, base: list, cand, scope, ground, until_s, fit, progress,
+                bracket: tuple[float, float] | None = None) -> tuple[float, float]:
+    """(value, fit RMS) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole walk, over
+    the candidate's range (or ``bracket``)."""
     def cost(v):
         progress(f'whole walk: {cand.effect} {v:.3g} on {len(scope)} joint(s)')
         pred = replay_walk(rec, robot.with_effects(base + [cand.make(scope, v)]), ground, scope, t_end_s=until_s)
         return _rms(rec, robot, pred, scope, fit)
-    grid = np.geomspace(max(cand.lo, 1e-6), cand.hi, SEARCH_GRID)
+    lo, hi = bracket or (cand.lo, cand.hi)
+    grid = np.geomspace(max(lo, 1e-6), hi, SEARCH_GRID)
     costs = [cost(float(v)) for v in grid]
     k = int(np.nanargmin(costs))
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
@@ -337,7 +382,9 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
             trials.append((_rms(rec, robot, pred, scope, hold), cand.make(scope, v)))
         after, eff = min(trials, key=lambda x: x[0])
         explained = (before ** 2 - after ** 2) / max(before ** 2 - ROUNDING_RMS ** 2, 1e-9)
-        if before / max(after, 1e-9) >= SEARCH_MIN_RATIO and explained >= SEARCH_MIN_EXPLAINED:
+        c = BY_NAME[eff.effect]
+        at_edge = eff.params[c.key] <= c.lo * EDGE_FACTOR      # the fit ran to the smallest plausible value
+        if before / max(after, 1e-9) >= SEARCH_MIN_RATIO and explained >= SEARCH_MIN_EXPLAINED and not at_edge:
             worst = max(LOADED_PHASES, key=lambda ph: max((ww.phases[j][ph].rmse_ticks_fitted for j in scope
                                                            if ph in ww.phases[j]), default=0.0))
             found.append(LoadedFind(eff, worst, before, after))
@@ -351,4 +398,4 @@ def rec_ticks(rec: Recording, robot: Robot, joint: str) -> np.ndarray:
 
 
 __all__ = ['Ground', 'PhaseRow', 'WHOLE_PHASES', 'WholeWalk', 'compare', 'in_step_until', 'replay_walk',
-           'search_loaded', 'whole_labels', 'whole_walk_check']
+           'search_loaded', 'whole_labels', 'whole_walk_check', 'widen']
