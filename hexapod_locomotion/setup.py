@@ -29,6 +29,8 @@ setup(
             'demo = hexapod_locomotion.demo:main',
             'experiment = hexapod_locomotion.experiments:main',
             'analyse = hexapod_locomotion.analyse:main',
+            'terrain = hexapod_locomotion.terrain_cli:main',
+            'terrain_node = hexapod_locomotion.terrain_node:main',
             'cmd_vel_pub = hexapod_locomotion.cmd_vel_pub:main',
             'teleop_keyboard = hexapod_locomotion.teleop_keyboard:main',
         ],

@@ -315,19 +315,20 @@ def _detection_events(robot: Robot, probe: ProbeBus, phase: SwingDownPhase,
     return out
 
 
-def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -> TrialResult:
+def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, recorder=None) -> TrialResult:
     """Walk one trial; ``progress(sim_time_s, distance_m)`` is called after every phase,
     ``on_video_write(n_frames)`` before the GIF is written. ``live``: a
     :class:`hexapod_sim.live.LiveView` that gets every recorded topic as it happens (the walk is
-    then paced to real time).
+    then paced to real time). ``recorder``: an object with the methods of
+    :class:`hexapod_sim.recorder.Recorder` that gets every recorded topic in process instead of a bag
+    (``cfg.record`` and ``live`` then unused).
 
     The walk ends at ``cfg.duration_s`` of simulated walking time within one control period (the
     phase in progress is cut off and not counted), at the course end, or when the robot falls."""
     from hexapod_sim.plant import HexapodSim
     robot = load_robot(overlays=cfg.overlays)
     sim = HexapodSim(robot, terrain=cfg.terrain, seed=cfg.seed, t_com_s=cfg.t_com_s, start_xy_m=(cfg.start_x_m, 0.0))
-    recorder = None
-    if cfg.record or live is not None:
+    if recorder is None and (cfg.record or live is not None):
         from hexapod_sim.recorder import Recorder
         recorder = Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live)
     frames, on_probe, renderer = [], None, None

@@ -52,7 +52,7 @@ from hexapod_model.param_schema import RobotSource
 from hexapod_model.urdf import urdf_xml
 from hexapod_model.contract import stamp_msg
 from hexapod_msgs.msg import (BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus,
-                              SwingDownStart)
+                              SwingDownStart, TerrainClass)
 from hexapod_msgs.srv import SetReadSchedule
 
 from .live import LiveView, LiveViewError
@@ -132,7 +132,8 @@ class SimNode(Node):
         self._recorded_subs = []          # (subscription, topic): the controller's topics in the bag
         if self.recorder is not None:     # record the controller's topics too
             for msg_type, topic, depth in ((LegGroundDetection, contract.GROUND_DETECTION, QOS_DEPTH),
-                                           (SwingDownStart, contract.SWING_DOWN, 100), (Twist, contract.CMD_VEL, 10)):
+                                           (SwingDownStart, contract.SWING_DOWN, 100), (Twist, contract.CMD_VEL, 10),
+                                           (TerrainClass, contract.TERRAIN, 10)):
                 sub = self.create_subscription(msg_type, topic, lambda m, t=topic: self._record(t, m, self.sim.now()),
                                                depth)
                 self._recorded_subs.append((sub, topic))
