@@ -46,7 +46,8 @@ def build_parser():
     t = sub.add_parser('train', help='train a model on generated sets and/or labelled bags')
     t.add_argument('bags', nargs='*', metavar='BAG', help='bags, each with BAG.labels.txt beside it')
     t.add_argument('--set', dest='sets', action='append', type=_sets_arg, default=[], metavar='SET')
-    t.add_argument('--out', default=str(DEFAULT_MODEL), help='model file to write (default: the packaged one)')
+    t.add_argument('--out', required=True, help='model file to write (.pkl.gz); the packaged one is '
+                   'hexapod_locomotion/hexapod_locomotion/data/terrain_model.pkl.gz')
     t.add_argument('--classes', help='comma-separated class names the labels may use (default: the sim classes)')
     t.add_argument('--jobs', type=nonnegative_int, default=1)
     e = sub.add_parser('evaluate', help='per-cycle accuracy of a model on sets and/or labelled bags')

@@ -1,7 +1,7 @@
 """The terrain classifier: a scikit-learn model over the gait-cycle features, saved with its
 provenance. No rclpy.
 
-A model file (``.pkl``, Python pickle: load only files you trust) holds a mapping: the format tag,
+A model file (``.pkl.gz``, a gzip-compressed Python pickle: load only files you trust) holds a mapping: the format tag,
 :data:`~.terrain_features.FEATURES_VERSION` and the feature names it was trained on, the
 scikit-learn version, the classes, the provenance (the command that made it, the trials or bags and
 their seeds, ``git describe`` of the code, the date, the cycles per class) and the estimator. A file
@@ -11,6 +11,7 @@ one line): retrain it with ``./hexapod terrain train``.
 from __future__ import annotations
 
 import datetime
+import gzip
 import math
 import os
 import pickle
@@ -23,7 +24,7 @@ import numpy as np
 from .terrain_features import FEATURE_NAMES, FEATURES_VERSION
 
 FORMAT = 'hexapod-terrain-model'
-DEFAULT_MODEL = Path(__file__).parent / 'data' / 'terrain_model.pkl'
+DEFAULT_MODEL = Path(__file__).parent / 'data' / 'terrain_model.pkl.gz'
 
 
 class TerrainModelError(ValueError):
@@ -89,7 +90,7 @@ class TerrainModel:
         p.parent.mkdir(parents=True, exist_ok=True)
         tmp = p.with_name(f'.{p.name}.tmp{os.getpid()}')
         try:
-            with open(tmp, 'wb') as f:
+            with gzip.open(tmp, 'wb') as f:
                 pickle.dump(data, f, protocol=pickle.HIGHEST_PROTOCOL)
             os.replace(tmp, p)
         finally:
@@ -104,7 +105,7 @@ class TerrainModel:
         if not p.is_file():
             raise TerrainModelError(f'{p}: no such model file')
         try:
-            with open(p, 'rb') as f:
+            with gzip.open(p, 'rb') as f:
                 data = pickle.load(f)
         except Exception as exc:      # noqa: BLE001 - any unpickling failure: not a model file of this code
             raise TerrainModelError(f'{p}: not a terrain model file of this version ({type(exc).__name__}: '

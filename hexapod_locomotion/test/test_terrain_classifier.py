@@ -1,5 +1,6 @@
 """Terrain classification: gait-cycle features from the streams (the same from a bag as in process),
 label files, the model file and its version check, and the command line's bad-input lines."""
+import gzip
 import pickle
 import subprocess
 import sys
@@ -68,18 +69,18 @@ def test_model_round_trip_and_version_check(tmp_path):
     x = rng.normal(size=(60, len(FEATURE_NAMES)))
     y = np.where(x[:, 0] > 0, 'flat', 'soft')
     model = TerrainModel.fit(x, y, {'command': 'test'})
-    path = model.save(tmp_path / 'm.pkl')
+    path = model.save(tmp_path / 'm.pkl.gz')
     back = TerrainModel.load(path)
     assert back.classes == ('flat', 'soft') and back.provenance['cycles_per_class'] == model.provenance['cycles_per_class']
     np.testing.assert_array_equal(back.predict(x)[0], model.predict(x)[0])
-    data = pickle.loads(path.read_bytes())
+    data = pickle.loads(gzip.decompress(path.read_bytes()))
     data['features_version'] = 0
-    path.write_bytes(pickle.dumps(data))
+    path.write_bytes(gzip.compress(pickle.dumps(data)))
     with pytest.raises(TerrainModelError, match='made for terrain features version 0'):
         TerrainModel.load(path)
-    data['features_version'], data['sklearn_version'] = pickle.loads(model.save(tmp_path / 'n.pkl').read_bytes())[
-        'features_version'], '0.1'
-    path.write_bytes(pickle.dumps(data))
+    data['features_version'], data['sklearn_version'] = pickle.loads(gzip.decompress(model.save(
+        tmp_path / 'n.pkl.gz').read_bytes()))['features_version'], '0.1'
+    path.write_bytes(gzip.compress(pickle.dumps(data)))
     with pytest.raises(TerrainModelError, match="made with scikit-learn '0.1'"):
         TerrainModel.load(path)
     path.write_bytes(b'not a pickle')
@@ -101,18 +102,18 @@ def _cli(*args):
 
 
 def test_bad_input_is_one_line_and_exit_2(tmp_path):
-    old = tmp_path / 'old.pkl'
-    data = pickle.loads(DEFAULT_MODEL.read_bytes())
+    old = tmp_path / 'old.pkl.gz'
+    data = pickle.loads(gzip.decompress(DEFAULT_MODEL.read_bytes()))
     data['features_version'] = -1
-    old.write_bytes(pickle.dumps(data))
+    old.write_bytes(gzip.compress(pickle.dumps(data)))
     r = _cli('evaluate', '--model', str(old), '--set', 'test')
     assert r.returncode == 2 and r.stdout == ''
     assert r.stderr.strip().count('\n') == 0 and 'made for terrain features version -1' in r.stderr
     # a bag without the controller's streams (the calibration stand's)
-    r = _cli('train', str(ROOT / 'bags' / 'discrepancy_demo'), '--out', str(tmp_path / 'x.pkl'))
+    r = _cli('train', str(ROOT / 'bags' / 'discrepancy_demo'), '--out', str(tmp_path / 'x.pkl.gz'))
     assert r.returncode == 2 and r.stderr.strip().count('\n') == 0
     assert 'no /ground_detection, /swing_down in the bag' in r.stderr
-    assert not (tmp_path / 'x.pkl').exists()
+    assert not (tmp_path / 'x.pkl.gz').exists()
     r = _cli('evaluate', '--set', 'nonsense')
     assert r.returncode == 2 and "unknown set 'nonsense'" in r.stderr
 
