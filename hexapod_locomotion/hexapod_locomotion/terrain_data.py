@@ -33,8 +33,9 @@ from hexapod_model.contract import (GROUND_DETECTION, JOINT_COMMANDS, JOINT_STAT
 from .terrain_features import REQUIRED_TOPICS, CycleFeatureExtractor, feed_message
 
 UNLABELLED = '-'
-# the trunk within this distance of a segment boundary: the feet stand on both classes [m]
-BOUNDARY_MARGIN_M = 0.15
+# the trunk within this distance of a segment boundary: some feet may stand on the other class (the
+# front and rear feet are 0.225 m ahead of and behind the trunk, plus half a stride) [m]
+BOUNDARY_MARGIN_M = 0.30
 CACHE_FORMAT = 1
 
 
