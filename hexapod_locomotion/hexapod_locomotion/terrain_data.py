@@ -290,10 +290,14 @@ def bag_messages(path: str | os.PathLike, extra=()):
 
 def bag_cycles(path: str | os.PathLike, robot, classes=None, labels: bool = True) -> dict:
     """Features (and, with ``labels``, the labels of ``BAG.labels.txt``) of the gait cycles of a bag."""
-    intervals = read_labels(labels_path(path), classes) if labels else []
     ex = CycleFeatureExtractor(robot)
     cycles = []
-    for topic, msg, _t in bag_messages(path):
+    messages = bag_messages(path)
+    first = next(messages, None)            # the bag's topics are checked here, before the label file
+    intervals = read_labels(labels_path(path), classes) if labels else []
+    for topic, msg, _t in ([first] if first else []):
+        feed_message(ex, topic, msg, _t)
+    for topic, msg, _t in messages:
         c = feed_message(ex, topic, msg, _t)
         if c is not None:
             cycles.append(c)
