@@ -72,14 +72,18 @@ class TerrainModel:
 
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(class per row, confidence per row: the predicted class's probability)."""
-        x = np.atleast_2d(np.asarray(x, dtype=float))
-        p = self.estimator.predict_proba(x)
+        p = self.probabilities(x)
         idx = np.argmax(p, axis=1)
         names = np.asarray(self.estimator.classes_)
         return names[idx], p[np.arange(len(idx)), idx]
 
     def probabilities(self, x: np.ndarray) -> np.ndarray:
-        return self.estimator.predict_proba(np.atleast_2d(np.asarray(x, dtype=float)))
+        """Class probabilities per row, in ``estimator.classes_`` order. On one thread: a gait cycle is one
+        row, and the OpenMP team scikit-learn would start for it cost 0.1-0.3 s median on a loaded
+        2-core machine (``./hexapod terrain bench``)."""
+        from threadpoolctl import threadpool_limits
+        with threadpool_limits(limits=1, user_api='openmp'):
+            return self.estimator.predict_proba(np.atleast_2d(np.asarray(x, dtype=float)))
 
     def save(self, path: str | os.PathLike) -> Path:
         import sklearn
