@@ -405,8 +405,10 @@ def _analyse(ap, args) -> int:
         for line in terrain_lines(args.bag, load_robot(), args.labels):
             print(line)
     except (TerrainDataError, TerrainModelError) as exc:
-        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
-        return 2
+        if args.labels:              # the terrain was asked for
+            print(f'{ap.prog}: error: {exc}', file=sys.stderr)
+            return 2
+        print(f'terrain: not classed ({" ".join(str(exc).split())})')
     if args.plot:
         plot(r, open_for_writing(args.plot))
         print(f'plot: {args.plot}')
