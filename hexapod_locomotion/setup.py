@@ -33,6 +33,8 @@ setup(
             'teleop_keyboard = hexapod_locomotion.nodes.teleop_keyboard:main',
             'odometry_bench = hexapod_locomotion.bench.odometry_bench:main',
             'fuzz_inputs = hexapod_locomotion.bench.fuzz_inputs:main',
+            'terrain = hexapod_locomotion.trials.terrain_cli:main',
+            'terrain_node = hexapod_locomotion.nodes.terrain_node:main',
         ],
     },
 )

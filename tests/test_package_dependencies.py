@@ -42,6 +42,8 @@ PYTHON_KEYS = {
     'numba': ('python3-numba', 'numba'),
     'llvmlite': ('python3-llvmlite', 'llvmlite'),
     'pytest': ('python3-pytest', 'pytest'),
+    'sklearn': ('python3-sklearn', 'scikit-learn'),
+    'threadpoolctl': ('python3-threadpoolctl', 'threadpoolctl'),
     # PyPI only (no Debian/Ubuntu package): the rosdep pip-key convention
     'mujoco': ('python3-mujoco-pip', 'mujoco'),
     'mcap': ('python3-mcap-pip', 'mcap'),

@@ -94,7 +94,8 @@ def test_each_node_starts_with_its_file_and_declares_exactly_its_keys(exe, tmp_p
 
 BAD_START = {
     'driver_node': ('fault_policy:=hard', "parameter fault_policy: must be one of limp, recover, got 'hard'"),
-    'sim_node': ('terrain:=moon', "parameter terrain: must be one of flat, blocks, stairs, rough, mockup, got 'moon'"),
+    'sim_node': ('terrain:=moon', "parameter terrain: must be one of flat, blocks, stairs, rough, mockup, class_flat, "
+                                  "class_rough, class_blocks, class_soft, class_slippery, course, got 'moon'"),
     'model_node': ('robot_overlays:=[7]', 'parameter robot_overlays: must be a list of strings'),
     'locomotion_node': ('t_des_s:=-0.5', 'parameter t_des_s: must be a finite number in (0, 10], got -0.5'),
 }

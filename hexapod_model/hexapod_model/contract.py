@@ -81,6 +81,7 @@ IMU = 'imu'                                 # sensor_msgs/msg/Imu (sim only; the
 CLOCK = '/clock'                            # rosgraph_msgs/msg/Clock (sim, replay)
 GROUND_DETECTION = 'ground_detection'       # hexapod_msgs/msg/LegGroundDetection (controller)
 SWING_DOWN = 'swing_down'                   # hexapod_msgs/msg/SwingDownStart (controller)
+TERRAIN = 'terrain'                         # hexapod_msgs/msg/TerrainClass (terrain_node), once per gait cycle
 CMD_VEL = 'cmd_vel'                         # geometry_msgs/msg/Twist (controller input)
 ODOM = 'odom'                               # nav_msgs/msg/Odometry (controller: leg odometry, odom -> base_link)
 PREDICT_SWING_DOWN = 'predict_swing_down'   # hexapod_msgs/srv/PredictSwingDown (model node)
@@ -117,6 +118,7 @@ MSG_TYPES = {
     CLOCK: 'rosgraph_msgs/msg/Clock',
     GROUND_DETECTION: 'hexapod_msgs/msg/LegGroundDetection',
     SWING_DOWN: 'hexapod_msgs/msg/SwingDownStart',
+    TERRAIN: 'hexapod_msgs/msg/TerrainClass',
     CMD_VEL: 'geometry_msgs/msg/Twist',
     ODOM: 'nav_msgs/msg/Odometry',
     SIM_TRUTH_CONTACTS: 'std_msgs/msg/Float64MultiArray',

@@ -398,6 +398,8 @@ def main(argv=None) -> int:
                     help='write the full analysis as JSON (its folder is created)')
     ap.add_argument('--plot', metavar='PNG', type=output_file(plot_extensions, create_parent=True),
                     help='plot measured error, both thresholds and both detectors\' stops of the first swing-downs')
+    ap.add_argument('--labels', metavar='FILE', help='terrain label file (START_S END_S LABEL per line): the '
+                    'confusion of the terrain timeline against it (docs/terrain.md)')
     add_no_progress_option(ap)
     args = ap.parse_args(argv)
     try:
@@ -417,6 +419,17 @@ def _analyse(ap, args) -> int:
         print(f'{ap.prog}: warning: {line}', file=sys.stderr)
     for line in report_lines(r, args.json):
         print(line)
+    from hexapod_locomotion.core.terrain_model import TerrainModelError
+    from hexapod_locomotion.trials.terrain_data import TerrainDataError
+    from hexapod_locomotion.trials.terrain_report import report_lines as terrain_lines
+    try:
+        for line in terrain_lines(args.bag, load_robot(), args.labels):
+            print(line)
+    except (TerrainDataError, TerrainModelError) as exc:
+        if args.labels:              # the terrain was asked for
+            print(f'{ap.prog}: error: {exc}', file=sys.stderr)
+            return 2
+        print(f'terrain: not classed ({" ".join(str(exc).split())})')
     if args.plot:
         plot(r, open_for_writing(args.plot))
         print(f'plot: {args.plot}')

@@ -343,11 +343,13 @@ def _recording_failed(text: str) -> None:
     print(f'recording stopped: {text}; the walk runs on without recording', file=sys.stderr, flush=True)
 
 
-def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -> TrialResult:
+def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, recorder=None) -> TrialResult:
     """Walk one trial; ``progress(sim_time_s, distance_m)`` is called after every phase,
     ``on_video_write(n_frames)`` before the GIF is written. ``live``: a
     :class:`hexapod_sim.node.live.LiveView` that gets every recorded topic as it happens (the walk is
-    then paced to real time).
+    then paced to real time). ``recorder``: an object with the methods of
+    :class:`hexapod_sim.bagio.recorder.Recorder` that gets every recorded topic in process instead of a bag
+    (``cfg.record`` and ``live`` then unused).
 
     The walk ends at ``cfg.duration_s`` of simulated walking time within one control period (the
     phase in progress is cut off and not counted), at the course end, or when the robot falls."""
@@ -356,11 +358,10 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None) -
     robot = load_robot(overlays=cfg.overlays)
     ground = Ground(cfg.terrain, cfg.seed, (cfg.start_x_m, 0.0))
     sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, t_com_s=cfg.t_com_s, start_xy_m=ground.start_xy_m)
-    recorder = None
-    if live is not None:
+    if recorder is None and live is not None:       # (a recorder given by the caller takes all, in process)
         from hexapod_sim.bagio.recorder import Recorder
         recorder = Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live, scene=ground.to_text())
-    elif cfg.record:        # by a process of its own, which closes the bag even if this one is killed
+    elif recorder is None and cfg.record:   # by a process of its own, which closes the bag even if this one is killed
         from hexapod_sim.bagio.recorder import RecorderProcess
         recorder = RecorderProcess(Path(cfg.record), robot=robot, on_error=_recording_failed, scene=ground.to_text())
     frames, on_probe, renderer = [], None, None

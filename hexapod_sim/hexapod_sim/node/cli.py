@@ -37,13 +37,13 @@ from hexapod_model.cli_common import (  # noqa: E402
 from hexapod_model.description import DescriptionError, load_robot  # noqa: E402
 from hexapod_sim.node.live import DEFAULT_PORT as DEFAULT_LIVE_PORT  # noqa: E402
 from hexapod_sim.physics.mjcf import write_mjcf  # noqa: E402
-from hexapod_sim.physics.terrain import TERRAINS  # noqa: E402
+from hexapod_sim.physics.terrain import all_terrains  # noqa: E402
 
 
 def build_parser():
     from hexapod_sim.tools.render import VIDEO_EXTENSIONS
     ap = make_parser('sim', __doc__)
-    ap.add_argument('--terrain', default='flat', choices=list(TERRAINS), help='terrain')
+    ap.add_argument('--terrain', default='flat', choices=list(all_terrains()), help='terrain')
     ap.add_argument('--seed', type=nonnegative_int, default=0, help='seed of the random terrains')
     ap.add_argument('--render', metavar='PNG', type=output_file(('.png',)),
                     help='write a picture of the robot standing on the terrain')

@@ -23,7 +23,7 @@ HOST = '127.0.0.1'
 # telemetry and health; not the 1 kHz /clock or the goals.
 LIVE_TOPICS = (contract.ROBOT_DESCRIPTION, contract.TF_STATIC, contract.TF, contract.JOINT_STATES,
                contract.GROUND_DETECTION, contract.SWING_DOWN, contract.DIAGNOSTICS, contract.SIM_TRUTH_POSE,
-               contract.SIM_TRUTH_CONTACTS, contract.IMU, contract.POWER, contract.ODOM)
+               contract.SIM_TRUTH_CONTACTS, contract.IMU, contract.POWER, contract.ODOM, contract.TERRAIN)
 LATCHED = (contract.ROBOT_DESCRIPTION, contract.TF_STATIC)
 # Channels carry the names a bag stores (absolute: '/joint_states', '/robot_description'), whatever
 # namespace the nodes run in, so the live view and a recording open with the same layout.

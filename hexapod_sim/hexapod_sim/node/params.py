@@ -8,12 +8,12 @@ from dataclasses import dataclass
 from hexapod_model.param_schema import NodeSpec, RobotSource, param
 from hexapod_sim.node.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
 from hexapod_sim.physics.plant import DEFAULT_AMBIENT_C, DEFAULT_START_TEMPERATURE_C
-from hexapod_sim.physics.terrain import TERRAINS
+from hexapod_sim.physics.terrain import all_terrains
 
 
 @dataclass(frozen=True)
 class SimParams:
-    terrain: str = param('flat', 'terrain', choices=tuple(TERRAINS))
+    terrain: str = param('flat', 'terrain', choices=tuple(all_terrains()))
     seed: int = param(0, 'seed of the random terrains (blocks, rough, mockup)', min=0)
     t_com_s: float = param(0.0, 'duration of one position read [s]: 0.001 hardware-accelerated, 0.016 stock USB '
                            "adapter; a multiple of the physics step; 0 = the description's bus.t_com_s", min=0.0)

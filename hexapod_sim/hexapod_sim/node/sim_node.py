@@ -51,7 +51,7 @@ from hexapod_model.description import ALL_JOINTS, DescriptionError
 from hexapod_model.node_params import EXIT_BAD_PARAMETER, NodeParams, node_help, run_node, spin_until_shutdown
 from hexapod_model.param_schema import RobotSource
 from hexapod_model.urdf import urdf_xml
-from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus, SwingDownStart
+from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus, SwingDownStart, TerrainClass
 from hexapod_msgs.srv import SetReadSchedule
 from hexapod_sim.bagio import BagError
 from hexapod_sim.bagio.recorder import Recorder, RecorderProcess, RecorderThread, resolve_bag_dir
@@ -144,7 +144,7 @@ class SimNode(Node):
             from nav_msgs.msg import Odometry
             for msg_type, topic, depth in ((LegGroundDetection, contract.GROUND_DETECTION, QOS_DEPTH),
                                            (SwingDownStart, contract.SWING_DOWN, 100), (Twist, contract.CMD_VEL, 10),
-                                           (Odometry, contract.ODOM, 100)):
+                                           (Odometry, contract.ODOM, 100), (TerrainClass, contract.TERRAIN, 10)):
                 sub = self.create_subscription(msg_type, topic, lambda m, t=topic: self._record(t, m, self.sim.now()),
                                                depth)
                 self._recorded_subs.append((sub, topic))

@@ -13,6 +13,10 @@ Terrains (select by name, :func:`make_terrain`):
 ``rough``   a seedable random height field (smoothed noise, ``ROUGH_AMPLITUDE_M`` peak to peak).
 ``mockup``  the combined course of Fig. 10 along +x: flat start, blocks, then stairs.
 
+The terrain classes a foot can feel (hard, rough, blocks, soft, slippery) and mixed courses of them
+are terrains too (``class_flat`` ... ``course``, :mod:`hexapod_sim.physics.terrain_classes`); they give
+ground slabs their own contact (:class:`Contact`: friction, softness).
+
 Sizes the paper does not state (tread depth, field extents, slopes, roughness) are project
 nominal values ([N]) named once below. Blocks and steps are boxes (cheap, exact collisions); the
 rough terrain is a MuJoCo height field. :meth:`Terrain.height_at` gives the true surface height for
@@ -60,6 +64,24 @@ class TerrainError(ValueError):
 
 
 @dataclass(frozen=True)
+class Contact:
+    """Contact of a terrain geom with a foot, overriding the defaults (MuJoCo geom ``priority``):
+    sliding friction, and ``solref`` / ``solimp`` (compliance) where given."""
+
+    friction: float = 1.0
+    solref: tuple[float, float] | None = None
+    solimp: tuple[float, float, float, float, float] | None = None
+
+    def mjcf_attrs(self) -> str:
+        out = f'priority="1" friction="{self.friction:.6g} 0.005 0.0001"'
+        if self.solref is not None:
+            out += f' solref="{_fmt(self.solref)}"'
+        if self.solimp is not None:
+            out += f' solimp="{_fmt(self.solimp)}"'
+        return out
+
+
+@dataclass(frozen=True)
 class Box:
     """A box geom: centre [m], half sizes [m], rotation matrix (box frame -> world)."""
 
@@ -68,6 +90,7 @@ class Box:
     half_size_m: tuple[float, float, float]
     rotation: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     rgba: tuple[float, float, float, float] = WOOD_RGBA
+    contact: Contact | None = None      # None: the terrain class's defaults
 
     def quat(self) -> tuple[float, float, float, float]:
         return _mat_to_quat(np.array(self.rotation))
@@ -136,12 +159,14 @@ class Terrain:
     seed: int
     boxes: tuple[Box, ...] = ()
     hfield: HeightField | None = None
+    floor_z_m: float = 0.0              # height of the floor plane (courses lay slabs over a lower floor)
+
 
     def height_at(self, x, y) -> np.ndarray:
         """True surface height [m] at world (x, y) (vectorised): the highest of floor, boxes, field."""
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
-        h = np.zeros(np.broadcast(x, y).shape)
+        h = np.full(np.broadcast(x, y).shape, float(self.floor_z_m))
         for b in self.boxes:
             h = np.maximum(h, b.top_height(x, y))
         if self.hfield is not None:
@@ -168,12 +193,14 @@ class Terrain:
 
     def mjcf_geoms(self) -> str:
         cls = 'class="terrain"'
-        parts = [f'<geom name="floor" type="plane" size="{FLOOR_HALF_SIZE_M} {FLOOR_HALF_SIZE_M} 0.05" '
+        floor_pos = f' pos="0 0 {self.floor_z_m:.6g}"' if self.floor_z_m else ''
+        parts = [f'<geom name="floor" type="plane" size="{FLOOR_HALF_SIZE_M} {FLOOR_HALF_SIZE_M} 0.05"{floor_pos} '
                  f'material="ground" {cls}/>']
         for b in self.boxes:
             q = b.quat()
+            contact = f' {b.contact.mjcf_attrs()}' if b.contact is not None else ''
             parts.append(f'<geom name="{b.name}" type="box" {cls} pos="{_fmt(b.center_m)}" '
-                         f'size="{_fmt(b.half_size_m)}" quat="{_fmt(q)}" rgba="{_fmt(b.rgba)}"/>')
+                         f'size="{_fmt(b.half_size_m)}" quat="{_fmt(q)}" rgba="{_fmt(b.rgba)}"{contact}/>')
         if self.hfield is not None:
             hf = self.hfield
             zmin = float(hf.elevation_m.min()) + hf.base_z_m
@@ -318,13 +345,20 @@ def _mockup(seed: int) -> Terrain:
 TERRAINS = {'flat': _flat, 'blocks': _blocks, 'stairs': _stairs, 'rough': _rough, 'mockup': _mockup}
 
 
+def all_terrains() -> dict:
+    """Every terrain generator by name: :data:`TERRAINS` and the terrain classes and courses."""
+    from hexapod_sim.physics.terrain_classes import CLASS_TERRAINS
+    return {**TERRAINS, **CLASS_TERRAINS}
+
+
 def make_terrain(name: str, seed: int = 0) -> Terrain:
-    """The terrain called ``name`` (one of :data:`TERRAINS`); ``seed`` drives the random ones."""
-    if name not in TERRAINS:
-        raise TerrainError(f'unknown terrain {name!r}; known terrains: {", ".join(TERRAINS)}')
+    """The terrain called ``name`` (one of :func:`all_terrains`); ``seed`` drives the random ones."""
+    known = all_terrains()
+    if name not in known:
+        raise TerrainError(f'unknown terrain {name!r}; known terrains: {", ".join(known)}')
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise TerrainError(f'terrain seed must be a non-negative integer, got {seed!r}')
-    return TERRAINS[name](int(seed))
+    return known[name](int(seed))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,135 @@
+"""Terrain classification: gait-cycle features from the streams (the same from a bag as in process),
+label files, the model file and its version check, and the command line's bad-input lines."""
+import gzip
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hexapod_locomotion.core.terrain_features import FEATURE_NAMES
+from hexapod_locomotion.core.terrain_model import DEFAULT_MODEL, TerrainModel, TerrainModelError
+from hexapod_locomotion.trials import terrain_cli
+from hexapod_locomotion.trials.terrain_data import StreamTap, TerrainDataError, bag_cycles, labels_path, read_labels, replay, truth_labels
+from hexapod_locomotion.trials.trial_runner import TrialConfig, run_trial
+from hexapod_model.description import load_robot
+
+ROOT = Path(__file__).resolve().parents[2]
+CLASSES = ('flat', 'rough', 'blocks', 'soft', 'slippery')
+
+
+@pytest.fixture(scope='module')
+def soft_walk(tmp_path_factory):
+    """A short tripod walk on soft ground, recorded to a bag and tapped in process (the same seed)."""
+    bag = tmp_path_factory.mktemp('terrain') / 'soft_walk'
+    cfg = TrialConfig(gait='tripod', terrain='class_soft', seed=3, duration_s=9.0)
+    run_trial(TrialConfig(**{**cfg.__dict__, 'record': str(bag)}))
+    tap = StreamTap()
+    run_trial(cfg, recorder=tap)
+    return bag, tap
+
+
+def test_cycles_from_a_bag_equal_those_in_process(soft_walk):
+    bag, tap = soft_walk
+    robot = load_robot()
+    live = replay(robot, tap.events)
+    labels_path(bag).write_text('0 1000 soft\n')
+    from_bag = bag_cycles(bag, robot, CLASSES)
+    assert len(live) >= 3                    # tripod: a cycle is two phases of about 1 s
+    assert len(from_bag['labels']) == len(live)
+    for c in live:
+        assert c.values.shape == (len(FEATURE_NAMES),)
+        assert c.t_end_s > c.t_start_s
+    np.testing.assert_allclose(from_bag['X'], np.array([c.values for c in live]), rtol=1e-6, atol=1e-6)
+    assert from_bag['labels'] == ['soft'] * len(live)
+    # every cycle of a walk on one class takes its label from the sim truth
+    assert {lab for *_, lab in truth_labels('class_soft', 3, tap.events)} == {'soft'}
+
+
+def test_label_files(tmp_path):
+    f = tmp_path / 'a.labels.txt'
+    f.write_text('# comment\n0 10 flat\n10 12 -  # across the boundary\n12 30.5 soft\n')
+    assert read_labels(f, CLASSES) == [(0.0, 10.0, 'flat'), (10.0, 12.0, '-'), (12.0, 30.5, 'soft')]
+    f.write_text('0 10 flat\n10 20 gravel\n')
+    with pytest.raises(TerrainDataError, match=r"a.labels.txt:2: unknown label 'gravel'; known: flat, rough"):
+        read_labels(f, CLASSES)
+    f.write_text('0 ten flat\n')
+    with pytest.raises(TerrainDataError, match='a.labels.txt:1: START_S and END_S must be numbers'):
+        read_labels(f, CLASSES)
+    f.write_text('5 1 flat\n')
+    with pytest.raises(TerrainDataError, match='START_S < END_S'):
+        read_labels(f, CLASSES)
+
+
+def test_model_round_trip_and_version_check(tmp_path):
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(60, len(FEATURE_NAMES)))
+    y = np.where(x[:, 0] > 0, 'flat', 'soft')
+    model = TerrainModel.fit(x, y, {'command': 'test'})
+    path = model.save(tmp_path / 'm.pkl.gz')
+    back = TerrainModel.load(path)
+    assert back.classes == ('flat', 'soft') and back.provenance['cycles_per_class'] == model.provenance['cycles_per_class']
+    np.testing.assert_array_equal(back.predict(x)[0], model.predict(x)[0])
+    data = pickle.loads(gzip.decompress(path.read_bytes()))
+    data['features_version'] = 0
+    path.write_bytes(gzip.compress(pickle.dumps(data)))
+    with pytest.raises(TerrainModelError, match='made for terrain features version 0'):
+        TerrainModel.load(path)
+    data['features_version'], data['sklearn_version'] = pickle.loads(gzip.decompress(model.save(
+        tmp_path / 'n.pkl.gz').read_bytes()))['features_version'], '0.1'
+    path.write_bytes(gzip.compress(pickle.dumps(data)))
+    with pytest.raises(TerrainModelError, match="made with scikit-learn '0.1'"):
+        TerrainModel.load(path)
+    path.write_bytes(b'not a pickle')
+    with pytest.raises(TerrainModelError, match='not a terrain model file'):
+        TerrainModel.load(path)
+
+
+def test_the_packaged_model_carries_its_provenance():
+    model = TerrainModel.load(DEFAULT_MODEL)
+    assert set(model.classes) == set(CLASSES)
+    p = model.provenance
+    assert p['command'].startswith('./hexapod terrain train') and p['code_version'] not in ('', 'unknown')
+    assert any('seed' in t for s in p['sources'] for t in s.get('trials', ()))
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, '-m', 'hexapod_locomotion.trials.terrain_cli', *args], capture_output=True,
+                          text=True, timeout=300)
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path):
+    old = tmp_path / 'old.pkl.gz'
+    data = pickle.loads(gzip.decompress(DEFAULT_MODEL.read_bytes()))
+    data['features_version'] = -1
+    old.write_bytes(gzip.compress(pickle.dumps(data)))
+    r = _cli('evaluate', '--model', str(old), '--set', 'test')
+    assert r.returncode == 2 and r.stdout == ''
+    assert r.stderr.strip().count('\n') == 0 and 'made for terrain features version -1' in r.stderr
+    # a bag without the controller's streams (the calibration stand's)
+    r = _cli('train', str(ROOT / 'bags' / 'discrepancy_demo'), '--out', str(tmp_path / 'x.pkl.gz'))
+    assert r.returncode == 2 and r.stderr.strip().count('\n') == 0
+    assert 'no /ground_detection, /swing_down in the bag' in r.stderr
+    assert not (tmp_path / 'x.pkl.gz').exists()
+    r = _cli('evaluate', '--set', 'nonsense')
+    assert r.returncode == 2 and "unknown set 'nonsense'" in r.stderr
+
+
+def test_analyse_confusion_against_labels_and_an_unknown_label(soft_walk, tmp_path):
+    from hexapod_locomotion.trials import analyse
+    bag, _ = soft_walk
+    good = tmp_path / 'good.txt'
+    good.write_text('0 1000 soft\n')
+    r = subprocess.run([sys.executable, '-m', 'hexapod_locomotion.trials.analyse', str(bag), '--labels', str(good)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert 'terrain (classed offline by' in r.stdout and 'against good.txt:' in r.stdout
+    assert '| soft |' in r.stdout
+    bad = tmp_path / 'bad.txt'
+    bad.write_text('0 1000 grass\n')
+    r = subprocess.run([sys.executable, '-m', 'hexapod_locomotion.trials.analyse', str(bag), '--labels', str(bad)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "bad.txt:1: unknown label 'grass'" in r.stderr
+    assert analyse is not None and terrain_cli is not None
