@@ -2,6 +2,7 @@
 processes. The bags they leave open in this project's reader and in ``rosbags``."""
 from __future__ import annotations
 
+import os
 import random
 import resource
 import signal
@@ -22,7 +23,9 @@ FSIZE_LIMIT = 400_000      # bytes: the sim node's bag (~150 kB per second of si
 
 
 def _limit_file_size():
-    # What `ulimit -f` does; the writer then gets EFBIG (Python ignores SIGXFSZ, said again here)
+    # What `ulimit -f` does; the writer then gets EFBIG (Python ignores SIGXFSZ, said again here). The node
+    # gets a process group (and sid) of its own, as a terminal would give it.
+    os.setsid()
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     resource.setrlimit(resource.RLIMIT_FSIZE, (FSIZE_LIMIT, resource.RLIM_INFINITY))
 
@@ -55,7 +58,7 @@ def test_a_write_error_in_the_running_sim_node_is_one_line_and_the_bag_stays_rea
     bag = tmp_path / 'full'
     cmd = command('sim', bag) + ['-p', f'stop_on_record_error:={str(stop).lower()}']
     proc = subprocess.Popen(cmd, env=node_env(154 + stop), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                            text=True, preexec_fn=_limit_file_size, start_new_session=True)
+                            text=True, preexec_fn=_limit_file_size)
     lines: list[str] = []
     try:
         assert _wait_for_line(proc, 'recording stopped', lines), '\n'.join(lines)

@@ -24,7 +24,7 @@ import numpy as np
 from hexapod_locomotion.core.terrain_features import FEATURE_NAMES, FEATURES_VERSION
 
 FORMAT = 'hexapod-terrain-model'
-DEFAULT_MODEL = Path(__file__).parent / 'data' / 'terrain_model.pkl.gz'
+DEFAULT_MODEL = Path(__file__).parents[1] / 'data' / 'terrain_model.pkl.gz'
 
 
 class TerrainModelError(ValueError):

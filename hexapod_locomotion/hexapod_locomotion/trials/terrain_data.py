@@ -317,7 +317,7 @@ GAITS = ('tripod', 'tetrapod', 'pentapod')
 # simulated walking time per trial: a pentapod cycle is three times a tripod's
 CLASS_TRIAL_S = {'tripod': 24.0, 'tetrapod': 30.0, 'pentapod': 48.0}
 COURSE_TRIAL_S = {'tripod': 36.0, 'tetrapod': 50.0, 'pentapod': 84.0}
-DAMPED_OVERLAY = str(Path(__file__).parent / 'data' / 'damped_servo.yaml')
+DAMPED_OVERLAY = str(Path(__file__).parents[1] / 'data' / 'damped_servo.yaml')
 # name -> (terrains, seeds, durations, overlays)
 SETS = {
     'train': ('classes', (0, 1, 2), CLASS_TRIAL_S, ()),

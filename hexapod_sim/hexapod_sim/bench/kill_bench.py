@@ -63,8 +63,9 @@ def command(target: str, bag: Path) -> list[str]:
     return [executable('hexapod_locomotion', 'demo'), '--duration', '60', '--record', str(bag), '--no-progress']
 
 
-def session_pids(sid: int) -> list[int]:
-    """Every process of session ``sid`` (the started command and whatever it started)."""
+def pids_under(sid: int) -> list[int]:
+    """Every process whose POSIX sid is ``sid`` (the command started by :func:`kill_one` with its own
+    ``setsid``, and whatever it started)."""
     out = []
     for d in Path('/proc').iterdir():
         if d.name.isdigit():
@@ -73,7 +74,7 @@ def session_pids(sid: int) -> list[int]:
             except OSError:
                 continue
             fields = stat[stat.rindex(')') + 2:].split()
-            if int(fields[3]) == sid:            # field 6 of stat: session id
+            if int(fields[3]) == sid:            # field 6 of stat: the sid
                 out.append(int(d.name))
     return out
 
@@ -210,7 +211,7 @@ def kill_one(i: int, target: str, mode: str, delay_s: float, bag: Path, env: dic
     if clock is not None:
         clock.reset()
     proc = subprocess.Popen(command(target, bag), env=env, stdout=subprocess.DEVNULL, stderr=log,
-                            start_new_session=True)
+                            preexec_fn=os.setsid)
     sid = proc.pid
     try:
         # the recording has begun once the bag's metadata.yaml exists; the delay counts from then
@@ -228,9 +229,9 @@ def kill_one(i: int, target: str, mode: str, delay_s: float, bag: Path, env: dic
         if mode == 'process':
             victims = [proc.pid]
         elif mode == 'group':
-            victims = [p for p in session_pids(sid) if os.getpgid(p) == proc.pid]
+            victims = [p for p in pids_under(sid) if os.getpgid(p) == proc.pid]
         else:
-            victims = session_pids(sid)
+            victims = pids_under(sid)
         for p in victims:                  # stop first: the last /clock is then the time they reached
             _signal(p, signal.SIGSTOP)
         if clock is not None:
@@ -240,9 +241,9 @@ def kill_one(i: int, target: str, mode: str, delay_s: float, bag: Path, env: dic
             _signal(p, signal.SIGKILL)
         proc.wait()
         end = time.monotonic() + 60.0      # survivors (the bag's writer) finish the bag, then end
-        while session_pids(sid) and time.monotonic() < end:
+        while pids_under(sid) and time.monotonic() < end:
             time.sleep(0.1)
-        for p in session_pids(sid):        # never leave anything running
+        for p in pids_under(sid):        # never leave anything running
             _signal(p, signal.SIGKILL)
     finally:
         if proc.poll() is None:
