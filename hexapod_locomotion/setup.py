@@ -31,6 +31,7 @@ setup(
             'analyse = hexapod_locomotion.analyse:main',
             'cmd_vel_pub = hexapod_locomotion.cmd_vel_pub:main',
             'teleop_keyboard = hexapod_locomotion.teleop_keyboard:main',
+            'soak = hexapod_locomotion.soak:main',
         ],
     },
 )

@@ -165,6 +165,7 @@ class DynamixelBus:
         self.last_failure = ''
         self.reply_latency_s = math.nan            # measured at start-up (median PING round trip - wire)
         self._closed_report: tuple[bool, str] | None = None
+        self._loss_reported = False                # the loss of the port now lost was reported
         self._throttle: dict[str, list] = {}       # key -> [window start, suppressed count, level, last text]
         self.throttle_s = 5.0
 
@@ -204,13 +205,21 @@ class DynamixelBus:
             raise CommandError('emergency stop is active: torque is off; restart the driver to re-enable')
         goals = self.validate_goals(goals_rad).goals_tick
         with self.lock:
-            return self._sync_write_ticks(goals)
+            try:
+                return self._sync_write_ticks(goals)
+            except PortLostError as exc:
+                self._port_lost(exc)
+                raise
 
     def read_position(self, joint: str) -> tuple[float, float]:
         """Read one joint: (theta [rad], sample time). Raises BusError after the retry budget."""
         self._check_joint(joint)
         with self.lock:
-            s = self._read_joint(joint, retries=self.config.read_retries)
+            try:
+                s = self._read_joint(joint, retries=self.config.read_retries)
+            except PortLostError as exc:
+                self._port_lost(exc)
+                raise
         if s is None:
             raise BusError(f'{joint} (id {self.mount[joint].servo_id}): no valid reply after '
                            f'{1 + self.config.read_retries} attempts ({self.states[joint].message})')
@@ -250,6 +259,7 @@ class DynamixelBus:
             raise PortLostError(f'cannot open {self.config.device}: {exc}') from None
         self.port = port
         self.port_ok = True
+        self._loss_reported = False
 
     def _close_port(self) -> None:
         if self.port is not None and self.port.ser is not None:
@@ -781,12 +791,18 @@ class DynamixelBus:
         """Torque off everywhere; (confirmed, what the driver knows), never claiming more than it
         saw: "torque off" only when every servo answered the write or read back 0."""
         with self.lock:
-            if self.port is None or not self.port_ok:
+            if (self.port is None or not self.port_ok) and not self._reopen_for_torque_off():
                 return False, 'torque state unknown: port lost (nothing could reach the servos)'
             try:
                 bad = self.torque_off()
             except PortLostError as exc:
-                return False, f'torque state unknown: port lost ({exc})'
+                self.port_ok = False
+                if not self._reopen_for_torque_off():
+                    return False, f'torque state unknown: port lost ({exc})'
+                try:
+                    bad = self.torque_off()
+                except PortLostError as exc2:
+                    return False, f'torque state unknown: port lost ({exc2})'
         if bad:
             return False, (f'torque state unknown for {", ".join(bad)} (no answer); '
                            f'torque off confirmed for the other {len(self.joints) - len(bad)}')
@@ -863,14 +879,36 @@ class DynamixelBus:
         try:
             fn()
         except PortLostError as exc:
-            self.port_ok = False
-            for st in self.states.values():
-                st.responding = False
-            self._event('error', f'port lost: {exc}; torque state unknown (nothing reaches the servos); '
-                                 f'reopening every {self.config.reconnect_period_s} s')
-            self._next_reconnect_t = self.clock() + self.config.reconnect_period_s
+            self._port_lost(exc)
         except BusError as exc:
             self._event('error', str(exc))
+
+    def _port_lost(self, exc: Exception) -> None:
+        """The port failed (in the bus loop or under a controller's read or write): one error event
+        per loss, every servo not responding, the next reopen one ``reconnect_period_s`` away."""
+        self.port_ok = False
+        for st in self.states.values():
+            st.responding = False
+        if self._loss_reported:
+            return
+        self._loss_reported = True
+        self._event('error', f'port lost: {exc}; torque state unknown (nothing reaches the servos); '
+                             f'reopening every {self.config.reconnect_period_s} s')
+        self._next_reconnect_t = self.clock() + self.config.reconnect_period_s
+
+    def _reopen_for_torque_off(self) -> bool:
+        """The port is lost when torque is to be turned off (at exit, an emergency stop): try to
+        reopen it for two ``reconnect_period_s`` (an adapter plugged back in), on the monotonic
+        clock (a paused ROS clock must not hold an exit). True when it is open again."""
+        t_end = time.monotonic() + 2 * self.config.reconnect_period_s
+        while True:
+            try:
+                self._open()
+                return True
+            except PortLostError:
+                if time.monotonic() >= t_end:
+                    return False
+                time.sleep(0.05)
 
     def _reconnect(self) -> None:
         try:

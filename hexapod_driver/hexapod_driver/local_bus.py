@@ -17,7 +17,7 @@ from typing import Callable, Mapping, Sequence
 
 from hexapod_model.bus import BusError
 
-from .dynamixel_bus import DynamixelBus, StepResult
+from .dynamixel_bus import DynamixelBus, PortLostError, StepResult
 
 
 class LocalDriverBus:
@@ -45,8 +45,16 @@ class LocalDriverBus:
         return self.core.now()
 
     def sync_write(self, goals_rad: Mapping[str, float]) -> float:
-        self._check()
-        t = self.core.sync_write(goals_rad)
+        t_end = self.core.now() + self.read_timeout_s
+        while True:
+            self._check()
+            try:
+                t = self.core.sync_write(goals_rad)
+                break
+            except PortLostError:
+                if self.core.now() >= t_end:
+                    raise
+                self._while_port_lost()
         self.on_write(t, dict(goals_rad))
         return t
 
@@ -62,8 +70,16 @@ class LocalDriverBus:
             except BusError:
                 if self.core.now() >= t_end:
                     raise
+                self._while_port_lost()
         self.on_read(joint, theta, stamp)
         return theta, stamp
+
+    def _while_port_lost(self) -> None:
+        """A lost port is reopened by the driver's loop (every ``reconnect_period_s``): run a step of
+        it, which also reports the loss, rather than failing the controller while the adapter is
+        away for less than ``read_timeout_s``."""
+        if not self.core.port_ok:
+            self.on_step(self.core.step())
 
     def wait_until(self, t: float) -> None:
         """The driver's own loop until ``t``: scheduled reads, diagnostics, reconnects.
