@@ -49,6 +49,8 @@ from .port import LowLatencyPortHandler, in_waiting, write_all
 from .timing import TimingStats
 
 ALARM_BITS = p.ERR_OVERHEATING | p.ERR_OVERLOAD
+CLOCK_JUMP_S = 0.05                   # a clock going back by more than this has jumped (sim reset, clock set)
+CLOCK_PAUSE_S = 2.0                   # wall seconds without the clock advancing before it is called paused
 DIAG_START = 24                       # torque_enable .. moving in one READ
 DIAG_LEN = 46 - DIAG_START + 1
 
@@ -166,6 +168,8 @@ class DynamixelBus:
         self.reply_latency_s = math.nan            # measured at start-up (median PING round trip - wire)
         self._closed_report: tuple[bool, str] | None = None
         self._loss_reported = False                # the loss of the port now lost was reported
+        self._clock_seen: tuple[float, float] | None = None   # (clock, monotonic wall time) it last changed
+        self._clock_paused = False
         self._throttle: dict[str, list] = {}       # key -> [window start, suppressed count, level, last text]
         self.throttle_s = 5.0
 
@@ -852,14 +856,20 @@ class DynamixelBus:
         res = StepResult()
         # read pacing: wait for the next read slot, but write goals the moment they arrive
         while self.config.read_period_s > 0 and self.port_ok:
-            left = self._next_read_t - self.clock()
+            now = self.clock()
+            self._watch_clock(now)
+            left = self._next_read_t - now
             if left <= 0:
                 break
             if self._cmd_event.wait(min(left, 0.05)):
                 self._cmd_event.clear()
                 with self.lock:
                     self._guarded(lambda: self._write_pending(res))
+            if self._clock_paused:           # back to the caller now and then: it may be stopping
+                res.events = self._drain_events()
+                return res
         now = self.clock()
+        self._watch_clock(now)
         with self.lock:
             if not self.port_ok:
                 if now >= self._next_reconnect_t:
@@ -873,6 +883,32 @@ class DynamixelBus:
                                    self._diagnostics_step(res, now)))
         res.events = self._drain_events()
         return res
+
+    def _watch_clock(self, now: float) -> None:
+        """Notice a clock that jumps back (sim time reset, a system clock set back) and one that stands
+        still (use_sim_time with a paused /clock): one line each. After a jump back, the times the
+        loop waits for (next read, diagnostics round, reopen, the watchdog's last transaction, the
+        command timeout) restart from the new time instead of waiting for the clock to catch up."""
+        wall = time.monotonic()
+        seen = self._clock_seen
+        if seen is not None and now < seen[0] - CLOCK_JUMP_S:
+            self._event('warn', f'clock jumped back by {seen[0] - now:.3f} s (to {now:.3f} s): read pacing, '
+                                f'diagnostics, reopen and command timeouts restart from the new time')
+            self._next_read_t = min(self._next_read_t, now)
+            self._next_diag_t = min(self._next_diag_t, now)
+            self._next_reconnect_t = min(self._next_reconnect_t, now)
+            self.last_ok_t = min(self.last_ok_t, now)
+            if self._last_command_t is not None:
+                self._last_command_t = min(self._last_command_t, now)
+        if seen is None or now != seen[0]:
+            if self._clock_paused:
+                self._clock_paused = False
+                self._event('info', f'the clock advances again (at {now:.3f} s)')
+            self._clock_seen = (now, wall)
+        elif not self._clock_paused and wall - seen[1] >= CLOCK_PAUSE_S:
+            self._clock_paused = True
+            self._event('warn', f'the clock is not advancing (at {now:.3f} s for {wall - seen[1]:.1f} s of wall '
+                                f'time: use_sim_time with a paused /clock?): reads wait for it')
 
     def _guarded(self, fn) -> None:
         """Run bus work; a lost port or a failed transaction becomes an event, never an exception."""

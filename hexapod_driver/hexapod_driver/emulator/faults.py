@@ -26,6 +26,7 @@ class Faults:
         self._stale: list[tuple[set[int] | None, int | None, float]] = []
         self.missing: set[int] = set()
         self.temperature_override: dict[int, float] = {}   # servo id -> present temperature, over the backend's
+        self._before_override: dict[int, float] = {}
         self.reply_latency_s = 0.0
         self.dropped = 0
         self.corrupted = 0
@@ -99,8 +100,10 @@ class Faults:
         with self._emu.lock:
             s = self._emu.servo(servo_id)
             if temperature_c is None:
-                self.temperature_override.pop(servo_id, None)
+                if self.temperature_override.pop(servo_id, None) is not None:
+                    s.temperature_c = self._before_override.pop(servo_id)   # a backend with a model overwrites it
                 return
+            self._before_override.setdefault(servo_id, s.temperature_c)
             self.temperature_override[servo_id] = float(temperature_c)
             s.temperature_c = float(temperature_c)
             self._emu._check_alarms(s)
