@@ -51,6 +51,7 @@ from .timing import TimingStats
 ALARM_BITS = p.ERR_OVERHEATING | p.ERR_OVERLOAD
 CLOCK_JUMP_S = 0.05                   # a clock going back by more than this has jumped (sim reset, clock set)
 CLOCK_PAUSE_S = 2.0                   # wall seconds without the clock advancing before it is called paused
+TORQUE_OFF_REOPEN_S = 1.0             # how long a torque-off (exit, emergency stop) tries to reopen a lost port
 DIAG_START = 24                       # torque_enable .. moving in one READ
 DIAG_LEN = 46 - DIAG_START + 1
 
@@ -934,9 +935,9 @@ class DynamixelBus:
 
     def _reopen_for_torque_off(self) -> bool:
         """The port is lost when torque is to be turned off (at exit, an emergency stop): try to
-        reopen it for two ``reconnect_period_s`` (an adapter plugged back in), on the monotonic
+        reopen it for :data:`TORQUE_OFF_REOPEN_S` (an adapter plugged back in), on the monotonic
         clock (a paused ROS clock must not hold an exit). True when it is open again."""
-        t_end = time.monotonic() + 2 * self.config.reconnect_period_s
+        t_end = time.monotonic() + TORQUE_OFF_REOPEN_S
         while True:
             try:
                 self._open()

@@ -3,8 +3,10 @@ real processes (realtime: the composed robot on the emulated bus with faults tha
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -135,3 +137,32 @@ def test_soak_one_minute(tmp_path):
     assert 'torque off on all servos (read back)' in robot_log
     diags = [json.loads(x) for x in (out / 'diagnostics.jsonl').read_text().splitlines()]
     assert any('port lost' in d['message'] for d in diags)
+
+
+@pytest.mark.realtime
+def test_soak_ctrl_c_ends_with_the_report_so_far(tmp_path):
+    """Ctrl-C while walking: the robot, the recorder and the bus stop in that order, the report of
+    the run so far is printed, torque is off, the bag is readable, nothing is left running."""
+    out = tmp_path / 'soak'
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1')
+    proc = subprocess.Popen([sys.executable, '-m', 'hexapod_locomotion.soak', '--minutes', '5', '--out', str(out)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    for line in proc.stdout:                 # until walking has started and one fault has come
+        lines.append(line)
+        if 'walking from' in line:
+            break
+    t_fail = time.monotonic() + 120.0         # a failure bound; the condition is what the soak has logged
+    diag = out / 'diagnostics.jsonl'
+    while not (diag.exists() and diag.read_text().count('\n') >= 200):
+        assert time.monotonic() < t_fail and proc.poll() is None, ''.join(lines)
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    rest, _ = proc.communicate(timeout=180)
+    text = ''.join(lines) + rest
+    assert 'Traceback' not in text, text
+    assert 'Ctrl-C' in text and 'soak report' in text and '(interrupted)' in text, text
+    assert 'PASS  torque off at the end' in text, text
+    assert 'PASS  bag readable' in text and 'PASS  no invented positions' in text, text
+    assert 'did not stop' not in text, text          # each child ended on its signal, none was killed
