@@ -119,6 +119,7 @@ class Soak:
         self.t_walk0 = math.nan
         self.t_walk1 = math.nan
         self.interrupted = False
+        self.js_publishers = 0
         self.ended_early = ''
         self._diag_log = open(out / 'diagnostics.jsonl', 'w', buffering=1 << 16)
         self._ALL = ALL_JOINTS
@@ -213,6 +214,7 @@ class Soak:
         node.create_subscription(LegGroundDetection, contract.GROUND_DETECTION, self.on_detection, 1000)
         node.create_subscription(BusTiming, contract.BUS_TIMING, self.on_timing, 10)
         pub = node.create_publisher(Twist, contract.CMD_VEL, 10)
+        self._node = node
         spin = lambda s: ex.spin_once(timeout_sec=s)          # noqa: E731
         try:
             self.start_processes()
@@ -269,6 +271,11 @@ class Soak:
             spin(0.02)
 
     def _sample_all(self) -> None:
+        from hexapod_model import contract
+        try:                          # another process publishing positions on this domain would be judged too
+            self.js_publishers = max(self.js_publishers, self._node.count_publishers('/' + contract.JOINT_STATES))
+        except Exception:             # noqa: BLE001 - the context may be down after Ctrl-C
+            pass
         t = time.time() - self.t_walk0
         for p in self.procs.values():
             p.sample(t)
@@ -374,13 +381,22 @@ class Soak:
         self.say(f'reads: {reads / walked:.0f} per second, {failed} failed attempts')
         # faults
         faults = self._fault_lines()
+        from hexapod_driver.emulator.fault_schedule import UNANSWERED, load_replies
+        replies = load_replies(self.out / 'replies.bin')
+        silent = replies[replies[:, 2] == UNANSWERED]
+        asked = {int(i): silent[silent[:, 1] == i, 0] for i in np.unique(silent[:, 1])}
         verdicts = sc.judge_faults(faults, [s for s in self.statuses if 'hexapod_driver' in s['name']],
-                                   self.all_ids, self.t_walk1, FAULT_POLICY)
-        seen = sum(v.seen for v in verdicts)
+                                   self.all_ids, self.t_walk1, FAULT_POLICY, asked)
+        unobservable = [v for v in verdicts if v.seen is None]
+        verdicts = [v for v in verdicts if v.seen is not None]
+        seen = sum(bool(v.seen) for v in verdicts)
         due = [v for v in verdicts if v.recovered is not None]
         rec = sum(bool(v.recovered) for v in due)
-        self.say(f'faults: {len(verdicts)} injected, {seen} reported on /diagnostics, {rec} of {len(due)} '
-                 f'recovered (policy {FAULT_POLICY})')
+        self.say(f'faults: {len(verdicts) + len(unobservable)} injected, {seen} reported on /diagnostics, {rec} of '
+                 f'{len(due)} recovered (policy {FAULT_POLICY})')
+        for v in unobservable:
+            self.say(f'  fault {v.fault} at {v.start - self.t_walk0:.1f} s: {v.text}: not observable, the driver sent '
+                     f'that servo no request while it was silent (a swing-down reads only the swinging femurs)')
         for v in verdicts:
             if not v.seen or v.recovered is False:
                 self.say(f'  fault {v.fault} at {v.start - self.t_walk0:.1f} s: {v.text}: '
@@ -397,6 +413,10 @@ class Soak:
             on = [s['id'] for s in final if s['torque_enable']]
             checks.append(sc.Check('torque off at the end', not on,
                                    f'torque enable 1 on ids {on}' if on else f'0 on all {len(final)} servos'))
+        checks.append(sc.Check('one /joint_states publisher', self.js_publishers == 1,
+                               f'at most {self.js_publishers} publisher(s) seen on ROS_DOMAIN_ID='
+                               f'{os.environ.get("ROS_DOMAIN_ID", "0")} (the robot\'s alone: give the soak a domain of '
+                               f'its own)'))
         robot_rc = self.procs['robot'].popen.returncode
         checks.append(sc.Check('robot exit code', robot_rc == 0, str(robot_rc)))
         # bag and positions
@@ -407,7 +427,7 @@ class Soak:
         return checks
 
     def _bag_checks(self) -> list[sc.Check]:
-        from hexapod_driver.emulator.fault_schedule import load_replies
+        from hexapod_driver.emulator.fault_schedule import UNANSWERED, load_replies
         from hexapod_model.servo import servo_tick
         bag = self.out / 'bag'
         size = sum(f.stat().st_size for f in bag.rglob('*') if f.is_file()) if bag.exists() else 0
@@ -441,6 +461,7 @@ class Soak:
                sc.Check('bag up to the end', last >= self.t_walk1 - 2.0,
                         f'last message {self.t_walk1 - last:+.1f} s before the end of walking')]
         replies = load_replies(self.out / 'replies.bin')
+        replies = replies[replies[:, 2] != UNANSWERED]
         reported = {int(i): replies[replies[:, 1] == i, 2] for i in np.unique(replies[:, 1])}
         bad, examples = sc.invented_positions({k: np.asarray(v) for k, v in published.items()}, reported)
         n = sum(len(v) for v in published.values())

@@ -15,6 +15,7 @@ import numpy as np
 
 GRACE_S = 3.0                     # a fault must show on /diagnostics within this long after it ends
 _ID = re.compile(r'\(id (\d+)\)$')
+_NONE = np.zeros(0)
 
 
 @dataclass
@@ -30,7 +31,7 @@ class FaultVerdict:
     text: str
     start: float
     end: float
-    seen: bool
+    seen: bool | None                 # None: the fault could not be observed (see judge_faults)
     recovered: bool | None            # None: the policy does not expect a recovery
     notes: list[str] = field(default_factory=list)
 
@@ -56,11 +57,15 @@ def _value(s: dict, key: str) -> str:
     return s['values'].get(key, '')
 
 
-def judge_faults(faults: list[dict], statuses: list[dict], all_ids, t_end: float, fault_policy: str
-                 ) -> list[FaultVerdict]:
+def judge_faults(faults: list[dict], statuses: list[dict], all_ids, t_end: float, fault_policy: str,
+                 asked: dict[int, np.ndarray] | None = None) -> list[FaultVerdict]:
     """Per injected fault (``{'fault', 'kind', 'ids', 'value', 'duration_s', 'start', 'end'}``, wall
     times): was it reported on /diagnostics while it lasted (or within :data:`GRACE_S`), and did the
-    driver report the recovery afterwards (before ``t_end``) where the policy promises one?"""
+    driver report the recovery afterwards (before ``t_end``) where the policy promises one?
+
+    ``asked``: {servo id: wall times of the requests the servo did not answer}. A servo silent while
+    the driver sent it nothing (the controller reading only the swinging femurs through a whole
+    swing-down) cannot be noticed: ``seen`` is None then, not False."""
     out = []
     for f in faults:
         kind, ids = f['kind'], list(f['ids']) or list(all_ids)
@@ -84,6 +89,9 @@ def judge_faults(faults: list[dict], statuses: list[dict], all_ids, t_end: float
             rec = all(any('input voltage' not in _value(s, 'error_bits') for s in _servo(after, i)) for i in ids)
         elif kind == 'silent':
             seen = all(any(_value(s, 'responding') == 'false' for s in _servo(during, i)) for i in ids)
+            if not seen and asked is not None and not any(
+                    np.any((asked.get(i, _NONE) >= t0) & (asked.get(i, _NONE) <= t1)) for i in ids):
+                seen = None           # no request reached the servo while it was silent: nothing to report
             rec = all(any(_value(s, 'responding') == 'true' for s in _servo(after, i)) for i in ids)
         elif kind == 'port':
             seen = any('port lost' in s['message'] for s in _bus(during))
@@ -166,11 +174,11 @@ def invented_positions(published: dict[int, np.ndarray], reported: dict[int, np.
             lo, hi = np.searchsorted(values, tick, 'left'), np.searchsorted(values, tick, 'right')
             where = order[lo:hi]                         # the reports of this tick, in order
             n = np.searchsorted(where, j)
-            if n == len(where):
-                bad += len(pub) - k
+            if n == len(where):                          # not reported (from here on): counted, skipped
+                bad += 1
                 if len(examples) < 5:
-                    examples.append(f'id {sid}: published tick {int(tick)} (message {k} of {len(pub)}) after '
-                                    f'report {j} of {len(rep)}: never reported from there on')
-                break
+                    examples.append(f'id {sid}: published tick {int(tick)} (message {k} of {len(pub)}) never '
+                                    f'reported by the servo after its report {j} of {len(rep)}')
+                continue
             j = int(where[n]) + 1
     return bad, examples

@@ -8,8 +8,8 @@ and the record of every position the emulated servos reported.
 * :class:`ScheduleRunner` applies a schedule to a running :class:`~.pty_server.BusEmulator`
   through its :class:`~.faults.Faults` (times from when :meth:`ScheduleRunner.begin` is called) and
   writes one JSON line per fault start and end (wall-clock time, what, which servos).
-* :class:`ReplyRecorder` appends every present position a servo sent (wall time, servo id, tick)
-  to a binary file as it goes, so a checker can prove that each position a driver published was
+* :class:`ReplyRecorder` appends every present position a servo sent (wall time, servo id, tick),
+  and every read or ping it left unanswered (tick :data:`UNANSWERED`), to a binary file as it goes, so a checker can prove that each position a driver published was
   one a servo reported (:func:`load_replies`).
 
 ``bus_emulator --fault-schedule FILE --events-out FILE --replies-out FILE`` wires them up.
@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 KINDS = ('drop', 'corrupt', 'overheat', 'voltage', 'silent', 'port')
 PRESENT_POSITION = 36                      # address of present_position (2 bytes)
 REPLY_ROW = 3                              # wall time, servo id, tick (float64 each)
+UNANSWERED = -1                            # the tick of a row for a request that got no reply
 
 
 class ScheduleError(ValueError):
@@ -253,6 +254,9 @@ class ReplyRecorder:
             entries = [log.popleft() for _ in range(len(log))]
         rows = []
         for e in entries:
+            if not e.replied and e.instruction in (p.READ, p.PING) and e.servo_id != p.BROADCAST_ID:
+                rows.append((e.wall, e.servo_id, UNANSWERED))     # asked, no reply (silent, dropped)
+                continue
             if e.instruction != p.READ or not e.replied or e.address is None:
                 continue
             off = PRESENT_POSITION - e.address
@@ -273,6 +277,7 @@ class ReplyRecorder:
 
 
 def load_replies(path: str | Path) -> np.ndarray:
-    """The rows a :class:`ReplyRecorder` wrote: an (N, 3) array of wall time, servo id, tick."""
+    """The rows a :class:`ReplyRecorder` wrote: an (N, 3) array of wall time, servo id, tick
+    (:data:`UNANSWERED` for a request without a reply)."""
     data = np.fromfile(path, dtype=np.float64)
     return data[:len(data) // REPLY_ROW * REPLY_ROW].reshape(-1, REPLY_ROW)
