@@ -302,10 +302,10 @@ def test_paused_sim_clock_is_said_and_exit_is_prompt(robot, ros):
                 _publish_clock(node, pub, 500.0)             # published again and again, never advancing
                 return 'clock is not advancing' in out.text()
             wait_for(ex, paused, 60.0, proc, 'the paused clock in the log')
-            t0 = time.monotonic()
-            rc, text = out.finish(proc)
-            took = time.monotonic() - t0
         finally:
+            t0 = time.monotonic()
+            rc, text = out.finish(proc)                      # also when the wait failed: no node left behind
+            took = time.monotonic() - t0
             inbox.close(node)
             node.destroy_publisher(pub)
         assert rc == 0, text

@@ -120,8 +120,10 @@ def test_fault_at_startup_then_port_lost_at_ctrl_c(ros, tmp_path):
     with BusEmulator(robot, link_path=tmp_path / 'ttyDXL', seed=5) as emu:
         emu.faults.remove_servo(8)
         proc, out = start_robot(emu.port)
-        proc.wait(timeout=120.0)
-        rc, text = out.finish(proc)
+        try:
+            proc.wait(timeout=120.0)
+        finally:
+            rc, text = out.finish(proc)                     # stopped even when it did not exit by itself
         assert rc == 1, text
         assert 'id 8' in text and 'Traceback' not in text, text
         assert all(s.get('torque_enable') == 0 for s in emu.servos if s.servo_id != 8), text
