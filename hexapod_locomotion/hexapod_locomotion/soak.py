@@ -131,9 +131,12 @@ class Soak:
             f.write(text + '\n')
 
     # -- processes
-    def _start(self, name: str, argv: list[str]) -> Proc:
+    def _start(self, name: str, pkg: str, exe: str, argv: list[str]) -> Proc:
+        """Start the installed executable ``exe`` of ``pkg`` (as ``ros2 run`` finds it)."""
+        from ament_index_python.packages import get_package_prefix
         log = self.out / f'{name}.log'
-        popen = subprocess.Popen([sys.executable, *argv], stdout=open(log, 'w'), stderr=subprocess.STDOUT,
+        path = os.path.join(get_package_prefix(pkg), 'lib', pkg, exe)
+        popen = subprocess.Popen([sys.executable, path, *argv], stdout=open(log, 'w'), stderr=subprocess.STDOUT,
                                  env=dict(os.environ, PYTHONUNBUFFERED='1'), start_new_session=True)
         p = self.procs[name] = Proc(name, popen, log)
         return p
@@ -154,13 +157,13 @@ class Soak:
         self.say(f'soak: {self.args.minutes:g} min, seed {self.args.seed}, {len(schedule)} faults scheduled, '
                  f'windows of {self.window_s:g} s, output in {self.out}')
         tty = self.out / 'tty'
-        self._start('emulator', ['-m', 'hexapod_driver.emulator', '--backend', 'sim', '--link', str(tty),
+        self._start('emulator', 'hexapod_driver', 'bus_emulator', ['--backend', 'sim', '--link', str(tty),
                                  '--seed', str(self.args.seed), '--fault-schedule', str(self.out / 'faults.json'),
                                  '--events-out', str(self.out / 'faults.jsonl'),
                                  '--replies-out', str(self.out / 'replies.bin')])
         self._wait(lambda: tty.is_symlink(), 60.0, 'the bus emulator\'s port')
-        self._start('recorder', ['-m', 'hexapod_sim.record_contract', '--out', str(self.out / 'bag')])
-        self._start('robot', ['-m', 'hexapod_locomotion.robot', '--ros-args', '-p', 'hardware:=driver',
+        self._start('recorder', 'hexapod_sim', 'record_contract', ['--out', str(self.out / 'bag')])
+        self._start('robot', 'hexapod_locomotion', 'robot', ['--ros-args', '-p', 'hardware:=driver',
                               '-p', f'device:={tty}', '-p', f'fault_policy:={FAULT_POLICY}'])
         self.procs['soak'] = Proc('soak', None, self.out / 'report.txt')
 

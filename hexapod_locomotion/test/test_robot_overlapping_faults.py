@@ -48,8 +48,13 @@ class Output:
         return proc.returncode, self.text()
 
 
+def installed(pkg, exe):
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix(pkg), 'lib', pkg, exe)
+
+
 def start_robot(port, extra=()):
-    args = [sys.executable, '-m', 'hexapod_locomotion.robot', '--ros-args', '-p', 'hardware:=driver',
+    args = [sys.executable, installed('hexapod_locomotion', 'robot'), '--ros-args', '-p', 'hardware:=driver',
             '-p', f'device:={port}', '-p', 'timeout_margin_ms:=25.0']
     for prm in extra:
         args += ['-p', prm]

@@ -19,6 +19,11 @@ from hexapod_locomotion import soak_checks as sc
 DOMAIN_ID = 180 + os.getpid() % 8           # 180..187: this file's nodes
 
 
+def installed(pkg, exe):
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix(pkg), 'lib', pkg, exe)
+
+
 def _schedule(seed, duration):
     return random_schedule(seed, duration, servo_ids=range(1, 19), quiet_ids=[1, 4, 7], temperature_limit_c=70.0,
                            voltage_limits_v=(6.0, 14.0))
@@ -127,7 +132,7 @@ def test_soak_one_minute(tmp_path):
     out = tmp_path / 'soak'
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                PYTHONUNBUFFERED='1')
-    r = subprocess.run([sys.executable, '-m', 'hexapod_locomotion.soak', '--minutes', '1', '--seed', '0',
+    r = subprocess.run([sys.executable, installed('hexapod_locomotion', 'soak'), '--minutes', '1', '--seed', '0',
                         '--out', str(out)], env=env, capture_output=True, text=True, timeout=600)
     print(r.stdout[-6000:])
     report = (out / 'report.txt').read_text()
@@ -153,7 +158,7 @@ def test_soak_ctrl_c_ends_with_the_report_so_far(tmp_path):
     out = tmp_path / 'soak'
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                PYTHONUNBUFFERED='1')
-    proc = subprocess.Popen([sys.executable, '-m', 'hexapod_locomotion.soak', '--minutes', '5', '--out', str(out)],
+    proc = subprocess.Popen([sys.executable, installed('hexapod_locomotion', 'soak'), '--minutes', '5', '--out', str(out)],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines = []
     for line in proc.stdout:                 # until walking has started and one fault has come
