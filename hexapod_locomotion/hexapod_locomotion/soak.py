@@ -120,6 +120,7 @@ class Soak:
         self.t_walk1 = math.nan
         self.interrupted = False
         self.js_publishers = 0
+        self.load: list[tuple[float, float]] = []           # (t since walk start, 1-min load average)
         self.ended_early = ''
         self._diag_log = open(out / 'diagnostics.jsonl', 'w', buffering=1 << 16)
         self._ALL = ALL_JOINTS
@@ -282,6 +283,11 @@ class Soak:
         t = time.time() - self.t_walk0
         for p in self.procs.values():
             p.sample(t)
+        try:                          # the machine's load: the timing figures depend on it
+            with open('/proc/loadavg') as f:
+                self.load.append((t, float(f.read().split()[0])))
+        except (OSError, ValueError, IndexError):
+            pass
 
     def _progress(self, t: float, span: float) -> None:
         t_abs = self.t_walk0 + t
@@ -367,8 +373,11 @@ class Soak:
         ts, ps = sc.control_periods(self.reads)
         wins = sc.windows(ts, ps, self.t_walk0, self.window_s)
         self.say(f'control period per {self.window_s:g} s window (t_con between reads of a leg in a swing-down):')
+        cores = os.cpu_count() or 1
         for w0, n, med, p99 in wins:
-            self.say(f'  {w0 / 60:6.1f} min  n={n:6d}  median {med * 1e3:7.2f} ms  p99 {p99 * 1e3:7.2f} ms')
+            la = [v for t, v in self.load if w0 <= t < w0 + self.window_s]
+            self.say(f'  {w0 / 60:6.1f} min  n={n:6d}  median {med * 1e3:7.2f} ms  p99 {p99 * 1e3:7.2f} ms  '
+                     f'load average {np.mean(la) if la else math.nan:5.1f} on {cores} cores')
         full = [w for w in wins if w[0] + self.window_s <= walked + 1e-6]
         if len(full) >= 2:
             d = sc.drift(full[0], full[-1], self.args.period_tolerance)
