@@ -138,7 +138,7 @@ class Soak:
         log = self.out / f'{name}.log'
         path = os.path.join(get_package_prefix(pkg), 'lib', pkg, exe)
         popen = subprocess.Popen([sys.executable, path, *argv], stdout=open(log, 'w'), stderr=subprocess.STDOUT,
-                                 env=dict(os.environ, PYTHONUNBUFFERED='1'), start_new_session=True)
+                                 env=dict(os.environ, PYTHONUNBUFFERED='1'), process_group=0)
         p = self.procs[name] = Proc(name, popen, log)
         return p
 
@@ -488,24 +488,21 @@ class ChildExited(RuntimeError):
 
 
 def parse_args(argv):
-    from hexapod_model.cli_common import prog_name
-    ap = argparse.ArgumentParser(prog=prog_name('soak'), description=__doc__.split('\n\n')[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument('--minutes', type=float, required=True, help='minutes of walking')
+    from hexapod_model import cli_common as cc
+    ap = cc.make_parser('soak', __doc__.split('\n\n')[0])
+    ap.add_argument('--minutes', type=cc.positive_float, required=True, help='minutes of walking')
     ap.add_argument('--seed', type=int, default=0, help='seed of the fault schedule and the /cmd_vel sequence')
-    ap.add_argument('--out', default=None, help='output directory (must not exist; default soak-DATE-TIME)')
-    ap.add_argument('--rss-limit-mb', type=float, default=10.0, help='allowed RSS growth after the first minute')
-    ap.add_argument('--period-tolerance', type=float, default=0.10,
-                    help='allowed change of the control period median and p99, last window vs first (fraction)')
+    ap.add_argument('--out', type=cc.new_directory, default=None,
+                    help='output directory to create (bag, logs, report); default soak-DATE-TIME here')
+    ap.add_argument('--rss-limit-mb', type=cc.positive_float, default=10.0,
+                    help='allowed RSS growth after the first minute, per process [MB]')
+    ap.add_argument('--period-tolerance', type=cc.positive_float, default=0.10,
+                    help='allowed change of the control period median and p99, last window against the first '
+                         '(a fraction)')
     args = ap.parse_args(argv)
-    if not (math.isfinite(args.minutes) and args.minutes > 0):
-        ap.error(f'--minutes must be a positive number, got {args.minutes}')
-    if not (args.rss_limit_mb > 0 and 0 < args.period_tolerance < 1):
-        ap.error('--rss-limit-mb must be > 0 and --period-tolerance within (0, 1)')
-    out = Path(args.out or time.strftime('soak-%Y%m%d-%H%M%S'))
-    if out.exists():
-        ap.error(f'--out {out}: exists already (a soak writes a new directory)')
-    return args, out
+    if args.period_tolerance >= 1:
+        cc.fail(ap, f'--period-tolerance must be a fraction below 1, got {args.period_tolerance:g}')
+    return args, Path(args.out or time.strftime('soak-%Y%m%d-%H%M%S'))
 
 
 def main(argv=None) -> int:
