@@ -35,6 +35,7 @@ setup(
             'fuzz_inputs = hexapod_locomotion.bench.fuzz_inputs:main',
             'terrain = hexapod_locomotion.trials.terrain_cli:main',
             'terrain_node = hexapod_locomotion.nodes.terrain_node:main',
+            'soak = hexapod_locomotion.bench.soak:main',
         ],
     },
 )

@@ -79,6 +79,8 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_locomotion', 'cmd_vel_pub', ['--vx', 'nan']),
     ('hexapod_locomotion', 'cmd_vel_pub', ['--duration', '-1']),
     ('hexapod_locomotion', 'teleop_keyboard', ['--rate', 'nan']),
+    ('hexapod_locomotion', 'soak', ['--minutes', 'nan']),
+    ('hexapod_locomotion', 'soak', ['--minutes', '1', '--out', 'BAD_YAML']),          # exists: nothing overwritten
     ('hexapod_locomotion', 'robot', ['--gait', 'bogus']),      # a node: parameters are -p NAME:=VALUE
     ('hexapod_driver', 'driver_node', ['--device', '/dev/ttyUSB0']),
     # ROS arguments rcl cannot parse: the node's one line, not rcl's traceback

@@ -290,6 +290,22 @@ class DriverNode(Node):
             self.pub_diag.publish(self._diagnostics(res.diagnostics))
         for level, text in res.events:
             self._log(level, text)
+        errors = [text for level, text in res.events if level == 'error']
+        if errors:
+            self._publish_now('; '.join(errors))
+
+    def _publish_now(self, text: str) -> None:
+        """/diagnostics at once on an error event (port lost, a servo stopped answering, an alarm):
+        one lasting less than ``timing_period_s`` would otherwise fall between two periodic arrays.
+        The bus status carries the text; the window counts so far are not reset."""
+        snap = self.core.timing.snapshot(reset=False)
+        now = self.get_clock().now()
+        bus = diagnostics.bus_status(self.core.robot, self.get_name(),
+                                     window_s=(now - self._timing_t0).nanoseconds * 1e-9, reads=snap.reads,
+                                     failed_reads=snap.failed_reads, t_com_mean_s=snap.t_com_mean_s,
+                                     t_com_p99_s=snap.t_com_p99_s, t_com_max_s=snap.t_com_max_s,
+                                     write_mean_s=snap.write_mean_s, note=text)
+        self.pub_diagnostics.publish(diagnostics.diagnostic_array([bus, *self._servo_statuses()], now.to_msg()))
 
     def _diagnostics(self, states) -> ServoDiagnostics:
         msg = ServoDiagnostics()

@@ -48,6 +48,9 @@ from hexapod_model.description import ALL_JOINTS, BusJoint, DescriptionError, Ro
 from hexapod_model.servo import servo_theta, servo_tick
 
 ALARM_BITS = p.ERR_OVERHEATING | p.ERR_OVERLOAD
+CLOCK_JUMP_S = 0.05                   # a clock going back by more than this has jumped (sim reset, clock set)
+CLOCK_PAUSE_S = 2.0                   # wall seconds without the clock advancing before it is called paused
+TORQUE_OFF_REOPEN_S = 1.0             # how long a torque-off (exit, emergency stop) tries to reopen a lost port
 DIAG_START = 24                       # torque_enable .. moving in one READ
 DIAG_LEN = 46 - DIAG_START + 1
 
@@ -164,6 +167,9 @@ class DynamixelBus:
         self.last_failure = ''
         self.reply_latency_s = math.nan            # measured at start-up (median PING round trip - wire)
         self._closed_report: tuple[bool, str] | None = None
+        self._loss_reported = False                # the loss of the port now lost was reported
+        self._clock_seen: tuple[float, float] | None = None   # (clock, monotonic wall time) it last changed
+        self._clock_paused = False
         self._throttle: dict[str, list] = {}       # key -> [window start, suppressed count, level, last text]
         self.throttle_s = 5.0
 
@@ -203,13 +209,21 @@ class DynamixelBus:
             raise CommandError('emergency stop is active: torque is off; restart the driver to re-enable')
         goals = self.validate_goals(goals_rad).goals_tick
         with self.lock:
-            return self._sync_write_ticks(goals)
+            try:
+                return self._sync_write_ticks(goals)
+            except PortLostError as exc:
+                self._port_lost(exc)
+                raise
 
     def read_position(self, joint: str) -> tuple[float, float]:
         """Read one joint: (theta [rad], sample time). Raises BusError after the retry budget."""
         self._check_joint(joint)
         with self.lock:
-            s = self._read_joint(joint, retries=self.config.read_retries)
+            try:
+                s = self._read_joint(joint, retries=self.config.read_retries)
+            except PortLostError as exc:
+                self._port_lost(exc)
+                raise
         if s is None:
             raise BusError(f'{joint} (id {self.mount[joint].servo_id}): no valid reply after '
                            f'{1 + self.config.read_retries} attempts ({self.states[joint].message})')
@@ -249,6 +263,7 @@ class DynamixelBus:
             raise PortLostError(f'cannot open {self.config.device}: {exc}') from None
         self.port = port
         self.port_ok = True
+        self._loss_reported = False
 
     def _close_port(self) -> None:
         if self.port is not None and self.port.ser is not None:
@@ -780,12 +795,18 @@ class DynamixelBus:
         """Torque off everywhere; (confirmed, what the driver knows), never claiming more than it
         saw: "torque off" only when every servo answered the write or read back 0."""
         with self.lock:
-            if self.port is None or not self.port_ok:
+            if (self.port is None or not self.port_ok) and not self._reopen_for_torque_off():
                 return False, 'torque state unknown: port lost (nothing could reach the servos)'
             try:
                 bad = self.torque_off()
             except PortLostError as exc:
-                return False, f'torque state unknown: port lost ({exc})'
+                self.port_ok = False
+                if not self._reopen_for_torque_off():
+                    return False, f'torque state unknown: port lost ({exc})'
+                try:
+                    bad = self.torque_off()
+                except PortLostError as exc2:
+                    return False, f'torque state unknown: port lost ({exc2})'
         if bad:
             return False, (f'torque state unknown for {", ".join(bad)} (no answer); '
                            f'torque off confirmed for the other {len(self.joints) - len(bad)}')
@@ -835,14 +856,20 @@ class DynamixelBus:
         res = StepResult()
         # read pacing: wait for the next read slot, but write goals the moment they arrive
         while self.config.read_period_s > 0 and self.port_ok:
-            left = self._next_read_t - self.clock()
+            now = self.clock()
+            self._watch_clock(now)
+            left = self._next_read_t - now
             if left <= 0:
                 break
             if self._cmd_event.wait(min(left, 0.05)):
                 self._cmd_event.clear()
                 with self.lock:
                     self._guarded(lambda: self._write_pending(res))
+            if self._clock_paused:           # back to the caller now and then: it may be stopping
+                res.events = self._drain_events()
+                return res
         now = self.clock()
+        self._watch_clock(now)
         with self.lock:
             if not self.port_ok:
                 if now >= self._next_reconnect_t:
@@ -857,19 +884,67 @@ class DynamixelBus:
         res.events = self._drain_events()
         return res
 
+    def _watch_clock(self, now: float) -> None:
+        """Notice a clock that jumps back (sim time reset, a system clock set back) and one that stands
+        still (use_sim_time with a paused /clock): one line each. After a jump back, the times the
+        loop waits for (next read, diagnostics round, reopen, the watchdog's last transaction, the
+        command timeout) restart from the new time instead of waiting for the clock to catch up."""
+        wall = time.monotonic()
+        seen = self._clock_seen
+        if seen is not None and now < seen[0] - CLOCK_JUMP_S:
+            self._event('warn', f'clock jumped back by {seen[0] - now:.3f} s (to {now:.3f} s): read pacing, '
+                                f'diagnostics, reopen and command timeouts restart from the new time')
+            self._next_read_t = min(self._next_read_t, now)
+            self._next_diag_t = min(self._next_diag_t, now)
+            self._next_reconnect_t = min(self._next_reconnect_t, now)
+            self.last_ok_t = min(self.last_ok_t, now)
+            if self._last_command_t is not None:
+                self._last_command_t = min(self._last_command_t, now)
+        if seen is None or now != seen[0]:
+            if self._clock_paused:
+                self._clock_paused = False
+                self._event('info', f'the clock advances again (at {now:.3f} s)')
+            self._clock_seen = (now, wall)
+        elif not self._clock_paused and wall - seen[1] >= CLOCK_PAUSE_S:
+            self._clock_paused = True
+            self._event('warn', f'the clock is not advancing (at {now:.3f} s for {wall - seen[1]:.1f} s of wall '
+                                f'time: use_sim_time with a paused /clock?): reads wait for it')
+
     def _guarded(self, fn) -> None:
         """Run bus work; a lost port or a failed transaction becomes an event, never an exception."""
         try:
             fn()
         except PortLostError as exc:
-            self.port_ok = False
-            for st in self.states.values():
-                st.responding = False
-            self._event('error', f'port lost: {exc}; torque state unknown (nothing reaches the servos); '
-                                 f'reopening every {self.config.reconnect_period_s} s')
-            self._next_reconnect_t = self.clock() + self.config.reconnect_period_s
+            self._port_lost(exc)
         except BusError as exc:
             self._event('error', str(exc))
+
+    def _port_lost(self, exc: Exception) -> None:
+        """The port failed (in the bus loop or under a controller's read or write): one error event
+        per loss, every servo not responding, the next reopen one ``reconnect_period_s`` away."""
+        self.port_ok = False
+        for st in self.states.values():
+            st.responding = False
+        if self._loss_reported:
+            return
+        self._loss_reported = True
+        self._event('error', f'port lost: {exc}; torque state unknown (nothing reaches the servos); '
+                             f'reopening every {self.config.reconnect_period_s} s')
+        self._next_reconnect_t = self.clock() + self.config.reconnect_period_s
+
+    def _reopen_for_torque_off(self) -> bool:
+        """The port is lost when torque is to be turned off (at exit, an emergency stop): try to
+        reopen it for :data:`TORQUE_OFF_REOPEN_S` (an adapter plugged back in), on the monotonic
+        clock (a paused ROS clock must not hold an exit). True when it is open again."""
+        t_end = time.monotonic() + TORQUE_OFF_REOPEN_S
+        while True:
+            try:
+                self._open()
+                return True
+            except PortLostError:
+                if time.monotonic() >= t_end:
+                    return False
+                time.sleep(0.05)
 
     def _reconnect(self) -> None:
         try:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import threading
 from typing import Callable, Mapping, Sequence
 
-from hexapod_driver.dynamixel_bus import DynamixelBus, StepResult
+from hexapod_driver.dynamixel_bus import DynamixelBus, PortLostError, StepResult
 from hexapod_model.bus import BusError
 
 
@@ -44,8 +44,16 @@ class LocalDriverBus:
         return self.core.now()
 
     def sync_write(self, goals_rad: Mapping[str, float]) -> float:
-        self._check()
-        t = self.core.sync_write(goals_rad)
+        t_end = self.core.now() + self.read_timeout_s
+        while True:
+            self._check()
+            try:
+                t = self.core.sync_write(goals_rad)
+                break
+            except PortLostError:
+                if self.core.now() >= t_end:
+                    raise
+                self._while_port_lost()
         self.on_write(t, dict(goals_rad))
         return t
 
@@ -61,8 +69,16 @@ class LocalDriverBus:
             except BusError:
                 if self.core.now() >= t_end:
                     raise
+                self._while_port_lost()
         self.on_read(joint, theta, stamp)
         return theta, stamp
+
+    def _while_port_lost(self) -> None:
+        """A lost port is reopened by the driver's loop (every ``reconnect_period_s``): run a step of
+        it, which also reports the loss, rather than failing the controller while the adapter is
+        away for less than ``read_timeout_s``."""
+        if not self.core.port_ok:
+            self.on_step(self.core.step())
 
     def wait_until(self, t: float) -> None:
         """The driver's own loop until ``t``: scheduled reads, diagnostics, reconnects.

@@ -5,7 +5,7 @@ import random
 
 import pytest
 
-from hexapod_sim.bench import fuzz_inputs
+from hexapod_locomotion.bench import fuzz_inputs
 
 
 @pytest.fixture(scope='module')

@@ -11,6 +11,7 @@ import numpy as np
 
 from hexapod_driver import protocol as p
 from hexapod_driver.emulator.backends import BACKEND_GROUP, backend_plugins
+from hexapod_driver.emulator.fault_schedule import ReplyRecorder, ScheduleError, ScheduleRunner, load_schedule, servo_registers
 from hexapod_driver.emulator.pty_server import BusEmulator
 from hexapod_model.description import load_robot
 
@@ -61,6 +62,13 @@ def main(argv=None) -> int:
                     help='at exit, write the wall-clock arrival and reply times of every answered instruction '
                          '(an N x 2 array, time.time() seconds) still in the log (last 100000), for benchmarks '
                          'that split a round trip into transport and servo time')
+    ap.add_argument('--fault-schedule', default=None, metavar='FILE.json',
+                    help='faults that come and go (hexapod_driver.emulator.fault_schedule): their times count '
+                         'from the first SIGUSR1 the emulator receives')
+    ap.add_argument('--events-out', default=None, metavar='FILE.jsonl',
+                    help='append one JSON line per fault start and end, and at exit the servos\' torque registers')
+    ap.add_argument('--replies-out', default=None, metavar='FILE.bin',
+                    help='append every present position a servo reported (float64 rows: wall time, id, tick)')
     args, unknown = ap.parse_known_args(argv)
     if args.backend != 'ideal' and args.backend not in plugins:
         ap.error(f"--backend {args.backend}: no such backend installed (installed: {', '.join(['ideal', *plugins])}); "
@@ -74,12 +82,16 @@ def main(argv=None) -> int:
             ap.error(f'--{name.replace("_", "-")} must be within 0..1, got {v}')
     if args.timing_out and not args.timing_out.endswith('.npy'):
         ap.error(f'--timing-out {args.timing_out}: must name a .npy file')
+    try:
+        schedule = load_schedule(args.fault_schedule) if args.fault_schedule else []
+    except ScheduleError as exc:
+        ap.error(f'--fault-schedule {exc}')
     robot = load_robot(args.robot)
     backend = None if args.backend == 'ideal' else plugins[args.backend].create(robot, args)
     # the transaction log is read by --verbose (as it goes) and --timing-out (at exit); kept short
     # otherwise, as 100,000 entries are 100,000 objects for the garbage collector to traverse
     emu = BusEmulator(robot, backend, link_path=args.link, wire_time=args.wire_time, absent_ids=tuple(args.absent),
-                      seed=args.seed, log_size=100_000 if args.timing_out else 1_000)
+                      seed=args.seed, log_size=100_000 if args.timing_out else 20_000 if args.replies_out else 1_000)
     if args.drop_probability:
         emu.faults.drop_replies(count=None, probability=args.drop_probability)
     if args.corrupt_probability:
@@ -100,6 +112,10 @@ def main(argv=None) -> int:
     # its retries stalled a swing-down between a goal write and the reads (a real servo never pauses).
     gc.freeze()
     emu.start()
+    runner = ScheduleRunner(emu, schedule, args.events_out) if (schedule or args.events_out) else None
+    replies = ReplyRecorder(emu, args.replies_out) if args.replies_out else None
+    if runner is not None:
+        signal.signal(signal.SIGUSR1, lambda *_: runner.begin())
     ids = sorted(s.servo_id for s in emu.servos)
     print(f'AX-12A bus emulator: {len(ids)} servos (ids {ids}) on {emu.port}', flush=True)
     if args.link:
@@ -117,7 +133,13 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         pass
     finally:
+        if runner is not None:
+            runner.stop()
+        if replies is not None:
+            replies.close()
         emu.stop()
+        if runner is not None:
+            runner.close(servo_registers(emu))
         print(f'served {emu.packets} packets', file=sys.stderr)
         if args.timing_out:
             np.save(args.timing_out, np.array([(e.wall, e.wall_reply) for e in emu.log if e.replied],

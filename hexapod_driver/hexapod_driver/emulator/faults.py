@@ -25,6 +25,8 @@ class Faults:
         self._corrupt: list[tuple[set[int] | None, int | None, float]] = []
         self._stale: list[tuple[set[int] | None, int | None, float]] = []
         self.missing: set[int] = set()
+        self.temperature_override: dict[int, float] = {}   # servo id -> present temperature, over the backend's
+        self._before_override: dict[int, float] = {}
         self.reply_latency_s = 0.0
         self.dropped = 0
         self.corrupted = 0
@@ -36,15 +38,29 @@ class Faults:
             return None
         return {int(ids)} if isinstance(ids, int) else {int(i) for i in ids}
 
-    def drop_replies(self, ids=None, count: int | None = 1, probability: float = 1.0) -> None:
-        """The next ``count`` replies (or each with ``probability`` if ``count`` is None) are lost."""
+    def drop_replies(self, ids=None, count: int | None = 1, probability: float = 1.0) -> tuple:
+        """The next ``count`` replies (or each with ``probability`` if ``count`` is None) are lost.
+        Returns the rule, for :meth:`cancel`."""
+        rule = (self._ids(ids), count, probability)
         with self._emu.lock:
-            self._drop.append((self._ids(ids), count, probability))
+            self._drop.append(rule)
+        return rule
 
-    def corrupt_replies(self, ids=None, count: int | None = 1, probability: float = 1.0) -> None:
-        """The next ``count`` replies get a wrong checksum byte."""
+    def corrupt_replies(self, ids=None, count: int | None = 1, probability: float = 1.0) -> tuple:
+        """The next ``count`` replies get a wrong checksum byte. Returns the rule, for :meth:`cancel`."""
+        rule = (self._ids(ids), count, probability)
         with self._emu.lock:
-            self._corrupt.append((self._ids(ids), count, probability))
+            self._corrupt.append(rule)
+        return rule
+
+    def cancel(self, rule: tuple) -> None:
+        """End a rule of :meth:`drop_replies` / :meth:`corrupt_replies` / :meth:`stale_replies` made
+        with ``count=None`` (a counted rule ends by itself); unknown rules are ignored."""
+        with self._emu.lock:
+            for rules in (self._drop, self._corrupt, self._stale):
+                if rule in rules:
+                    rules.remove(rule)
+                    return
 
     def stale_replies(self, ids=None, count: int | None = 1, probability: float = 1.0) -> None:
         """The next ``count`` replies are preceded by a stray empty status packet of the same servo, as
@@ -75,6 +91,20 @@ class Faults:
         """Present temperature; above the limit (address 11) it raises the overheating alarm."""
         with self._emu.lock:
             s = self._emu.servo(servo_id)
+            s.temperature_c = float(temperature_c)
+            self._emu._check_alarms(s)
+
+    def override_temperature(self, servo_id: int, temperature_c: float | None) -> None:
+        """Hold the present temperature at ``temperature_c`` whatever the backend's thermal model says
+        (a hot spot the model does not have); None hands it back to the backend."""
+        with self._emu.lock:
+            s = self._emu.servo(servo_id)
+            if temperature_c is None:
+                if self.temperature_override.pop(servo_id, None) is not None:
+                    s.temperature_c = self._before_override.pop(servo_id)   # a backend with a model overwrites it
+                return
+            self._before_override.setdefault(servo_id, s.temperature_c)
+            self.temperature_override[servo_id] = float(temperature_c)
             s.temperature_c = float(temperature_c)
             self._emu._check_alarms(s)
 

@@ -325,6 +325,7 @@ class BusEmulator:
             temp, load = self.backend.status(s.slot)
             if temp is not None:
                 s.temperature_c = temp
+            s.temperature_c = self.faults.temperature_override.get(s.servo_id, s.temperature_c)
             if load is None:
                 load = 1.0 if s.overload else 0.0
             s._put(p.REGISTERS['present_load'], p.encode_load(max(-1.0, min(1.0, load)) if s.torque_on else 0.0))

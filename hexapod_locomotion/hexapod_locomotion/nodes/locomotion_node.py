@@ -166,7 +166,7 @@ class LocomotionNode(Node):
             t = self._bus_time()
             self._cmd_time = math.nan if t is None else t       # nan: stamped by the worker on first use
         except LocomotionError as exc:
-            self.get_logger().error(f'/cmd_vel rejected: {exc}')
+            self.get_logger().error(f'/cmd_vel rejected: {exc}', throttle_duration_sec=1.0)   # a flood: one a second
 
     def _bus_time(self) -> float | None:
         hint = getattr(self.bus, 'time_hint', None)
