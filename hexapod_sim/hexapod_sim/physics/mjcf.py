@@ -44,6 +44,7 @@ from hexapod_model.shapes import (FOOT_RADIUS_M, FOOT_RGBA, LINK_RADIUS_M, LINK_
                                   SERVO_HALF_SIZE_M, link_inertial, link_principal_inertia, trunk_geometry,
                                   trunk_inertia)
 from hexapod_model.servo import tick_to_theta
+from hexapod_model.dictionary import T_DS, joint_terms
 from hexapod_model.swing_model import joint_damping_nms_per_rad
 
 from hexapod_sim.physics.terrain import Terrain, make_terrain, _mat_to_quat
@@ -121,8 +122,9 @@ def _joint_attrs(robot: Robot, name: str) -> str:
     attrs = []
     if e.extra_coulomb_nm:
         attrs.append(f'frictionloss="{s.reflected_coulomb_nm + e.extra_coulomb_nm:.9g}"')
-    if e.extra_damping_nms_per_rad or e.damping_ratio != 1.0:
-        attrs.append(f'damping="{joint_damping_nms_per_rad(s, e):.9g}"')
+    motor = joint_terms(robot, name)[T_DS]          # a weak motor's back-EMF damping (hexapod_model.dictionary)
+    if e.extra_damping_nms_per_rad or e.damping_ratio != 1.0 or motor != 1.0:
+        attrs.append(f'damping="{joint_damping_nms_per_rad(s, e, motor):.9g}"')
     return (' ' + ' '.join(attrs)) if attrs else ''
 
 
