@@ -14,7 +14,8 @@ import numpy as np
 
 from hexapod_model.description import Effect, Robot, load_robot, parse_joint_name
 from hexapod_sim.discrepancy.effects import scope_name
-from hexapod_sim.discrepancy.fit import ROUNDING_VAR, FitSettings, Hypothesis, Namer, make_split, unobservable
+from hexapod_sim.discrepancy import structure
+from hexapod_sim.discrepancy.fit import ROUNDING_VAR, FitSettings, Hypothesis, Namer, Predictor, make_split, unobservable
 from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
 from hexapod_sim.discrepancy.segments import (PHASES, body_motion_share, gait_phases, looks_like_walk, median_swing_up_s, obstructed_swings,
@@ -138,10 +139,11 @@ class Analysis:
     min_drop_ticks: float = 0.0      # held-out RMS drop an effect had to reach (the "cannot show" bound)
     min_gain_ticks2: float = 0.0     # and held-out squared-error gain (fit.can_confirm)
     unexplained: list = field(default_factory=list)   # Unexplained: what no candidate explains
+    terms: list = field(default_factory=list)         # structure.FoundTerm: dictionary terms outside the list
 
     @property
     def found(self) -> tuple[Effect, ...]:
-        return tuple(f.effect for f in self.effects)
+        return tuple(f.effect for f in self.effects) + tuple(t.effect for t in self.terms)
 
 
 def _rmse(res: dict, masks: dict, joints) -> tuple[float, int]:
@@ -180,6 +182,24 @@ def _unexplained(replay: Replay, split, cond: dict, res1: dict, jfit: dict, near
         if j not in done:
             out.append(Unexplained((j,), dominant_condition((j,), cond, res1, zero), jfit[j].heldout_rmse_ticks_after))
     return out
+
+
+def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, unexplained, res0, res1, jfit, nearest,
+                      settings: FitSettings, step):
+    """The dictionary's structure search (:mod:`.structure`) on the joints the named effects leave
+    unexplained; returns the terms found and the unexplained list, residuals and joint fits with them."""
+    if not unexplained or not settings.dictionary:
+        return [], unexplained, res1, jfit
+    step('searching the dictionary of physical terms')
+    joints = list(dict.fromkeys(j for u in unexplained for j in u.joints))
+    terms = structure.search(replay, robot, split, tuple(effects), joints, scope_name)
+    if not terms:
+        return [], unexplained, res1, jfit
+    pred = Predictor(replay, robot, workers=1).predict(tuple(effects) + tuple(t.effect for t in terms), replay.joints)
+    res1 = {j: replay.reads[j].tick - pred[j] for j in replay.joints}
+    jfit = {j: JointFit(v.heldout_rmse_ticks_before, _rmse(res1, split.hold, [j])[0], v.n_heldout)
+            for j, v in jfit.items()}
+    return terms, _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
 
 
 def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: dict):
@@ -340,6 +360,8 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             a, _ = _rmse(res1, split.hold, [j])
             jfit[j] = JointFit(b, a, n)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
+        terms, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, unexplained, res0,
+                                                           res1, jfit, nearest, settings, step)
         phase_fit = {}
         if mode_used == 'walk':
             mism, phase_fit = _locate_phases(replay, phases, mism, res0, res1)
@@ -353,7 +375,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                         runtime_s=time.perf_counter() - t_start, log=list(settings.log),
                         glitches=tuple(rec.glitches), phase_fit=phase_fit, blind=blind,
                         min_drop_ticks=settings.min_drop_ticks, min_gain_ticks2=settings.min_gain_ticks2,
-                        unexplained=unexplained)
+                        unexplained=unexplained, terms=terms)
     finally:
         if bar is not None:
             bar.close()
