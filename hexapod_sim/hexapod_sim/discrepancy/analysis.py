@@ -184,22 +184,25 @@ def _unexplained(replay: Replay, split, cond: dict, res1: dict, jfit: dict, near
     return out
 
 
-def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, unexplained, res0, res1, jfit, nearest,
+def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found, unexplained, res1, jfit, nearest,
                       settings: FitSettings, step):
     """The dictionary's structure search (:mod:`.structure`) on the joints the named effects leave
-    unexplained; returns the terms found and the unexplained list, residuals and joint fits with them."""
+    unexplained; returns the terms found, the named effects they leave (a list effect a term displaced is
+    dropped), and the unexplained list, residuals and joint fits with them."""
     if not unexplained or not settings.dictionary:
-        return [], unexplained, res1, jfit
+        return [], found, unexplained, res1, jfit
     step('searching the dictionary of physical terms')
     joints = list(dict.fromkeys(j for u in unexplained for j in u.joints))
-    terms = structure.search(replay, robot, split, tuple(effects), joints, scope_name)
+    terms, displaced = structure.search(replay, robot, split, tuple(effects), joints, scope_name)
     if not terms:
-        return [], unexplained, res1, jfit
+        return [], found, unexplained, res1, jfit
+    found = [f for f in found if f.effect not in displaced]
+    effects = [e for e in effects if e not in displaced]
     pred = Predictor(replay, robot, workers=1).predict(tuple(effects) + tuple(t.effect for t in terms), replay.joints)
     res1 = {j: replay.reads[j].tick - pred[j] for j in replay.joints}
     jfit = {j: JointFit(v.heldout_rmse_ticks_before, _rmse(res1, split.hold, [j])[0], v.n_heldout)
             for j, v in jfit.items()}
-    return terms, _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
+    return terms, found, _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
 
 
 def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: dict):
@@ -360,8 +363,8 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             a, _ = _rmse(res1, split.hold, [j])
             jfit[j] = JointFit(b, a, n)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
-        terms, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, unexplained, res0,
-                                                           res1, jfit, nearest, settings, step)
+        terms, found, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, found,
+                                                                  unexplained, res1, jfit, nearest, settings, step)
         phase_fit = {}
         if mode_used == 'walk':
             mism, phase_fit = _locate_phases(replay, phases, mism, res0, res1)
