@@ -147,13 +147,15 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
     while todo:
         j = todo[0]
         rivals = tuple(e for e in base if e in named and j in e.joints and set(e.joints) <= set(todo))
-        chosen = _round(pred, split, meas, base, j, todo, not tried_sag, s)
-        if rivals:
+        chosen = []
+        if rivals:               # first without them: where they are the nearest candidate, that is the answer
             without = tuple(e for e in base if e not in rivals)
             alt = _round(pred, split, meas, without, j, todo, not tried_sag, s)
             if alt and alt[-1][7] < _current(pred, split, meas, base, alt[-1][5]):
                 chosen, base = alt, without
                 displaced.extend(rivals)
+        if not chosen:
+            chosen = _round(pred, split, meas, base, j, todo, not tried_sag, s)
         tried_sag = True
         if not chosen:
             todo.pop(0)
