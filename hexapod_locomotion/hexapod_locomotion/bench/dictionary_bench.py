@@ -15,13 +15,18 @@ MuJoCo's own (``stiffness``/``springref``, integrated implicitly) and twice the 
 * unexplained: nothing is named and the joint is reported unexplained;
 * misnamed: a list candidate or a wrong term is named (goal: none);
 * clean: a recording without injected physics names nothing.
+
+``--walk``: the cases with a dictionary term (and the clean one) on 20 s tripod calibration walks on flat
+ground instead (:func:`hexapod_locomotion.bench.discrepancy_bench.record_walk`).
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import tempfile
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, Effect, joint_name, load_robot
 from hexapod_sim.calibration.plan import calibration_plan, run_calibration
@@ -87,6 +92,19 @@ def record(case: Case, robot):
         plant.build_scene = orig
 
 
+WALK_CASES = tuple(c for c in CASES if c.mjcf is None)
+
+
+def record_walk(case: Case, robot, out_dir):
+    """The case's 20 s tripod calibration walk on flat ground (the gait controller on the MuJoCo terrain,
+    as ``./hexapod demo``), with its term put in through the description."""
+    from hexapod_locomotion.bench import discrepancy_bench as fixed
+    from hexapod_sim.discrepancy.recording import load_recording
+    walk = fixed.Case(case.name, (case.truth,) if case.truth is not None else (), walk=('tripod', 'flat'))
+    bag, _ = fixed.record_walk(walk, out_dir, robot)
+    return load_recording(bag, robot)
+
+
 def score(case: Case, a) -> dict:
     """Right term / unexplained / misnamed / clean for one case's analysis."""
     named = [(t.effect.effect, t.effect.joints, dict(t.effect.params), t.heldout_rmse_ticks_before
@@ -113,12 +131,15 @@ def score(case: Case, a) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--cases', nargs='*', default=[c.name for c in CASES], choices=[c.name for c in CASES])
+    ap.add_argument('--walk', action='store_true', help='tripod calibration walks on flat ground instead of stands '
+                                                         '(the cases with a dictionary term, and the clean one)')
     args = ap.parse_args(argv)
     robot = load_robot()
     counts: dict[str, int] = {}
-    for case in (c for c in CASES if c.name in args.cases):
+    tmp = tempfile.TemporaryDirectory()
+    for case in (c for c in (WALK_CASES if args.walk else CASES) if c.name in args.cases):
         t0 = time.perf_counter()
-        rec = record(case, robot)
+        rec = record_walk(case, robot, Path(tmp.name)) if args.walk else record(case, robot)
         t1 = time.perf_counter()
         a = analyse(rec, robot, workers=1)
         r = score(case, a)
