@@ -1,15 +1,18 @@
 """Physics outside the candidate list: a structure search over the dictionary of physical torque terms.
 
-When the named candidates (:mod:`.fit`) leave joints unexplained, every term of
-:mod:`hexapod_model.dictionary` is fitted at each unexplained joint (a supply sag once, on the whole
-robot) with the named effects in place: its parameters on the fitting reads (a grid over physically
-distinct starts, then Nelder-Mead within the plausible ranges), judged on the held-out reads of the
-unexplained joints. A term is kept when it lowers their held-out RMS error by at least
-``min_ratio`` (1.5x), explains at least ``min_explained`` (75 %) of their held-out excess over tick
-rounding, does not raise the error of any other joint it touches, and no parameter sits at an end of
-its range. The best term (the largest held-out gain) is named; where none passes alone but the best
-explains part, a second term is fitted with it in place and the pair is judged together. What stays
-unexplained is reported as before.
+When the named candidates (:mod:`.fit`) leave joints unexplained, the terms of
+:mod:`hexapod_model.dictionary` are fitted with the named effects in place: first a supply sag on the
+whole robot, judged on every unexplained joint, then every joint term at each joint still unexplained.
+Parameters are fitted on the fitting reads (a grid over physically distinct starts, then Nelder-Mead
+within the plausible ranges) and judged on the held-out reads of the unexplained joints. A term is kept
+when it lowers their held-out RMS error by at least ``min_ratio`` (1.5x), explains at least
+``min_explained`` (75 %) of their held-out excess over tick rounding, does not raise the error of any
+other joint it touches, and no parameter sits at an end of its range. The best joint term (the largest
+held-out gain) is named; where none passes alone but the best explains part, a second term is fitted
+with it in place and the pair is judged together. A named list effect that touches only unexplained
+joints (for the sag: any of a leg or the whole robot touching them) is the nearest candidate to the
+physics there, so the terms are fitted without it first, and one that passes and leaves less than it
+replaces it. What stays unexplained is reported as before.
 """
 from __future__ import annotations
 
@@ -20,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from hexapod_model.description import Effect, Robot
+from hexapod_model.description import Effect, Robot, parse_joint_name
 from hexapod_model.dictionary import BY_TERM, TERMS, Term
 from hexapod_sim.discrepancy.fit import ROUNDING_VAR, Predictor, Split, _affected
 from hexapod_sim.discrepancy.simulate import Replay
@@ -49,6 +52,7 @@ class SearchSettings:
     min_explained: float = 0.75
     pair_from: float = 0.3           # a term explaining this share alone is tried with a second one
     max_evals: int = 120             # Nelder-Mead evaluations per term
+    max_legs: int = 3                # joint terms on this many legs are not named (a robot-wide cause)
 
 
 def _starts(term: Term) -> list[tuple[float, ...]]:
@@ -143,20 +147,26 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
     found: list[FoundTerm] = []
     displaced: list[Effect] = []
     todo = [j for j in joints if j in replay.reads]
-    tried_sag = False
+    base, sag, gone = _supply_sag(pred, split, meas, base, named, todo, s)
+    if sag:
+        _g, _ok, _e, obj, x, own, rb, ra = sag
+        e = obj.effect(x)
+        base = base + (e,)
+        found.append(FoundTerm(e, scope_name(e.joints, replay.joints), BY_TERM[e.effect].describe(e.params), rb, ra))
+        displaced.extend(gone)
+        todo = [a for a in todo if a not in own]
     while todo:
         j = todo[0]
         rivals = tuple(e for e in base if e in named and j in e.joints and set(e.joints) <= set(todo))
         chosen = []
         if rivals:               # first without them: where they are the nearest candidate, that is the answer
             without = tuple(e for e in base if e not in rivals)
-            alt = _round(pred, split, meas, without, j, todo, not tried_sag, s)
+            alt = _round(pred, split, meas, without, j, todo, s)
             if alt and alt[-1][7] < _current(pred, split, meas, base, alt[-1][5]):
                 chosen, base = alt, without
                 displaced.extend(rivals)
         if not chosen:
-            chosen = _round(pred, split, meas, base, j, todo, not tried_sag, s)
-        tried_sag = True
+            chosen = _round(pred, split, meas, base, j, todo, s)
         if not chosen:
             todo.pop(0)
             continue
@@ -166,7 +176,34 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
             found.append(FoundTerm(e, scope_name(e.joints, replay.joints), BY_TERM[e.effect].describe(e.params), rb, ra))
         done = {a for r in chosen for a in r[5]}
         todo = [a for a in todo if a not in done]
+    legs = {parse_joint_name(j)[0] for t in found if not BY_TERM[t.effect.effect].robot_wide for j in t.effect.joints}
+    if len(legs) >= s.max_legs:
+        # separate joint physics on half the robot at once is less likely than one robot-wide cause no term
+        # captures (a walk sagging far below the supply gave weak motors and load friction on 12 joints)
+        return [t for t in found if BY_TERM[t.effect.effect].robot_wide], []
     return found, displaced
+
+
+def _supply_sag(pred, split, meas, base, named, todo, s: SearchSettings):
+    """The supply sag on the whole robot, judged on every unexplained joint: first without the named
+    effects of a leg or the whole robot that touch them (a torque limit is the list's nearest candidate to a
+    sag; fitted over it, the sag cannot pass), then over them. Returns (base, result or None, displaced)."""
+    wide = tuple(e for e in named if len(e.joints) > 1 and set(e.joints) & set(todo))
+    term = BY_TERM['supply_sag']
+    joints = tuple(pred.rep.joints)
+    for rivals in ((wide, ()) if wide else ((),)):
+        b = tuple(e for e in base if e not in rivals)
+        obj = _Objective(pred, split, meas, b, term, joints, joints)
+        p0 = pred.predict(b, joints)
+        before = {a: float(((meas[a] - p0[a])[split.hold[a]]) @ ((meas[a] - p0[a])[split.hold[a]])) for a in joints}
+        n_own = sum(int(np.count_nonzero(split.hold[a])) for a in todo)
+        if n_own == 0:
+            break
+        x = fit_term(obj, s.max_evals)
+        ra, gain, ok, expl = _judge(obj, x, list(todo), sum(before[a] for a in todo), before, n_own, s)
+        if ok and (not rivals or ra < _current(pred, split, meas, base, list(todo))):
+            return b, (gain, ok, expl, obj, x, list(todo), math.sqrt(sum(before[a] for a in todo) / n_own), ra), rivals
+    return base, None, ()
 
 
 def _current(pred, split, meas, base, own) -> float:
@@ -176,17 +213,14 @@ def _current(pred, split, meas, base, own) -> float:
     return math.sqrt(float(d @ d) / max(len(d), 1))
 
 
-def _round(pred, split, meas, base, j, todo, with_sag: bool, s: SearchSettings):
-    """Every term fitted at joint ``j`` (and a supply sag on the whole robot) over ``base``: the passing one
-    with the largest held-out gain, or a passing pair, or nothing."""
+def _round(pred, split, meas, base, j, todo, s: SearchSettings):
+    """Every joint term fitted at joint ``j`` over ``base``: the passing one with the largest held-out gain,
+    or a passing pair, or nothing."""
     replay = pred.rep
-    cands = [(BY_TERM[t.name], (j,)) for t in TERMS if not t.robot_wide]
-    if with_sag:
-        cands.append((BY_TERM['supply_sag'], tuple(replay.joints)))
     results = []
-    for term, on in cands:
-        own = [x for x in on if x in todo] if term.robot_wide else [j]
-        aff = sorted(_affected(term.name, on) & set(replay.joints)) if not term.robot_wide else list(replay.joints)
+    for term, on in ((BY_TERM[t.name], (j,)) for t in TERMS if not t.robot_wide):
+        own = [j]
+        aff = sorted(_affected(term.name, on) & set(replay.joints))
         obj = _Objective(pred, split, meas, base, term, on, aff)
         p0 = pred.predict(base, aff)
         before_aff = {a: float(((meas[a] - p0[a])[split.hold[a]]) @ ((meas[a] - p0[a])[split.hold[a]])) for a in aff}
