@@ -11,12 +11,14 @@ appended.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 import yaml
+
+from hexapod_model.dictionary import TERM_PARAMS, check_params
 
 JOINT_ROLES = ('coxa', 'femur', 'tibia')
 LEGS = (1, 2, 3, 4, 5, 6)
@@ -190,7 +192,7 @@ class Effect:
     margin is higher than the description's punch by ``extra_punch_nm``; motor_damping: the
     reflected motor damping (back-EMF and rotor friction) is ``ratio`` times the description's;
     goal_latency: a written goal takes effect ``delay_s`` later than the model assumes (the first
-    firmware tick at or after its stamp plus the delay).
+    firmware tick at or after its stamp plus the delay). Terms beyond these: :mod:`hexapod_model.dictionary`.
     """
 
     effect: str
@@ -291,11 +293,9 @@ class Robot:
 
     def with_effects(self, effects: Iterable[Effect]) -> 'Robot':
         """A copy of this robot with ``effects`` appended."""
-        from dataclasses import replace
         return replace(self, effects=self.effects + tuple(effects))
 
 
-# ----------------------------------------------------------------------------- loading
 def _require(d: Mapping[str, Any], key: str, where: str) -> Any:
     if not isinstance(d, Mapping):
         raise DescriptionError(f'{where}: expected a mapping, got {type(d).__name__}')
@@ -345,18 +345,20 @@ def _parse_effects(raw: Any, where: str = 'effects') -> tuple[Effect, ...]:
     for i, e in enumerate(raw):
         w = f'{where}[{i}]'
         name = _require(e, 'effect', w)
-        if name not in EFFECT_PARAMS:
-            raise DescriptionError(f'{w}.effect: unknown effect {name!r}; known: {sorted(EFFECT_PARAMS)}')
+        if name not in EFFECT_PARAMS and name not in TERM_PARAMS:
+            raise DescriptionError(f'{w}.effect: unknown effect {name!r}; known: {sorted(EFFECT_PARAMS) + sorted(TERM_PARAMS)}')
         joints = _require(e, 'joints', w)
         if isinstance(joints, str) or not isinstance(joints, list) or not joints:
             raise DescriptionError(f'{w}.joints: expected a non-empty list of joint names')
         for j in joints:
             parse_joint_name(j)
         params = _require(e, 'params', w)
-        keys = EFFECT_PARAMS[name]
+        keys = EFFECT_PARAMS.get(name) or TERM_PARAMS[name]
         if not isinstance(params, Mapping) or set(params) != set(keys):
             raise DescriptionError(f'{w}.params: effect {name!r} takes exactly {list(keys)}, got {params!r}')
-        vals = {k: _number(params[k], f'{w}.params.{k}', nonneg=True) for k in keys}
+        vals = {k: _number(params[k], f'{w}.params.{k}', nonneg=name in EFFECT_PARAMS) for k in keys}
+        if name in TERM_PARAMS and check_params(name, vals):   # hexapod_model.dictionary: signs and ranges
+            raise DescriptionError(f'{w}.params.{check_params(name, vals)}')
         out.append(Effect(effect=name, joints=tuple(joints), params=vals))
     return tuple(out)
 

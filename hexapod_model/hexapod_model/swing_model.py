@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexapod_model.description import JointEffects, Robot, ServoParams, joint_name
+from hexapod_model.dictionary import T_DS, T_K, T_MU, T_PA, T_TS, joint_terms, supply_resistance_ohm
 from hexapod_model.servo import firmware_torque_scalar
 
 try:  # numba makes one 2 s prediction take well under a millisecond; the pure-Python path is exact too
@@ -70,10 +71,11 @@ _firmware_torque = njit(cache=True, inline='always')(firmware_torque_scalar)
 # (bench_model median 0.229 ms with every flag, 0.223 ms without 'reassoc', side by side).
 _FASTMATH = {'nnan', 'ninf', 'nsz', 'arcp', 'afn', 'contract'}
 
-def joint_damping_nms_per_rad(servo: ServoParams, e: JointEffects) -> float:
-    """Viscous damping at one joint: the servo's reflected damping (times a motor-damping ratio) plus
-    any extra viscous damping of the joint; the one rule the model and the MuJoCo sim share."""
-    return servo.reflected_damping_nms_per_rad * e.damping_ratio + e.extra_damping_nms_per_rad
+def joint_damping_nms_per_rad(servo: ServoParams, e: JointEffects, motor_scale: float = 1.0) -> float:
+    """Viscous damping at one joint: the servo's reflected damping (times a motor-damping ratio and a weak
+    motor's ``motor_scale``, :mod:`hexapod_model.dictionary`) plus any extra viscous damping of the joint;
+    the one rule the model and the MuJoCo sim share."""
+    return servo.reflected_damping_nms_per_rad * e.damping_ratio * motor_scale + e.extra_damping_nms_per_rad
 
 
 V_STICK = 1e-7  # rad/s: below this a joint counts as at rest (break-away friction applies)
@@ -520,6 +522,7 @@ class LegModel:
             i2 = i2 + m2 * (lc2 - lc_new) ** 2 + payload * (a3 - lc_new) ** 2
             m2, lc2 = m_tot, lc_new
         eff = [robot.joint_effects(joint_name(leg, r)) for r in ('femur', 'tibia')]
+        self.terms = np.array([joint_terms(robot, joint_name(leg, r)) for r in ('femur', 'tibia')])
         p = np.zeros(N_PARAMS)
         p[P_M1], p[P_LC1], p[P_I1] = femur.mass_kg, femur.com_from_joint_m, femur.inertia_about_com_kgm2
         p[P_M2], p[P_LC2], p[P_I2], p[P_A2] = m2, lc2, i2, a2
@@ -528,7 +531,7 @@ class LegModel:
         p[P_J2] = p[P_J3] = s.reflected_inertia_kgm2
         for j, e in enumerate(eff):
             fc = (s.reflected_coulomb_nm + e.extra_coulomb_nm) if friction else 0.0
-            p[P_B2 + j] = joint_damping_nms_per_rad(s, e) if damping else 0.0
+            p[P_B2 + j] = joint_damping_nms_per_rad(s, e, self.terms[j, T_DS]) if damping else 0.0
             p[P_FC2 + j] = fc
             p[P_FS2 + j] = max(fc, e.static_friction_nm) if friction else 0.0
             p[P_TMAX2 + j] = s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
@@ -542,6 +545,15 @@ class LegModel:
         p[P_DT] = s.control_period_s
         self.params = p
         self.dt_s = s.control_period_s
+        # dictionary terms (hexapod_model.swing_terms): the supply as (R / V, 1 / (K R))
+        self.supply = (supply_resistance_ohm(robot) / s.supply_voltage_v,
+                       1.0 / (s.torque_constant_nm_per_a * s.gear_ratio))
+
+    @property
+    def has_terms(self) -> bool:
+        """Whether a dictionary term acts on this model's joints (then :func:`swing_terms.rollout_terms` runs)."""
+        t = self.terms
+        return bool(self.supply[0] > 0 or np.any(t[:, [T_K, T_PA, T_MU]] != 0) or np.any(t[:, T_TS] != 1.0))
 
     def default_gap_rad(self, q0_rad) -> np.ndarray:
         """Initial backlash gap: the motor side rests against the link on the side that carries gravity."""
@@ -550,11 +562,12 @@ class LegModel:
             return np.zeros(2)
         return 0.5 * widths * np.sign(self.gravity_torque_nm(np.asarray(q0_rad, dtype=float)))
 
-    def rollout(self, q0_rad, qd0_rad_s, goal_ticks, gap0_rad=None) -> Rollout:
+    def rollout(self, q0_rad, qd0_rad_s, goal_ticks, gap0_rad=None, i_ext=None) -> Rollout:
         """Simulate from ``q0`` with integer goal ticks per control period (array of shape (n, 2)).
 
         ``gap0_rad``: initial backlash gap ``q_motor - q_link`` per joint (default
-        :meth:`default_gap_rad`); ignored for joints without backlash.
+        :meth:`default_gap_rad`); ignored for joints without backlash. ``i_ext``: per period, the
+        stall current [A] of the robot's other servos (only a supply sag uses it).
         """
         goals = np.ascontiguousarray(goal_ticks, dtype=np.float64)
         if goals.ndim != 2 or goals.shape[1] != 2:
@@ -564,6 +577,12 @@ class LegModel:
         if not (np.all(np.isfinite(goals)) and np.all(np.isfinite(q0)) and np.all(np.isfinite(qd0))):
             raise ValueError('swing-down model inputs contain NaN or infinity')
         p = self.params
+        if self.has_terms:
+            if p[P_BL2] > 0.0 or p[P_BL3] > 0.0:
+                raise ValueError('dictionary terms on a leg with gear backlash are not modelled')
+            from hexapod_model.swing_terms import rollout_terms
+            q, qd, tau = rollout_terms(p, self.terms, self.supply, q0, qd0, goals, i_ext)
+            return Rollout(self.dt_s, q, qd, tau, np.zeros_like(q))
         if gap0_rad is not None:
             gap0 = np.ascontiguousarray(gap0_rad, dtype=np.float64).reshape(2)
         elif p[P_BL2] > 0.0 or p[P_BL3] > 0.0:
@@ -647,7 +666,8 @@ class CoxaModel(LegModel):
         p[[P_M1, P_LC1, P_M2, P_LC2, P_I2, P_A2, P_G]] = 0.0
         p[P_I1] = coxa_axis_inertia_kgm2(robot, leg, float(femur_tibia_rad[0]), float(femur_tibia_rad[1]))
         fc = s.reflected_coulomb_nm + e.extra_coulomb_nm
-        p[P_B2] = joint_damping_nms_per_rad(s, e)
+        self.terms = np.array([joint_terms(robot, joint_name(leg, 'coxa')), joint_terms(robot, '')])
+        p[P_B2] = joint_damping_nms_per_rad(s, e, self.terms[0, T_DS])
         p[P_FC2] = fc
         p[P_FS2] = max(fc, e.static_friction_nm)
         p[P_TMAX2] = s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
@@ -663,7 +683,7 @@ class CoxaModel(LegModel):
         p[P_BL3] = 0.0
         self.center_tick = float(s.center_tick)
 
-    def rollout_coxa(self, q0_rad: float, qd0_rad_s: float, goal_ticks, gap0_rad: float = 0.0) -> Rollout:
+    def rollout_coxa(self, q0_rad: float, qd0_rad_s: float, goal_ticks, gap0_rad: float = 0.0, i_ext=None) -> Rollout:
         """Simulate the coxa from ``q0`` with integer goal ticks per control period (shape (n,)).
 
         Returns a :class:`Rollout` whose column 0 is the coxa (column 1 is the dummy joint).
@@ -674,7 +694,7 @@ class CoxaModel(LegModel):
         two = np.empty((len(goals), 2))
         two[:, 0] = goals
         two[:, 1] = self.center_tick
-        return self.rollout([q0_rad, 0.0], [qd0_rad_s, 0.0], two, gap0_rad=[gap0_rad, 0.0])
+        return self.rollout([q0_rad, 0.0], [qd0_rad_s, 0.0], two, gap0_rad=[gap0_rad, 0.0], i_ext=i_ext)
 
 
 # ----------------------------------------------------------------------------- CalcModel

@@ -73,7 +73,8 @@ def test_clean_recording_gives_no_effect(robot, tmp_path):
     assert 'No missing physics found' in text_report(a)
     doc = to_json(a, 'memory')
     assert doc['effects'] == [] and set(doc) == {'bag', 'joints', 'mismatches', 'effects', 'phases', 'cannot_show',
-                                                 'glitches', 'unexplained'}
+                                                 'glitches', 'unexplained', 'physics_terms'}
+    assert doc['physics_terms'] == []
     assert doc['phases'] == {} and doc['glitches'] == []          # a stand recording, no glitch
     assert {'leg1_coxa', 'leg1_tibia', 'leg4_coxa', 'leg4_tibia'} <= set(doc['joints'])
     for j, v in doc['joints'].items():

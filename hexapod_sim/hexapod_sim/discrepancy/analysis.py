@@ -13,9 +13,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hexapod_model.description import Effect, Robot, load_robot, parse_joint_name
+from hexapod_sim.discrepancy import structure
 from hexapod_sim.discrepancy.body_motion import body_motion_correction
 from hexapod_sim.discrepancy.effects import scope_name
-from hexapod_sim.discrepancy.fit import ROUNDING_VAR, FitSettings, Hypothesis, Namer, make_split, unobservable
+from hexapod_sim.discrepancy.fit import ROUNDING_VAR, FitSettings, Hypothesis, Namer, Predictor, make_split, unobservable
 from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
 from hexapod_sim.discrepancy.segments import (
@@ -148,10 +149,11 @@ class Analysis:
     unexplained: list = field(default_factory=list)   # Unexplained: what no candidate explains
     # walks: the whole walk replayed on the MuJoCo hexapod, nominal and with the effects (whole_walk.WholeWalk)
     whole_walk: object | None = None
+    terms: list = field(default_factory=list)         # structure.FoundTerm: dictionary terms outside the list
 
     @property
     def found(self) -> tuple[Effect, ...]:
-        return tuple(f.effect for f in self.effects)
+        return tuple(f.effect for f in self.effects) + tuple(t.effect for t in self.terms)
 
 
 def _rmse(res: dict, masks: dict, joints) -> tuple[float, int]:
@@ -190,6 +192,27 @@ def _unexplained(replay: Replay, split, cond: dict, res1: dict, jfit: dict, near
         if j not in done:
             out.append(Unexplained((j,), dominant_condition((j,), cond, res1, zero), jfit[j].heldout_rmse_ticks_after))
     return out
+
+
+def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found, unexplained, res1, jfit, nearest,
+                      settings: FitSettings, step):
+    """The dictionary's structure search (:mod:`.structure`) on the joints the named effects leave
+    unexplained; returns the terms found, the named effects they leave (a list effect a term displaced is
+    dropped), and the unexplained list, residuals and joint fits with them."""
+    if not unexplained or not settings.dictionary:
+        return [], found, unexplained, res1, jfit
+    step('searching the dictionary of physical terms')
+    joints = list(dict.fromkeys(j for u in unexplained for j in u.joints))
+    terms, displaced = structure.search(replay, robot, split, tuple(effects), joints, scope_name)
+    if not terms:
+        return [], found, unexplained, res1, jfit
+    found = [f for f in found if f.effect not in displaced]
+    effects = [e for e in effects if e not in displaced]
+    pred = Predictor(replay, robot, workers=1).predict(tuple(effects) + tuple(t.effect for t in terms), replay.joints)
+    res1 = {j: replay.reads[j].tick - pred[j] for j in replay.joints}
+    jfit = {j: JointFit(v.heldout_rmse_ticks_before, _rmse(res1, split.hold, [j])[0], v.n_heldout)
+            for j, v in jfit.items()}
+    return terms, found, _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
 
 
 def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: dict):
@@ -391,12 +414,15 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             a, _ = _rmse(res1, split.hold, [j])
             jfit[j] = JointFit(b, a, n)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
+        terms, found, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, found,
+                                                                  unexplained, res1, jfit, nearest, settings, step)
         phase_fit, whole = {}, None
         if mode_used == 'walk':
             mism, phase_fit = _locate_phases(replay, phases, mism, res0, res1)
             if whole_walk:
                 step('replaying the whole walk on the MuJoCo hexapod')
-                whole, ww_notes, finds, wide = whole_walk_check(rec, robot, effects, ground, phases, replay.joints,
+                named = [f.effect for f in found] + [t.effect for t in terms]
+                whole, ww_notes, finds, wide = whole_walk_check(rec, robot, named, ground, phases, replay.joints,
                                                                 progress=step)
                 notes.extend(ww_notes)
                 found, unexplained = _widened(found, unexplained, wide, whole, replay.joints)
@@ -411,7 +437,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                         runtime_s=time.perf_counter() - t_start, log=list(settings.log),
                         glitches=tuple(rec.glitches), phase_fit=phase_fit, blind=blind,
                         min_drop_ticks=settings.min_drop_ticks, min_gain_ticks2=settings.min_gain_ticks2,
-                        unexplained=unexplained, whole_walk=whole)
+                        unexplained=unexplained, whole_walk=whole, terms=terms)
     finally:
         if bar is not None:
             bar.close()

@@ -326,6 +326,7 @@ class FitSettings:
     grid: int = 8
     feature_window_s: float = 0.25
     candidates: tuple[str, ...] = tuple(c.effect for c in CANDIDATES)
+    dictionary: bool = True          # search the dictionary of physical terms where the candidates leave a mismatch
     log: list = field(default_factory=list)
 
 

@@ -6,6 +6,7 @@ import math
 import yaml
 
 from hexapod_model.description import effects_to_overlay
+from hexapod_model.dictionary import BY_TERM
 from hexapod_sim.discrepancy.analysis import UNEXPLAINED_TICKS as CLOSE_FIT_TICKS
 from hexapod_sim.discrepancy.analysis import Analysis
 from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
@@ -49,6 +50,7 @@ def to_json(a: Analysis, bag: str | None = None) -> dict:
         'glitches': [{'topic': g.topic, 'joint': g.joint, 't': _f(g.t_s), 'kind': g.kind, 'detail': g.detail}
                      for g in a.glitches],
         **({'whole_walk': _whole_walk_json(a.whole_walk)} if a.whole_walk is not None else {}),
+        'physics_terms': terms_json(a),
     }
 
 
@@ -73,6 +75,23 @@ def _whole_walk_lines(w) -> list[str]:
                  for ph in used]
         lines.append('  ' + f'{j:11s}' + ''.join(f'{c:>15s}' for c in cells))
     return lines
+
+
+def terms_json(a: Analysis) -> list:
+    """Dictionary terms named outside the candidate list (:mod:`.structure`), with values, units and wording."""
+    return [{'term': t.effect.effect, 'joints': list(t.effect.joints),
+             'params': {k: float(v) for k, v in t.effect.params.items()},
+             'units': {p.key: p.unit for p in BY_TERM[t.effect.effect].params}, 'description': t.words,
+             'heldout_rmse_ticks_before': _f(t.heldout_rmse_ticks_before),
+             'heldout_rmse_ticks_after': _f(t.heldout_rmse_ticks_after), 'explained': _f(t.explained)}
+            for t in a.terms]
+
+
+def term_lines(a: Analysis) -> list[str]:
+    """Report lines of the dictionary terms named outside the candidate list."""
+    return [f'{t.scope}: outside the candidate list, the simulation left out {t.words}; held-out RMS error '
+            f'{t.heldout_rmse_ticks_before:.2f} -> {t.heldout_rmse_ticks_after:.2f} ticks '
+            f'({100 * t.explained:.0f} % of the excess over rounding).' for t in a.terms]
 
 
 def text_report(a: Analysis, max_windows: int = 8) -> str:
@@ -111,6 +130,7 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
         lines.append(f'{subject}: the simulation left out {c.describe(value)}; it shows '
                      f'{CONDITION_WORDS.get(f.condition, f.condition)}; held-out RMS error '
                      f'{f.heldout_rmse_ticks_before:.2f} -> {f.heldout_rmse_ticks_after:.2f} ticks.')
+    lines += term_lines(a)
     for u in a.unexplained:
         subject = scope_name(u.joints, a.replay.joints)
         line = (f'{subject}: no candidate explains a mismatch of {u.heldout_rmse_ticks:.2f} ticks RMS held out '

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, Robot, joint_name, parse_joint_name
-from hexapod_model.servo import joint_tick_of_servo_tick, quantize_tick, servo_tick, theta_to_tick, tick_to_theta
+from hexapod_model.dictionary import supply_resistance_ohm
+from hexapod_model.servo import firmware_torque_nm, joint_tick_of_servo_tick, quantize_tick, servo_tick, theta_to_tick, tick_to_theta
 from hexapod_model.swing_model import CoxaModel, LegModel
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
 
@@ -182,15 +183,39 @@ class Replay:
         """Rollout of one segment: ``which`` = 'ft' (femur+tibia) or 'coxa'. Returns (k0, q grid (n+1, 2))."""
         ka, kb = self.segments[leg][seg]
         q0 = self.q0[(leg, seg)]
+        i_ext = self.other_current_a(leg, which)[ka:kb] if supply_resistance_ohm(robot) > 0 else None
         if which == 'ft':
             g = np.empty((kb - ka, 2))
             g[:, 0] = self.goals[joint_name(leg, 'femur')][ka:kb]
             g[:, 1] = self.goals[joint_name(leg, 'tibia')][ka:kb]
-            ro = LegModel(robot, leg).rollout(q0[1:], self.dq0[(leg, seg)][1:], g)
+            ro = LegModel(robot, leg).rollout(q0[1:], self.dq0[(leg, seg)][1:], g, i_ext=i_ext)
             return ka, ro.q_rad
         ro = CoxaModel(robot, leg, self.coxa_pose[(leg, seg)]).rollout_coxa(
-            q0[0], float(self.dq0[(leg, seg)][0]), self.goals[joint_name(leg, 'coxa')][ka:kb])
+            q0[0], float(self.dq0[(leg, seg)][0]), self.goals[joint_name(leg, 'coxa')][ka:kb], i_ext=i_ext)
         return ka, ro.q_rad
+
+    def other_current_a(self, leg: int, which: str) -> np.ndarray:
+        """Per firmware period, the stall current [A] the firmware of every other recorded servo asks for
+        (``|torque(goal - latest read)| / (K R)`` of the nominal law), for a supply sag
+        (:mod:`hexapod_model.dictionary`): the rest of the robot's draw on the supply, from the recording."""
+        key = (leg, which)
+        cache = self.__dict__.setdefault('_other_current', {})
+        if key not in cache:
+            s = self.robot.servo
+            mine = {joint_name(leg, 'coxa')} if which == 'coxa' else {joint_name(leg, 'femur'), joint_name(leg, 'tibia')}
+            k = np.arange(self.n_periods)
+            total = np.zeros(self.n_periods)
+            for j, st in self.rec.states.items():
+                if j in mine or j not in self.rec.commands or len(st) == 0:
+                    continue
+                goal = self.goals.get(j)
+                goal = self._goals_per_period(j, k) if goal is None else goal
+                idx = np.clip(np.searchsorted(st.t_s, k * self.dt, side='right') - 1, 0, len(st) - 1)
+                present = np.rint(theta_to_tick(st.theta_rad[idx], s))
+                total += np.abs(firmware_torque_nm(goal, present, s.gain_nm_per_tick, s.stall_torque_nm,
+                                                   s.compliance_margin_ticks, s.punch_nm))
+            cache[key] = total / (s.torque_constant_nm_per_a * s.gear_ratio)
+        return cache[key]
 
     def predict_joints(self, robot: Robot, joints) -> dict[str, np.ndarray]:
         """Predicted (continuous) tick at every analysed read of ``joints`` for ``robot``."""

@@ -211,7 +211,8 @@ def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: d
     out = list(effects)
     for kind in dict.fromkeys(e.effect for e in effects):
         same = [e for e in out if e.effect == kind]
-        if BY_NAME[kind].servo_law or kind == 'mass_error' or set().union(*(e.joints for e in same)) >= set(joints):
+        if (kind not in BY_NAME or BY_NAME[kind].servo_law or kind == 'mass_error'      # (a dictionary term: as found)
+                or set().union(*(e.joints for e in same)) >= set(joints)):
             continue
         key = BY_NAME[kind].key
         mean = float(np.mean([e.params[key] for e in same]))

@@ -81,6 +81,43 @@ def quantize_array(raw_tick, max_tick):
 J_QPOS, J_PLAY, J_DOF, J_ACT, J_ROW_OFF, J_GOAL_IDX = range(6)
 # rows of the per-joint float table
 F_SCALE, F_BASE = range(2)
+# dictionary terms (hexapod_model.dictionary) of the joints that have one: rows of the integer table
+# (joint index, dof, 1 when the joint also has static friction) and of the float table (spring
+# stiffness and rest angle, periodic friction amplitude, period and phase, load-friction coefficient,
+# the joint's friction loss without them); supply: (R / V, 1 / (K R)) of the supply sag, 0 without one
+D_JOINT, D_DOF, D_STICK = range(3)
+DF_K, DF_REST, DF_PA, DF_PP, DF_PPH, DF_MU, DF_BASE = range(7)
+
+
+@njit(cache=True)
+def dictionary_pass(win_row, qpos, ctrl, dof_frictionloss, qfrc_applied, jint, tau_out, win_tau, dint, dflt, supply):
+    """The dictionary's torque terms at a firmware tick, after the firmware torques (see
+    :mod:`hexapod_model.swing_terms`, the model's twin): the supply sag divides every servo's torque by
+    ``1 + R S / V`` (``S`` the total stall current); per joint with terms, the cable spring's torque
+    goes to ``qfrc_applied`` and periodic and load friction are added to the joint's friction loss
+    (its static-friction level at rest). All held until the next tick."""
+    n = jint.shape[1]
+    if supply[0] > 0.0:
+        s = 0.0
+        for i in range(n):
+            s += abs(tau_out[i])
+        f = 1.0 / (1.0 + supply[0] * s * supply[1])
+        for i in range(n):
+            tau_out[i] *= f
+            ctrl[jint[J_ACT, i]] = tau_out[i]
+            win_tau[win_row, i] = tau_out[i]
+    for k in range(dint.shape[1]):
+        i = dint[D_JOINT, k]
+        q = qpos[jint[J_QPOS, i]]
+        if jint[J_PLAY, i] >= 0:
+            q += qpos[jint[J_PLAY, i]]
+        dof = dint[D_DOF, k]
+        qfrc_applied[dof] = -dflt[DF_K, k] * (q - dflt[DF_REST, k])
+        x = dflt[DF_MU, k] * abs(tau_out[i])
+        if dflt[DF_PA, k] > 0.0:
+            x += dflt[DF_PA, k] * 0.5 * (1.0 + math.cos(2.0 * math.pi * q / dflt[DF_PP, k] - dflt[DF_PPH, k]))
+        base = dof_frictionloss[dof] if dint[D_STICK, k] > 0 else dflt[DF_BASE, k]
+        dof_frictionloss[dof] = base + x
 
 
 @njit(cache=True)
@@ -113,7 +150,7 @@ def write_goals(idx, vals, lim_lo, lim_hi, scale, base, max_tick, angle_bit, err
 def run(target, m_ptr, d_ptr, st, spm, max_tick, v_stick, imu_adr,
         qpos, qvel, qacc, ctrl, dof_frictionloss,
         jint, jflt, table, stick_int, stick_flt,
-        win_tau, win_omega, tau_out, sens_buf, sens_step, hist):
+        win_tau, win_omega, tau_out, sens_buf, sens_step, hist, qfrc_applied, dint, dflt, supply):
     """Advance until ``st[ST_STEP] == target``, or earlier when the power window is full at a
     firmware tick or the sensor buffer is full (the caller empties them and calls again).
 
@@ -124,7 +161,8 @@ def run(target, m_ptr, d_ptr, st, spm, max_tick, v_stick, imu_adr,
     their break-away and Coulomb friction [N m], and the loop's state of them: velocity at the
     previous tick and whether they were held there (1.0) or slipping (0.0).
     ``imu_adr``: qpos address of the trunk quaternion, qvel address of its angular velocity (body
-    frame) and of its linear velocity (world frame), -1 for a fixed base. Per step the row of
+    frame) and of its linear velocity (world frame), -1 for a fixed base. ``qfrc_applied``, ``dint``,
+    ``dflt``, ``supply``: the dictionary's terms (:func:`dictionary_pass`; no joints and no supply = none). Per step the row of
     ``sens_buf`` gets quaternion (4), linear acceleration in the world frame (3, ``qacc`` of the
     step) and angular velocity (3), all for the state at the start of the step.
     """
@@ -162,6 +200,9 @@ def run(target, m_ptr, d_ptr, st, spm, max_tick, v_stick, imu_adr,
                     dof_frictionloss[stick_int[1, k]] = stick_flt[1, k]
                 stick_flt[2, k] = v
                 stick_flt[3, k] = 1.0 if held else 0.0
+            if dint.shape[1] > 0 or supply[0] > 0.0:
+                dictionary_pass(win_n, qpos, ctrl, dof_frictionloss, qfrc_applied, jint, tau_out, win_tau,
+                                dint, dflt, supply)
             win_n += 1
             next_fw = step + spm
         if n_hist > 0:

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
+from hexapod_model.dictionary import T_DS, joint_terms
 from hexapod_model.kinematics import forward
 from hexapod_model.servo import tick_to_theta
 from hexapod_model.shapes import (  # noqa: F401
@@ -129,8 +130,9 @@ def _joint_attrs(robot: Robot, name: str) -> str:
     attrs = []
     if e.extra_coulomb_nm:
         attrs.append(f'frictionloss="{s.reflected_coulomb_nm + e.extra_coulomb_nm:.9g}"')
-    if e.extra_damping_nms_per_rad or e.damping_ratio != 1.0:
-        attrs.append(f'damping="{joint_damping_nms_per_rad(s, e):.9g}"')
+    motor = joint_terms(robot, name)[T_DS]          # a weak motor's back-EMF damping (hexapod_model.dictionary)
+    if e.extra_damping_nms_per_rad or e.damping_ratio != 1.0 or motor != 1.0:
+        attrs.append(f'damping="{joint_damping_nms_per_rad(s, e, motor):.9g}"')
     return (' ' + ' '.join(attrs)) if attrs else ''
 
 

@@ -25,7 +25,9 @@ level; a velocity reversal between two ticks counts as rest, :mod:`hexapod_sim.p
 torque saturation (per-servo torque limit), compliance dead-band (margin), punch, goal latency
 (a written goal acts from the first step at or after its write plus the latency), readout delay
 (positions come from a history buffer), plus the MJCF-level coulomb friction, viscous damping,
-payload and backlash. Their values never leave this class except as physics.
+payload and backlash; the dictionary's terms (:mod:`hexapod_model.dictionary`: a cable spring, periodic and
+load friction, a supply sag, a weak motor) per firmware tick (:func:`firmware.dictionary_pass`) and in the
+torque table and MJCF. Their values never leave this class except as physics.
 
 Sensors: body IMU (orientation, linear acceleration, angular rate) at ``imu_rate_hz`` with exact
 stamps (a sample between two physics steps is interpolated linearly between them, the quaternion
@@ -46,6 +48,7 @@ import mujoco
 import numpy as np
 
 from hexapod_model.description import ALL_JOINTS, LEGS, Robot, load_robot
+from hexapod_model.dictionary import T_K, T_MU, T_PA, T_PP, T_PPH, T_REST, T_TS, joint_terms, supply_resistance_ohm
 from hexapod_model.servo import (
     ERR_ANGLE_LIMIT,
     ERR_OVERHEATING,
@@ -183,9 +186,10 @@ class HexapodSim:
         self._err_off = s.max_tick
         err = np.arange(-s.max_tick, s.max_tick + 1, dtype=float)
         table = np.zeros((n + 1, err.size))
+        terms = np.array([joint_terms(self.robot, j) for j in ALL_JOINTS])
         for i in range(n):
             table[i] = self._dir[i] * firmware_torque_nm(err, 0.0, s.gain_nm_per_tick, self._tmax[i], self._margin[i],
-                                                         self._punch[i])
+                                                         self._punch[i]) * terms[i, T_TS]   # a weak motor's drive
         self._torque_table = table.ravel()             # flat: index = row * width + error + max_tick
         self._table_width = err.size
         fc = np.array([m.dof_frictionloss[self._dadr[i]] for i in range(n)])
@@ -237,11 +241,13 @@ class HexapodSim:
         self._stick_int = np.array([self._stick_j, self._stick_dadr], dtype=np.int64).reshape(2, -1)
         self._stick_flt = np.array([self._fric_static, self._fric_coulomb, np.zeros_like(self._fric_static),
                                     np.ones_like(self._fric_static)], dtype=float).reshape(4, -1)
+        self._dint, self._dflt, self._supply = _dictionary_tables(self.robot, terms, self._dadr, fc, fs > fc)
         m_, d_ = self.model, self.data
         self._loop_args = (m_._address, d_._address, self._st, self._spm, float(s.max_tick), V_STICK_RAD_S,
                            self._imu_adr, d_.qpos, d_.qvel, d_.qacc, d_.ctrl, m_.dof_frictionloss,
                            self._jint, self._jflt, self._torque_table, self._stick_int, self._stick_flt,
-                           self._win_tau, self._win_omega, self._tau, self._sens_buf, self._sens_step, self._hist)
+                           self._win_tau, self._win_omega, self._tau, self._sens_buf, self._sens_step, self._hist,
+                           d_.qfrc_applied, self._dint, self._dflt, self._supply)
         # per-joint constants of a read as Python numbers (no numpy-scalar overhead per read)
         self._qpos = d_.qpos                               # a view on MjData: stable for its lifetime
         self._max_tick = int(s.max_tick)
@@ -695,6 +701,19 @@ class PowerMeter:
         p = (b.energy_j - e0) / (b.t_s - t0) if b.t_s > t0 else b.power_w
         self._last = (b.t_s, b.energy_j)
         return BatteryReading(b.t_s, b.voltage_v, p / b.voltage_v, p, b.energy_j)
+
+
+def _dictionary_tables(robot: Robot, terms: np.ndarray, dadr: np.ndarray, fc: np.ndarray, stick: np.ndarray):
+    """The compiled loop's tables of the dictionary's terms (:func:`firmware.dictionary_pass`): joints with a
+    spring, periodic or load friction, their parameters and friction loss, and the supply sag."""
+    on = np.flatnonzero(np.any(terms[:, [T_K, T_PA, T_MU]] != 0, axis=1))
+    dint = np.array([on, dadr[on], stick[on].astype(np.int64)], dtype=np.int64).reshape(3, -1)
+    dflt = np.array([terms[on, T_K], terms[on, T_REST], terms[on, T_PA], terms[on, T_PP], terms[on, T_PPH],
+                     terms[on, T_MU], fc[on]], dtype=float).reshape(7, -1)
+    s = robot.servo
+    supply = np.array([supply_resistance_ohm(robot) / s.supply_voltage_v,
+                       1.0 / (s.torque_constant_nm_per_a * s.gear_ratio)])
+    return dint, dflt, supply
 
 
 def _rotate_to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
