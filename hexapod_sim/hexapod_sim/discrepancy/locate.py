@@ -93,7 +93,7 @@ def period_conditions(replay: Replay, robot: Robot, joint: str, pred_traj: np.nd
     n = len(g)
     s = robot.servo
     w = max(int(round(MOTION_WINDOW_S / dt)), 1)
-    shifted = np.concatenate([np.full(w, g[0]), g[:-w]])
+    shifted = np.concatenate([np.full(min(w, n), g[0]), g[:max(n - w, 0)]])     # g delayed by w periods
     direction = np.sign(g - shifted)
     ff = _forward_fill_nonzero(direction)
     flips = np.nonzero((ff[1:] != ff[:-1]) & (ff[:-1] != 0) & (ff[1:] != 0))[0] + 1
