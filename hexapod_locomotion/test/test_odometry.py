@@ -172,6 +172,14 @@ def test_bad_input_is_named(bad, match):
         bad(LegOdometry())
 
 
+def test_the_same_instant_rounded_differently_is_not_a_step_back():
+    # the lock-stepped node gave 4.497 after 4.497000000000001 and stopped the walk
+    odo = LegOdometry()
+    odo.update(4.497000000000001, WORLD, ALL)
+    odo.update(4.497, WORLD, ALL)
+    assert odo.t_s == 4.497000000000001
+
+
 def test_time_must_not_go_back():
     odo = LegOdometry()
     odo.update(1.0, WORLD, ALL)

@@ -334,4 +334,4 @@ def test_a_recording_error_is_one_line_and_the_node_runs_on(ctx, tmp_path, capfd
     n = BagReader(bag).message_count
     assert len(closing) == 1 and f'({n} messages; recording had stopped on the error above)' in closing[0], err
     assert '[ERROR]' not in closing[0] and 'Traceback' not in err
-    assert n == 3                                         # robot description, /tf_static, the first /clock
+    assert n == 4                                         # robot description, /tf_static, /sim/scene, the first /clock

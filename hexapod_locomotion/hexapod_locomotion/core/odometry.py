@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+TIME_JITTER_S = 1e-6      # [s] an earlier time by less than this is the same instant (float rounding of ns stamps)
+
 
 class OdometryError(ValueError):
     """Bad input to the odometry (the message names it)."""
@@ -169,8 +171,10 @@ class LegOdometry:
         contact = np.asarray(contact, dtype=bool)
         if feet.shape != (6, 3) or contact.shape != (6,):
             raise OdometryError(f'odometry needs 6 feet (6 x 3) and 6 contact flags, got {feet.shape} and {contact.shape}')
-        if not math.isfinite(t_s) or (self.t_s is not None and t_s < self.t_s):
+        if not math.isfinite(t_s) or (self.t_s is not None and t_s < self.t_s - TIME_JITTER_S):
             raise OdometryError(f'odometry time must be finite and not go back, got {t_s!r} after {self.t_s!r}')
+        if self.t_s is not None:
+            t_s = max(t_s, self.t_s)     # the same instant computed two ways (4.497 after 4.497000000000001)
         if not np.all(np.isfinite(feet[contact])):
             raise OdometryError('odometry: a foot in contact has a non-finite position')
         imu_quat = None if imu is None or imu.quat_wxyz is None else np.asarray(imu.quat_wxyz, dtype=float)
