@@ -14,6 +14,7 @@ import contextlib
 import os
 import signal
 import subprocess
+import threading
 import time
 from typing import Callable, Iterator
 
@@ -81,3 +82,15 @@ def spin_until(ex, cond: Callable[[], bool], timeout_s: float, what: str = 'a co
         if time.monotonic() > deadline:
             raise AssertionError(f'timed out after {timeout_s:g} s waiting for {what}')
         ex.spin_once(timeout_sec=0.05)
+
+
+class ProcessOutput:
+    """A started process's stdout (stderr merged into it), read line by line in the background."""
+
+    def __init__(self, proc: subprocess.Popen):
+        self.lines: list[str] = []
+        self._t = threading.Thread(target=lambda: [self.lines.append(ln) for ln in proc.stdout], daemon=True)
+        self._t.start()
+
+    def text(self) -> str:
+        return ''.join(self.lines)

@@ -221,22 +221,13 @@ def test_missing_servo_fails_startup_naming_it(robot):
 
 
 # ----------------------------------------------------------------------------- faults through the node
-import threading  # noqa: E402
 
 from hexapod_driver import protocol as p  # noqa: E402
 from hexapod_model.servo import servo_tick  # noqa: E402
 
 
-class Output:
-    """The node's stdout+stderr, read line by line in the background."""
-
-    def __init__(self, proc):
-        self.lines = []
-        self._t = threading.Thread(target=lambda: [self.lines.append(ln) for ln in proc.stdout], daemon=True)
-        self._t.start()
-
-    def text(self):
-        return ''.join(self.lines)
+class Output(testing.ProcessOutput):
+    """The node's output (testing.ProcessOutput) and what these tests ask of it."""
 
     def finish(self, proc, timeout=15.0):
         if proc.poll() is None:

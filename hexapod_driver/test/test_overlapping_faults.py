@@ -10,7 +10,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
@@ -35,16 +34,8 @@ PARAMS = ['timeout_margin_ms:=25.0', 'diagnostics_period_s:=0.3', 'timing_period
 OUTPUTS = {}                                # pid -> Output, for the message when a node exits early
 
 
-class Output:
-    """The node's stdout+stderr, read line by line in the background."""
-
-    def __init__(self, proc):
-        self.lines = []
-        self._t = threading.Thread(target=lambda: [self.lines.append(ln) for ln in proc.stdout], daemon=True)
-        self._t.start()
-
-    def text(self):
-        return ''.join(self.lines)
+class Output(testing.ProcessOutput):
+    """The node's output (testing.ProcessOutput) and what these tests ask of it."""
 
     def finish(self, proc, sig=signal.SIGINT, timeout=30.0):
         if proc.poll() is None:

@@ -7,7 +7,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
@@ -24,14 +23,8 @@ from hexapod_model.description import load_robot  # noqa: E402
 DOMAIN_ID = 175 + os.getpid() % 5          # 175..179
 
 
-class Output:
-    def __init__(self, proc):
-        self.lines = []
-        self._t = threading.Thread(target=lambda: [self.lines.append(ln) for ln in proc.stdout], daemon=True)
-        self._t.start()
-
-    def text(self):
-        return ''.join(self.lines)
+class Output(testing.ProcessOutput):
+    """The node's output (testing.ProcessOutput) and what these tests ask of it."""
 
     def count(self, needle):
         return sum(needle in ln for ln in list(self.lines))
