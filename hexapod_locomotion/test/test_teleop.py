@@ -175,7 +175,7 @@ def test_cmd_vel_pub_duration_then_zero(ros):
     inbox = Inbox(ros, '/cmd_vel')
     try:
         proc = subprocess.Popen([executable('cmd_vel_pub'), '--vx', '0.03', '--wz', '-0.05', '--rate', '20',
-                                 '--duration', '3'], env=proc_env(), stdout=subprocess.PIPE,
+                                 '--duration', '3', '--wait-subscribers', '1'], env=proc_env(), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         wait_and_collect(proc, inbox)
         out, err = proc.communicate(timeout=WAIT_S)
@@ -217,7 +217,7 @@ def test_cmd_vel_pub_until_signal_with_ros_args_remap(ros, sig):
     (('--rate', 'nan'), '--rate'), (('--rate', '-1'), '--rate'), (('--rate', '0'), '--rate'),
     (('--duration', '-1'), '--duration'), (('--duration', 'inf'), '--duration'),
     (('--vx', 'inf'), '--vx'), (('--vy', 'nan'), '--vy'), (('--wz', '-inf'), '--wz'),
-    (('--vx', 'fast'), '--vx'), (('--speed', '1'), '--speed'),
+    (('--vx', 'fast'), '--vx'), (('--speed', '1'), '--speed'), (('--wait-subscribers', '-1'), '--wait-subscribers'),
 ])
 def test_cmd_vel_pub_bad_flags(args, flag):
     res = run_pub(*args)

@@ -4,7 +4,9 @@
     ./hexapod cmd-vel --vx 0.03 --wz 0.05          # until Ctrl-C
 
 Publishes ``geometry_msgs/Twist`` at ``--rate`` Hz (wall clock) for ``--duration`` seconds (0 = until
-Ctrl-C or SIGTERM), then one zero Twist (the robot stands) and exits 0. The topic name is relative
+Ctrl-C or SIGTERM), then one zero Twist (the robot stands) and exits 0. With ``--wait-subscribers N``
+(``ros2 topic pub -w``) it first waits until N subscribers match, so the duration counts commands
+someone receives. The topic name is relative
 (``cmd_vel``), so a namespace or ``--ros-args -r cmd_vel:=...`` applies. locomotion_node stops
 walking when its last command is older than its ``cmd_vel_timeout_s``: keep ``--rate`` well above
 1 / that timeout. Speeds are checked with the controller's own :class:`VelocityCommand` (finite);
@@ -157,6 +159,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     ap.add_argument('--wz', type=float, default=0.0, help='yaw rate, counter-clockwise [rad/s]')
     ap.add_argument('--rate', type=float, default=10.0, help='publishing rate [Hz], wall clock')
     ap.add_argument('--duration', type=float, default=0.0, help='publish this long [s]; 0 = until Ctrl-C')
+    ap.add_argument('--wait-subscribers', type=int, default=0, metavar='N',
+                    help='before publishing, wait (until Ctrl-C) for N matching subscribers; 0 = start at once')
     return ap.parse_args(argv)
 
 
@@ -167,6 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         cmd = check_velocity(args.vx, args.vy, args.wz)
         rate = check_number('--rate', args.rate, positive=True)
         duration = check_number('--duration', args.duration)
+        wait_n = int(check_number('--wait-subscribers', args.wait_subscribers))
     except CliError as exc:
         print(f'{prog_name("cmd_vel_pub")}: error: {exc}', file=sys.stderr)
         return 2
@@ -183,6 +188,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         node, pub = start_ros('cmd_vel_pub', argv, 'cmd_vel_pub')
         msg = twist(cmd)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        if wait_n > 0:
+            print(f'cmd_vel_pub: waiting for {wait_n} subscriber(s) on {pub.topic_name}', flush=True)
+            while not stop.is_set() and pub.get_subscription_count() < wait_n:
+                executor.spin_once(timeout_sec=0.1)
 
         def tick():
             nonlocal count
@@ -195,8 +206,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f'cmd_vel_pub: publishing vx={cmd.vx:g} m/s vy={cmd.vy:g} m/s wz={cmd.wz:g} rad/s on '
               f'{pub.topic_name} at {rate:g} Hz ' + (f'for {duration:g} s' if duration > 0 else 'until Ctrl-C'),
               flush=True)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
         # signal handlers run between spin_once calls: at most 0.1 s late
         while not stop.is_set() and time.monotonic() < t_end:
             executor.spin_once(timeout_sec=min(0.1, max(0.0, t_end - time.monotonic())))
