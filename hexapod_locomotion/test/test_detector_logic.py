@@ -29,7 +29,7 @@ def robot():
 def _phase(robot, kind, legs=(1, 6, 3), t_des=0.5, t0=0.0):
     L = len(legs)
     return SwingDownPhase(robot, legs, [0.0] * L, [RAISED] * L, [FIN] * L, t_des, 0.001,
-                          DetectorConfig(kind=kind), t_start_s=t0)
+                          DetectorConfig(detector=kind), t_start_s=t0)
 
 
 def test_reads_follow_the_algorithm1_schedule(robot):
@@ -130,8 +130,8 @@ def test_dwell_margin_finds_ground_a_servo_tick_above_theta_fin(robot):
 
 
 def test_bad_detector_input(robot):
-    with pytest.raises(DetectorError, match="must be one of \\('adaptive', 'fixed'\\)"):
-        DetectorConfig(kind='psychic')
+    with pytest.raises(DetectorError, match="detector: must be one of adaptive, fixed, got 'psychic'"):
+        DetectorConfig(detector='psychic')
     ph = _phase(robot, 'fixed', legs=(2,))
     ph.goals(0)
     with pytest.raises(DetectorError, match='not finite'):

@@ -71,12 +71,18 @@ def test_two_value_sweep_writes_one_json_and_one_plot(tmp_path, capsys):
 @pytest.mark.parametrize('argv, message', [
     (['epsilonn', '3', '4'], "unknown parameter 'epsilonn'"),
     (['t_des_s', '1', 'fast'], "t_des_s: expected a number, got 'fast'"),
-    (['gait', 'tripod', 'hexa'], "unknown gait 'hexa'"),
+    (['gait', 'tripod', 'hexa'], "gait: must be one of tripod, tetrapod, pentapod, got 'hexa'"),
     (['overlays', 'missing.yaml'], "no such overlay file 'missing.yaml'"),
     (['epsilon_tick', '3', '3'], 'a value is given twice'),
     (['overlap_transfer', 'true', 'maybe'], "overlap_transfer: expected true or false, got 'maybe'"),
-    (['t_swing_up_s', '0.1', '0'], 't_swing_up_s must be finite and > 0'),
-    (['max_stride_m', '0.07', '-1'], 'max_stride_m must be finite and >= 0'),
+    (['t_swing_up_s', '0.1', '0'], 't_swing_up_s: must be a finite number in (0, 10], got 0'),
+    (['max_stride_m', '0.07', '-1'], 'max_stride_m: must be a finite number >= 0, got -1'),
+    (['approach_rate', '0.5', '2'], 'approach_rate: must be a finite number in (0, 1], got 2'),
+    (['confirm_reads', '3'], "unknown parameter 'confirm_reads'"),
+    (['terrain', 'mockup', 'moon'], "terrain: must be one of flat, blocks"),
+    (['seed', '1'], "unknown parameter 'seed'"),
+    (['duration_s', '0'], 'duration_s: must be a finite number > 0, got 0'),
+    (['t_settle_s', 'none'], "t_settle_s: expected a number, got 'none'"),
 ])
 def test_bad_sweep_arguments_are_one_line(argv, message, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -88,8 +94,8 @@ def test_bad_sweep_arguments_are_one_line(argv, message, tmp_path, capsys):
 
 
 def test_the_gait_cycle_timing_reaches_the_controller():
-    """TrialConfig's transfer-phase fields (None = the controller's default) are the LocomotionParams
-    a trial walks with, and a sweep parses a boolean field as a boolean."""
+    """TrialConfig's transfer-phase fields are the LocomotionParams a trial walks with, and a sweep
+    parses a field as its declared type."""
     from hexapod_locomotion.core.controller import LocomotionParams
     from hexapod_locomotion.trials.trial_runner import locomotion_params
     default = LocomotionParams()
@@ -99,7 +105,10 @@ def test_the_gait_cycle_timing_reaches_the_controller():
     assert p.t_swing_forward_s == default.t_swing_forward_s
     assert sweep.parse_value('overlap_transfer', 'false') is False
     assert sweep.parse_value('overlap_transfer', 'True') is True
-    assert sweep.parse_value('t_settle_s', 'none') is None
+    assert sweep.parse_value('course_end_m', 'none') is None and sweep.parse_value('course_end_m', '3') == 3.0
+    assert sweep.parse_value('t_settle_s', '0.1') == 0.1
+    assert sweep.parse_value('overlays', 'a.yaml,b.yaml') == ('a.yaml', 'b.yaml')
+    assert sweep.parse_value('gait', 'pentapod') == 'pentapod'
 
 
 def test_the_discrepancy_bench_walks_are_calibration_walks():

@@ -15,7 +15,7 @@ FIN = [0.05, -0.75]
 @pytest.fixture(scope='module')
 def phase():
     return SwingDownPhase(load_robot(), (1, 6, 3), [0.0] * 3, [RAISED] * 3, [FIN] * 3, 1.0, 0.001,
-                          DetectorConfig(kind='adaptive', epsilon_tick=3.0))
+                          DetectorConfig(detector='adaptive', epsilon_tick=3.0))
 
 
 def test_the_tolerance_is_the_eq17_margin_over_the_femur_goal_speed(phase):

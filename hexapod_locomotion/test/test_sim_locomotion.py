@@ -32,7 +32,7 @@ def _block_under_leg1(robot):
 def _one_phase(robot, kind, approach_rate=1.0, t_des=1.0):
     sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
     probe = ProbeBus(sim)
-    det = DetectorConfig(kind=kind)
+    det = DetectorConfig(detector=kind)
     swing = []
     c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=t_des, approach_rate=approach_rate), det,
                        t_com_s=sim.t_com_s, on_read=probe.record_detection, on_swing_start=swing.append)
@@ -174,7 +174,7 @@ def test_a_stall_of_the_host_does_not_stop_a_free_swing(robot, where, stall_s):
     leg then comes to rest at the held goal and lags again from zero, as the real one does. Without
     the replay, 30 ms and more stopped the free legs (10-20 ms did not)."""
     sim = HexapodSim(robot, terrain='flat', fixed_base=True)
-    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(kind='adaptive'),
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(detector='adaptive'),
                        t_com_s=sim.t_com_s)
     c.startup(sim)
     bus = _stalling_bus(sim, where, stall_s)
@@ -192,7 +192,7 @@ def test_a_stall_of_the_host_still_finds_the_block(robot, where):
     pause that falls after the touch delays the reads, and no detector stops a leg it does not read)."""
     sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
     swing, touch = [], []
-    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(kind='adaptive'),
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(detector='adaptive'),
                        t_com_s=sim.t_com_s, on_swing_start=swing.append,
                        on_read=lambda r: touch.append((r.stamp_s, bool(sim.foot_contacts().in_contact[0])))
                        if r.leg == 1 else None)
@@ -225,7 +225,7 @@ def test_late_steps_do_not_stop_a_free_swing(robot, anchored, monkeypatch):
     if not anchored:
         monkeypatch.setattr(controller, 'SwingDownPhase', _PhaseOnStartTimes)
     sim = HexapodSim(robot, terrain='flat', fixed_base=True)
-    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(kind='adaptive'),
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5), DetectorConfig(detector='adaptive'),
                        t_com_s=sim.t_com_s)
     c.startup(sim)
     bus = _LateController(sim)
@@ -241,7 +241,7 @@ def test_replay_with_the_recorded_writes_makes_the_live_decisions(robot):
     late controller, the replay stops each leg at the same step as the live run."""
     from hexapod_locomotion.core.detector import replay_swing_down, run_swing_down
     sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
-    c = GaitController(robot, get_gait('tripod'), LocomotionParams(), DetectorConfig(kind='adaptive'),
+    c = GaitController(robot, get_gait('tripod'), LocomotionParams(), DetectorConfig(detector='adaptive'),
                        t_com_s=sim.t_com_s)
     c.startup(sim)
     legs = (1, 6, 3)
@@ -250,7 +250,7 @@ def test_replay_with_the_recorded_writes_makes_the_live_decisions(robot):
     coxa = [c.leg_angles(leg)[0] for leg in legs]
 
     def phase():
-        return SwingDownPhase(robot, legs, coxa, init, fin, 0.5, sim.t_com_s, DetectorConfig(kind='adaptive'),
+        return SwingDownPhase(robot, legs, coxa, init, fin, 0.5, sim.t_com_s, DetectorConfig(detector='adaptive'),
                               t_start_s=t0)
     t0 = sim.now()
     bus = _LateController(sim, late_s=0.004, every=3)
@@ -362,7 +362,7 @@ def test_a_model_started_in_motion_lets_a_hurried_leg_swing_free(robot, t_des):
         sim = HexapodSim(robot, terrain='flat', fixed_base=True)
         c = GaitController(robot, get_gait('tripod'),
                            LocomotionParams(t_des_s=t_des, start_in_motion=start_in_motion, **_HURRIED),
-                           DetectorConfig(kind='adaptive'), t_com_s=sim.t_com_s)
+                           DetectorConfig(detector='adaptive'), t_com_s=sim.t_com_s)
         c.startup(sim)
         return [o.stop_reason for _ in range(4) for o in c.step_phase(sim, VelocityCommand(0.05, 0.0, 0.0)).outcomes]
     assert stops(True) == [STOP_THETA_FIN] * 12
@@ -372,7 +372,7 @@ def test_a_model_started_in_motion_lets_a_hurried_leg_swing_free(robot, t_des):
 def test_a_model_started_in_motion_still_stops_on_the_block(robot):
     sim = HexapodSim(robot, terrain=_block_under_leg1(robot))
     c = GaitController(robot, get_gait('tripod'), LocomotionParams(t_des_s=0.5, start_in_motion=True, **_HURRIED),
-                       DetectorConfig(kind='adaptive'), t_com_s=sim.t_com_s)
+                       DetectorConfig(detector='adaptive'), t_com_s=sim.t_com_s)
     c.startup(sim)
     rep = c.step_phase(sim, VelocityCommand(0.05, 0.0, 0.0))      # legs 1, 6, 3 swing
     o = {x.leg: x for x in rep.outcomes}

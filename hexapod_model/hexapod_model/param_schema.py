@@ -10,9 +10,11 @@ A schema is a plain dataclass whose parameter fields are made with :func:`param`
                                         min=0.0, read_only=False)
         terrain: str = param('flat', 'terrain to walk on', choices=('flat', 'blocks'))
 
-Fields without :func:`param` metadata are library-only (never declared as parameters). Types come
-from the annotations: ``bool``, ``int``, ``float``, ``str``, ``list[str]`` (``X | None`` = the default
-is filled in by the node, e.g. from the robot description). Floats must be finite; ``min``/``max``
+A field made with ``param(..., exposed=False)`` is a library setting: declared and checked the same
+way, but no node parameter (nor a field of a schema merged with :func:`merged_schema`). Fields without
+:func:`param` metadata are neither declared nor checked. Types come from the annotations: ``bool``,
+``int``, ``float``, ``str``, ``list[str]`` or ``tuple[str, ...]`` (``X | None`` = the default is filled
+in by the node, e.g. from the robot description, or None is a value of its own). Floats must be finite; ``min``/``max``
 are inclusive unless ``min_exclusive`` is set (ROS ranges are inclusive, so an exclusive bound is
 declared as its inclusive limit and checked here). :func:`check` returns the reason a value is
 refused, :func:`validate` raises :class:`ParameterError` naming the parameter and the allowed values.
@@ -50,9 +52,11 @@ class ParamSpec:
     choices: tuple | None = None
     read_only: bool = True
     rule: Callable[[Any], str | None] | None = None    # extra check: reason or None
+    exposed: bool = True             # a node parameter (False: a library setting)
     name: str = ''
     type: type = object
     default: Any = None
+    optional: bool = False           # the annotation is X | None
 
     def allowed(self) -> str:
         """The allowed values in words, for error messages and descriptions."""
@@ -81,11 +85,15 @@ def _fmt(v) -> str:
 
 
 def param(default, description: str, *, min=None, max=None, min_exclusive: bool = False, choices=None,
-          read_only: bool = True, rule: Callable[[Any], str | None] | None = None):
-    """A dataclass field that is a node parameter (see the module docstring)."""
+          read_only: bool = True, rule: Callable[[Any], str | None] | None = None, exposed: bool = True):
+    """A dataclass field that is a node parameter, or with ``exposed=False`` a library setting (see the
+    module docstring)."""
     spec = ParamSpec(description, min=min, max=max, min_exclusive=min_exclusive,
-                     choices=tuple(choices) if choices is not None else None, read_only=read_only, rule=rule)
-    if isinstance(default, (list, tuple)) and not isinstance(default, str):
+                     choices=tuple(choices) if choices is not None else None, read_only=read_only, rule=rule,
+                     exposed=exposed)
+    if isinstance(default, tuple):
+        return dataclasses.field(default=default, metadata={_KEY: spec})
+    if isinstance(default, list):
         items = tuple(default)
         return dataclasses.field(default_factory=lambda: list(items), metadata={_KEY: spec})
     return dataclasses.field(default=default, metadata={_KEY: spec})
@@ -108,18 +116,53 @@ def _base_type(hint) -> type:
     return hint
 
 
-def specs(schema) -> dict[str, ParamSpec]:
-    """{name: ParamSpec} of the parameter fields of a schema class (or instance), in field order."""
+def _optional(hint) -> bool:
+    return typing.get_origin(hint) in (typing.Union, types.UnionType) and type(None) in typing.get_args(hint)
+
+
+def specs(schema, library: bool = False) -> dict[str, ParamSpec]:
+    """{name: ParamSpec} of the parameter fields of a schema class (or instance), in field order;
+    ``library``: the library settings (``exposed=False``) too."""
     cls = schema if isinstance(schema, type) else type(schema)
     hints = typing.get_type_hints(cls)
     out = {}
     for f in dataclasses.fields(cls):
         spec = f.metadata.get(_KEY)
-        if spec is None:
+        if spec is None or not (spec.exposed or library):
             continue
         default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
-        out[f.name] = dataclasses.replace(spec, name=f.name, type=_base_type(hints[f.name]), default=default)
+        out[f.name] = dataclasses.replace(spec, name=f.name, type=_base_type(hints[f.name]), default=default,
+                                          optional=_optional(hints[f.name]))
     return out
+
+
+def values(schema, source, library: bool = False) -> dict[str, Any]:
+    """{name: value} of ``schema``'s parameter fields (``library``: and library settings) read from
+    ``source``, any object with attributes of those names (an instance of a schema merged from it)."""
+    return {name: getattr(source, name) for name in specs(schema, library)}
+
+
+def merged_schema(name: str, groups: Iterable[type], module: str, doc: str = '') -> type:
+    """A frozen dataclass whose fields are the parameter fields of ``groups``, in order, each with its
+    type, default and declaration (so :func:`specs` of it is theirs): a configuration that spans several
+    groups (a trial: the walk's own settings, the gait's, the controller's and the detector's) without
+    restating any of them. ``module``: where the class is defined (pickling finds it by name there)."""
+    fields_, seen = [], {}
+    for group in groups:
+        hints = typing.get_type_hints(group)
+        for f in dataclasses.fields(group):
+            spec = f.metadata.get(_KEY)
+            if spec is None or not spec.exposed:
+                continue
+            if f.name in seen:
+                raise TypeError(f'{name}: {f.name} is declared by both {seen[f.name]} and {group.__name__}')
+            seen[f.name] = group.__name__
+            fields_.append((f.name, hints[f.name], dataclasses.field(default=f.default, default_factory=f.default_factory,
+                                                                     metadata=f.metadata)))
+    cls = dataclasses.make_dataclass(name, fields_, frozen=True)
+    cls.__module__, cls.__qualname__ = module, name
+    cls.__doc__ = doc or cls.__doc__
+    return cls
 
 
 def coerce(spec: ParamSpec, value):
@@ -157,11 +200,11 @@ def check(spec: ParamSpec, value) -> str | None:
 
 
 def validate(instance) -> None:
-    """Raise :class:`ParameterError` for the first parameter field of ``instance`` that is refused
-    (``None`` = filled in later by the node, not checked)."""
-    for name, spec in specs(instance).items():
+    """Raise :class:`ParameterError` for the first parameter field or library setting of ``instance``
+    that is refused (``None`` in an ``X | None`` field = filled in later by the node, or no value: not checked)."""
+    for name, spec in specs(instance, library=True).items():
         value = getattr(instance, name)
-        if value is None:
+        if value is None and spec.optional:
             continue
         why = check(spec, value)
         if why is not None:

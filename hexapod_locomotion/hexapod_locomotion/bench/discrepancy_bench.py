@@ -165,13 +165,18 @@ def calibration_walk() -> dict:
     package, the file a robot's walk is recorded with) as TrialConfig fields."""
     from ament_index_python.packages import get_package_share_directory
 
-    from hexapod_locomotion.trials.trial_runner import CYCLE_FLAGS, TIMING_FIELDS
+    from hexapod_locomotion.core.controller import LocomotionParams
+    from hexapod_model.param_schema import check, specs
     path = Path(get_package_share_directory('hexapod_locomotion')) / 'config' / 'calibration_walk.yaml'
     values = yaml.safe_load(path.read_text())['/**']['ros__parameters']
-    known = set(TIMING_FIELDS) | set(CYCLE_FLAGS)
-    unknown = sorted(set(values) - known)
+    known = specs(LocomotionParams)
+    unknown = sorted(set(values) - set(known))
     if unknown:
-        raise ValueError(f'{path}: not a trial parameter: {", ".join(unknown)}')
+        raise ValueError(f'{path}: not a controller parameter: {", ".join(unknown)}')
+    for name, value in values.items():
+        why = check(known[name], value)
+        if why is not None:
+            raise ValueError(f'{path}: {name}: {why}')
     return values
 
 

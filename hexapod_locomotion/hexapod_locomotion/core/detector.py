@@ -24,6 +24,7 @@ import numpy as np
 from hexapod_model.bus import ServoBus
 from hexapod_model.description import Robot, joint_name
 from hexapod_model.kinematics import forward
+from hexapod_model.param_schema import ParameterError, param, specs, validate
 from hexapod_model.servo import theta_to_tick, tick_to_theta
 from hexapod_model.swing_model import (
     LegModel,
@@ -42,6 +43,7 @@ STAMP_RESOLUTION_S = 1e-9                            # ROS stamps are whole nano
 
 
 DETECTOR_KINDS = ('adaptive', 'fixed')              # Eq. 17, and the fixed threshold of the earlier work
+STOP_MODES = ('hold', 'freeze')
 
 
 class DetectorError(ValueError):
@@ -50,34 +52,47 @@ class DetectorError(ValueError):
 
 @dataclass(frozen=True)
 class DetectorConfig:
-    kind: str = 'adaptive'           # 'adaptive' (Eq. 17) or 'fixed'
-    epsilon_tick: float = 3.0        # Eq. 17 margin (paper: 3 ticks)
+    """The ground detector's settings, each declared once (:func:`hexapod_model.param_schema.param`):
+    locomotion_node's parameters, the trial fields and the SwingDownStart fields of a recording are
+    derived from them; ``exposed=False`` marks the library settings that are no node parameters."""
+
+    detector: str = param('adaptive', "ground detection: 'adaptive' (model threshold, Eq. 17) or 'fixed' "
+                          '(constant baseline threshold)', choices=DETECTOR_KINDS)
+    epsilon_tick: float = param(3.0, 'Eq. 17 margin [ticks] (paper: 3); too small stops legs early, too large '
+                                'stops late', min=0.0)
     # Eq. 17 margin while a leg dwells at theta_fin (SwingDownPhase fin_dwell_steps > 0, the improved
     # touchdown; Algorithm 1 has no dwell). The goal stands still there and the modelled leg settles
     # to rest, so the model needs no margin for the goal's motion: a contact at the end of a slow
     # approach adds under epsilon_tick to the error and was missed (most of the improved touchdown's
     # missed contacts in the table4 trials). Below about 1 tick the servo's own quantisation decides.
-    dwell_epsilon_tick: float = 3.0
-    fixed_threshold_tick: float = 21.0   # baseline threshold of the earlier work
-    min_descent_m: float = 0.004     # a detection before the foot has descended this much is suspect
-    confirm_reads: int = 3           # ...and must then persist for this many consecutive reads
+    dwell_epsilon_tick: float = param(3.0, 'Eq. 17 margin [ticks] while a leg dwells at theta_fin (fin_dwell_s '
+                                      '> 0): the goal stands still there, so a smaller margin finds a contact at '
+                                      'the end of a slow approach; too small and a free leg at theta_fin is taken '
+                                      "for a contact (leveled on ground that is not there); the default is Eq. 17's "
+                                      "3 ticks, the experiments' improved touchdown uses 1", min=0.0)
+    fixed_threshold_tick: float = param(21.0, 'baseline threshold [ticks] of the fixed detector (the earlier '
+                                        'work)', min=0.0)
+    min_descent_m: float = param(0.004, 'a detection before the foot has descended this much [m] is suspect',
+                                 min=0.0, exposed=False)
+    confirm_reads: int = param(3, '...and must then persist for this many consecutive reads', min=1, exposed=False)
     # How a stopped leg is held. 'freeze': theta_des stops where it is (Delta theta = 0, paper Sec. 7);
     # the free-swing lag frozen into the goal then keeps pushing and can lift the body off the
     # other feet. 'hold': the femur goal is set to the measured position plus an epsilon preload
     # toward the ground, so the foot rests where it touched with a small force.
-    stop_mode: str = 'hold'
+    stop_mode: str = param('hold', "how a stopped leg is held: 'hold' (at the measured position, pressed "
+                           "epsilon_tick toward the ground) or 'freeze' (the goal stops where it is)",
+                           choices=STOP_MODES, exposed=False)
 
     def __post_init__(self):
-        if self.kind not in DETECTOR_KINDS:
-            raise DetectorError(f"detector kind must be one of {DETECTOR_KINDS}, got {self.kind!r}")
-        for name in ('epsilon_tick', 'dwell_epsilon_tick', 'fixed_threshold_tick', 'min_descent_m'):
-            v = getattr(self, name)
-            if not math.isfinite(v) or v < 0:
-                raise DetectorError(f'{name} must be a finite non-negative number, got {v!r}')
-        if self.confirm_reads < 1:
-            raise DetectorError(f'confirm_reads must be >= 1, got {self.confirm_reads}')
-        if self.stop_mode not in ('hold', 'freeze'):
-            raise DetectorError(f"stop_mode must be 'hold' or 'freeze', got {self.stop_mode!r}")
+        try:
+            validate(self)
+        except ParameterError as exc:
+            raise DetectorError(f'detector {exc}') from None
+
+
+# The settings a recording carries in each SwingDownStart (hexapod_msgs/msg/SwingDownStart.msg), by
+# their names here: all but how a stopped leg is held, which a replay takes as configured.
+RECORDED_SETTINGS = tuple(n for n in specs(DetectorConfig, library=True) if n != 'stop_mode')
 
 
 @dataclass
@@ -173,7 +188,7 @@ class SwingDownPhase:
                                        self._init_tick[slot].copy())
         # The model prediction of the whole phase (CalcModel); also used at the actual read stamps.
         self.prediction: SwingDownPrediction | None = None
-        if config.kind == 'adaptive':
+        if config.detector == 'adaptive':
             self.prediction = predict_swing_down(robot, self.legs, init, fin, t_des_s, t_com_s,
                                                  epsilon_tick=config.epsilon_tick, qd0_rad_s=qd0,
                                                  n_steps=self.n_interp + 1 + self.fin_dwell_steps, models=models,
@@ -345,7 +360,7 @@ class SwingDownPhase:
                 s.suspect_count = 0
                 if self.reached_fin(k - self.fin_dwell_steps, leg):
                     self._stop(s, STOP_THETA_FIN, k, stamp_s, theta_real_rad)
-        res = ReadResult(leg=leg, detector=self.config.kind, step=k, t_swing_s=t_swing, stamp_s=stamp_s,
+        res = ReadResult(leg=leg, detector=self.config.detector, step=k, t_swing_s=t_swing, stamp_s=stamp_s,
                          theta_des_tick=des, theta_real_tick=real, theta_est_tick=est, err_tick=err,
                          err_est_tick=err_est, threshold_tick=thld, stopped=s.stopped,
                          stop_reason=s.stop_reason, premature_suspect=suspect)
@@ -426,44 +441,49 @@ def replay_swing_down(phase: SwingDownPhase, reads, on_read=None, writes=()) -> 
 def swing_start_fields(phase: SwingDownPhase) -> dict:
     """The fields of hexapod_msgs/msg/SwingDownStart (minus the header) for a phase."""
     st = [phase.state[leg] for leg in phase.legs]
-    c = phase.config
     return {'legs': list(phase.legs), 'coxa_rad': [s.coxa_rad for s in st],
             'femur_init_rad': [float(s.theta_init[0]) for s in st], 'tibia_init_rad': [float(s.theta_init[1]) for s in st],
             'femur_fin_rad': [float(s.theta_fin[0]) for s in st], 'tibia_fin_rad': [float(s.theta_fin[1]) for s in st],
-            't_des_s': phase.t_des_s, 't_com_s': phase.t_com_s, 'detector': c.kind, 'epsilon_tick': c.epsilon_tick,
-            'fixed_threshold_tick': c.fixed_threshold_tick, 'dwell_epsilon_tick': c.dwell_epsilon_tick,
-            'min_descent_m': c.min_descent_m,
-            'confirm_reads': c.confirm_reads, 'approach_rate': phase.approach_rate,
+            't_des_s': phase.t_des_s, 't_com_s': phase.t_com_s,
+            **{name: getattr(phase.config, name) for name in RECORDED_SETTINGS},
+            'approach_rate': phase.approach_rate,
             'approach_from': [float(a) for a in phase.approach_from], 'fin_dwell_steps': phase.fin_dwell_steps,
             'femur_init_rad_s': [float(v) for v in phase.qd0_rad_s[:, 0]],
             'tibia_init_rad_s': [float(v) for v in phase.qd0_rad_s[:, 1]]}
+
+
+def _field(f, name: str, default=None):
+    """A SwingDownStart field of ``f`` (dict or message); ``default`` for one that older recordings lack."""
+    return f.get(name, default) if isinstance(f, dict) else getattr(f, name, default)
+
+
+def detector_from_fields(f, kind: str | None = None) -> DetectorConfig:
+    """The detector of a recorded SwingDownStart (dict or message), optionally of the other ``kind``."""
+    table = specs(DetectorConfig, library=True)
+    values = {name: _field(f, name) for name in RECORDED_SETTINGS}
+    # before the dwell's own margin existed the dwell used Eq. 17's
+    if values['dwell_epsilon_tick'] is None:
+        values['dwell_epsilon_tick'] = values['epsilon_tick']
+    if kind:
+        values['detector'] = kind
+    return DetectorConfig(**{name: table[name].type(v) for name, v in values.items()})
 
 
 def phase_from_fields(robot: Robot, f, t_start_s: float, kind: str | None = None,
                       models: dict[int, LegModel] | None = None) -> SwingDownPhase:
     """Rebuild a :class:`SwingDownPhase` from SwingDownStart fields (dict or message), optionally
     with the other detector ``kind``."""
-    get = (lambda n: f[n]) if isinstance(f, dict) else (lambda n: getattr(f, n))
-
-    def optional(name, default):
-        """A field that older recordings lack."""
-        return f.get(name, default) if isinstance(f, dict) else getattr(f, name, default)
     # recordings made before the approach profile existed carry neither field: Eq. 15
-    rate = float(optional('approach_rate', 1.0))
-    frm = list(optional('approach_from', ()))
-    dwell = int(optional('fin_dwell_steps', 0))
+    rate = float(_field(f, 'approach_rate', 1.0))
+    frm = list(_field(f, 'approach_from', ()))
+    dwell = int(_field(f, 'fin_dwell_steps', 0))
     # nor the start speeds before the model started from the leg's motion: at rest
-    speeds = [list(optional(n, ())) for n in ('femur_init_rad_s', 'tibia_init_rad_s')]
-    eps = float(get('epsilon_tick'))
-    cfg = DetectorConfig(kind=kind or get('detector'), epsilon_tick=eps,
-                         # before the dwell's own margin existed the dwell used Eq. 17's
-                         dwell_epsilon_tick=float(optional('dwell_epsilon_tick', eps)),
-                         fixed_threshold_tick=float(get('fixed_threshold_tick')),
-                         min_descent_m=float(get('min_descent_m')), confirm_reads=int(get('confirm_reads')))
-    legs = [int(x) for x in get('legs')]
-    init = np.column_stack([get('femur_init_rad'), get('tibia_init_rad')])
-    fin = np.column_stack([get('femur_fin_rad'), get('tibia_fin_rad')])
-    return SwingDownPhase(robot, legs, list(get('coxa_rad')), init, fin, float(get('t_des_s')), float(get('t_com_s')),
-                          cfg, t_start_s=t_start_s, models=models, approach_from=frm if len(frm) else 1.0,
+    speeds = [list(_field(f, n, ())) for n in ('femur_init_rad_s', 'tibia_init_rad_s')]
+    legs = [int(x) for x in _field(f, 'legs')]
+    init = np.column_stack([_field(f, 'femur_init_rad'), _field(f, 'tibia_init_rad')])
+    fin = np.column_stack([_field(f, 'femur_fin_rad'), _field(f, 'tibia_fin_rad')])
+    return SwingDownPhase(robot, legs, list(_field(f, 'coxa_rad')), init, fin, float(_field(f, 't_des_s')),
+                          float(_field(f, 't_com_s')), detector_from_fields(f, kind), t_start_s=t_start_s,
+                          models=models, approach_from=frm if len(frm) else 1.0,
                           approach_rate=rate if rate > 0 else 1.0, fin_dwell_steps=dwell,
                           qd0_rad_s=np.column_stack(speeds) if all(len(v) == len(legs) for v in speeds) else None)

@@ -15,6 +15,7 @@ from typing import Mapping
 import yaml
 
 from hexapod_model.description import LEGS, source_path, yaml_problem
+from hexapod_model.param_schema import param
 
 # stride of a gait whose definition gives none [m] (reach: about 11 cm). A 10 cm stride stalled the
 # real-time ROS graph at the first blocks of the mockup (docs/architecture.md); 9 cm is what tetrapod
@@ -102,3 +103,10 @@ def get_gait(name: str, path: str | Path | None = None) -> Gait:
     if name not in gaits:
         raise GaitError(f'unknown gait {name!r}; known: {sorted(gaits)}')
     return gaits[name]
+
+
+@dataclass(frozen=True)
+class GaitChoice:
+    """Which gait walks: locomotion_node's parameter and a trial's field (declared once here)."""
+
+    gait: str = param('tripod', 'gait (gaits.yaml)', choices=tuple(load_gaits()))

@@ -38,7 +38,7 @@ from rclpy.node import Node
 from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
 from hexapod_locomotion.core.course import CourseKeeper
 from hexapod_locomotion.core.detector import DetectorConfig, DetectorError, swing_start_fields
-from hexapod_locomotion.core.gait import GaitError, get_gait
+from hexapod_locomotion.core.gait import GaitChoice, GaitError, get_gait
 from hexapod_locomotion.core.odometry import OdometryError
 from hexapod_locomotion.core.odometry_tap import odometry_dict
 from hexapod_locomotion.core.read_timing import ReadTiming
@@ -59,6 +59,10 @@ class LocomotionNode(Node):
         super().__init__('locomotion_node', **node_kwargs)
         params = NodeParams(self)
         self.robot = params.declare(RobotSource).load()
+        gait = params.declare(GaitChoice).gait
+        # the ROS bus master keeps its own read schedule: no background reads of the controller's
+        gait_params = params.declare(LocomotionParams, background_reads=False)
+        detector = params.declare(DetectorConfig)
         p = self.params = params.declare(LocomotionNodeParams)
         if bus is not None:
             t_com = bus.t_com_s
@@ -82,16 +86,7 @@ class LocomotionNode(Node):
         self._cmd = VelocityCommand(p.default_vx, 0.0, 0.0)
         self._cmd_time = None
         self.controller = GaitController(
-            self.robot, get_gait(p.gait),
-            LocomotionParams(t_des_s=p.t_des_s, lift_m=p.lift_m, max_stride_m=p.max_stride_m,
-                             ground_depth_m=p.ground_depth_m, landing_preload=p.landing_preload,
-                             approach_rate=p.approach_rate, approach_height_m=p.approach_height_m, fin_dwell_s=p.fin_dwell_s,
-                             t_swing_up_s=p.t_swing_up_s, t_swing_forward_s=p.t_swing_forward_s,
-                             t_settle_s=p.t_settle_s, t_level_s=p.t_level_s, overlap_transfer=p.overlap_transfer,
-                             start_in_motion=p.start_in_motion, start_ramp=p.start_ramp,
-                             background_reads=False),
-            DetectorConfig(kind=p.detector, epsilon_tick=p.epsilon_tick, dwell_epsilon_tick=p.dwell_epsilon_tick,
-                           fixed_threshold_tick=p.fixed_threshold_tick),
+            self.robot, get_gait(gait), gait_params, detector,
             t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
             on_swing_start=self._publish_swing_start)
         self.controller.warm_up()

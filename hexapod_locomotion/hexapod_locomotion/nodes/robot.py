@@ -31,20 +31,21 @@ from hexapod_model.description import DescriptionError
 from hexapod_model.node_params import NodeParams, init_node_process, node_command_line, stopping_cleanly
 
 
-def _declared(context, node_name: str, schema):
-    """``schema``'s parameters as a short-lived node of ``node_name`` declares them (a bad value raises
-    its ParameterError before any node of the robot starts)."""
+def _declared(context, node_name: str, *schemas):
+    """The instances of ``schemas`` as a short-lived node of ``node_name`` declares their parameters (a
+    bad value raises its ParameterError before any node of the robot starts)."""
     from rclpy.node import Node
     probe = Node(node_name, context=context)
     try:
-        return NodeParams(probe).declare(schema)
+        params = NodeParams(probe)
+        return [params.declare(schema) for schema in schemas]
     finally:
         probe.destroy_node()
 
 
 def _hardware(context) -> str:
     """The ``hardware`` parameter, read before the bus master is chosen."""
-    return _declared(context, 'robot', ComposedParams).hardware
+    return _declared(context, 'robot', ComposedParams)[0].hardware
 
 
 def _check_parameter_names(context, hardware: str) -> None:
@@ -75,8 +76,8 @@ def _check_parameter_names(context, hardware: str) -> None:
 def _check_locomotion_parameters(context) -> None:
     """Refuse a bad locomotion_node parameter before any node starts (the bus master's and the model
     node's start-up lines would come first)."""
-    from hexapod_locomotion.nodes.params import LocomotionNodeParams
-    _declared(context, 'locomotion_node', LocomotionNodeParams)
+    from hexapod_locomotion.nodes.params import NODE
+    _declared(context, 'locomotion_node', *NODE.schemas)
 
 
 def _bus_master(hardware: str):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import math
 import sys
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,7 @@ from hexapod_model.cli_common import (
     positive_float,
     positive_int,
 )
+from hexapod_model.param_schema import ParameterError, ParamSpec, specs, validate
 from hexapod_sim.physics.terrain import MOCKUP_COURSE_END_M
 
 NOT_SWEPT = ('seed', 'record', 'video', 'video_fps')    # seeds are --trials; the rest are outputs
@@ -46,30 +47,31 @@ class SweepError(ValueError):
     """A sweep value that cannot be used (the message names the parameter and the value)."""
 
 
-def sweepable() -> dict[str, str]:
-    """Sweepable TrialConfig fields -> their annotation (as written in the dataclass)."""
-    return {f.name: str(f.type) for f in fields(TrialConfig) if f.name not in NOT_SWEPT}
+def sweepable() -> dict[str, ParamSpec]:
+    """Sweepable TrialConfig fields -> their declaration (type, range, choices)."""
+    return {name: spec for name, spec in specs(TrialConfig).items() if name not in NOT_SWEPT}
 
 
 def parse_value(param: str, text: str):
-    """One command-line value of ``param`` as the TrialConfig field holds it; SweepError names a bad one."""
-    kind = sweepable()[param]
-    if kind.startswith('tuple'):
+    """One command-line value of ``param`` as the TrialConfig field holds it, of the field's declared
+    type; SweepError names a bad one (the range is checked with the whole config, :func:`check_config`)."""
+    spec = sweepable()[param]
+    if spec.type is list:                       # overlays: a tuple of paths
         return () if text.lower() == 'none' else tuple(p for p in text.split(',') if p)
-    if 'None' in kind and text.lower() == 'none':
+    if spec.optional and text.lower() == 'none':
         return None
-    if kind.startswith('bool'):
+    if spec.type is bool:
         if text.lower() not in ('true', 'false', '1', '0'):
             raise SweepError(f'{param}: expected true or false, got {text!r}')
         return text.lower() in ('true', '1')
-    if kind.startswith('float') or kind.startswith('int'):
+    if spec.type in (float, int):
         try:
             v = float(text)
         except ValueError:
             raise SweepError(f'{param}: expected a number, got {text!r}') from None
         if not math.isfinite(v):
             raise SweepError(f'{param}: expected a finite number, got {text!r}')
-        if kind.startswith('int'):
+        if spec.type is int:
             if v != int(v):
                 raise SweepError(f'{param}: expected a whole number, got {text!r}')
             return int(v)
@@ -78,19 +80,19 @@ def parse_value(param: str, text: str):
 
 
 def check_config(cfg: TrialConfig) -> None:
-    """Build what a trial builds from its config, without walking: a bad value fails here, named."""
+    """Check a config against the settings' declarations and build what a trial builds from it, without
+    walking: a bad value fails here, named."""
     from hexapod_locomotion.core.controller import LocomotionError
     from hexapod_locomotion.core.gait import get_gait
     from hexapod_locomotion.trials.trial_runner import detector_config, locomotion_params
     from hexapod_model.description import load_robot
-    from hexapod_sim.physics.terrain import TERRAINS
-    if cfg.terrain not in TERRAINS:
-        raise SweepError(f'terrain: unknown terrain {cfg.terrain!r}; known: {sorted(TERRAINS)}')
+    try:
+        validate(cfg)
+    except ParameterError as exc:
+        raise SweepError(f'{exc.name}: {exc.reason}') from None
     for p in cfg.overlays:
         if not Path(p).is_file():
             raise SweepError(f'overlays: no such overlay file {p!r}')
-    if cfg.duration_s <= 0 or (cfg.t_com_s is not None and cfg.t_com_s <= 0):
-        raise SweepError('duration_s and t_com_s must be > 0')
     try:
         load_robot(overlays=cfg.overlays)
         get_gait(cfg.gait)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
+from hexapod_locomotion.core.controller import GaitController, LocomotionError, VelocityCommand
 from hexapod_locomotion.core.detector import DetectorConfig, ReadResult, SwingDownPhase, swing_start_fields
 from hexapod_locomotion.core.gait import get_gait
 from hexapod_locomotion.core.metrics import (
@@ -26,6 +26,7 @@ from hexapod_locomotion.core.metrics import (
     swing_down_variances,
     walk_cost_of_transport,
 )
+from hexapod_locomotion.trials.trial_config import TrialConfig, detector_config, locomotion_params
 from hexapod_model import diagnostics
 from hexapod_model.contract import (
     DIAGNOSTICS,
@@ -46,66 +47,6 @@ from hexapod_model.kinematics import forward
 
 FALL_TILT_RAD = 0.6          # roll or pitch beyond this counts as a fall
 FALL_HEIGHT_M = 0.035        # trunk this close to the ground counts as a fall
-
-
-@dataclass(frozen=True)
-class TrialConfig:
-    gait: str = 'tripod'
-    detector: str = 'adaptive'
-    t_des_s: float = 1.0
-    terrain: str = 'mockup'
-    seed: int = 0
-    duration_s: float = 60.0            # simulated walking time limit
-    course_end_m: float | None = None   # stop once the trunk passes this x
-    vx_mps: float = 0.05
-    wz_rad_s: float = 0.0
-    t_com_s: float | None = None
-    epsilon_tick: float = 3.0
-    fixed_threshold_tick: float = 21.0
-    approach_rate: float = 1.0          # touchdown goal profile (LocomotionParams): 1 = the paper's Eq. 15
-    approach_height_m: float = 0.015
-    fin_dwell_s: float = 0.0
-    dwell_epsilon_tick: float | None = None   # Eq. 17 margin in the dwell (DetectorConfig); None = epsilon_tick
-    overlap_transfer: bool = True       # the gait cycle (LocomotionParams): False = Fig. 4 in sequence
-    start_in_motion: bool = True        # Algorithm 1's model starts in the leg's motion (LocomotionParams)
-    start_ramp: bool = True             # the stride grows over the first cycle (LocomotionParams)
-    # transfer-phase timing, stride and theta_fin depth (LocomotionParams, node parameters of the same names);
-    # None = its default
-    t_swing_up_s: float | None = None
-    t_swing_forward_s: float | None = None
-    t_settle_s: float | None = None
-    t_level_s: float | None = None
-    max_stride_m: float | None = None
-    ground_depth_m: float | None = None
-    probe_period_s: float = 0.05        # truth sampling period (pose, energy, temperature)
-    record: str | None = None           # bag directory, or None
-    overlays: tuple[str, ...] = ()
-    start_x_m: float = 0.0              # where the robot stands at the start (along the course)
-    video: str | None = None            # animated GIF of the walk (offscreen CPU rendering), or None
-    video_fps: float = 10.0
-    # leg odometry (always run, with and without the IMU): the course correction (CourseKeeper) off =
-    # the paper's open loop; odometry_imu: the odometry it uses (and /odom in the bag) has the IMU
-    heading_correction: bool = False
-    odometry_imu: bool = True
-
-
-TIMING_FIELDS = ('t_swing_up_s', 't_swing_forward_s', 't_settle_s', 't_level_s', 'max_stride_m', 'ground_depth_m')
-# the gait-cycle switches, passed to LocomotionParams under their own names
-CYCLE_FLAGS = ('overlap_transfer', 'start_in_motion', 'start_ramp')
-
-
-def locomotion_params(cfg: TrialConfig) -> LocomotionParams:
-    """The controller's parameters of a trial (LocomotionParams checks them: LocomotionError names a bad one)."""
-    timing = {k: getattr(cfg, k) for k in TIMING_FIELDS if getattr(cfg, k) is not None}
-    return LocomotionParams(t_des_s=cfg.t_des_s, approach_rate=cfg.approach_rate, approach_height_m=cfg.approach_height_m,
-                            fin_dwell_s=cfg.fin_dwell_s, **{k: getattr(cfg, k) for k in CYCLE_FLAGS}, **timing)
-
-
-def detector_config(cfg: TrialConfig) -> DetectorConfig:
-    """The detector of a trial (DetectorConfig checks it: DetectorError names a bad value)."""
-    dwell = cfg.epsilon_tick if cfg.dwell_epsilon_tick is None else cfg.dwell_epsilon_tick
-    return DetectorConfig(kind=cfg.detector, epsilon_tick=cfg.epsilon_tick, dwell_epsilon_tick=dwell,
-                          fixed_threshold_tick=cfg.fixed_threshold_tick)
 
 
 def joint_state_msg(t_s: float, names, positions) -> dict:
@@ -332,7 +273,7 @@ def _detection_events(robot: Robot, probe: ProbeBus, phase: SwingDownPhase,
                       and t_contact - 1e-9 <= r.stamp_s <= t_stop + 1e-9), None)
         if first is not None and step > 0:
             floor = max(0.0, first.threshold_tick - first.err_tick) / step
-        out.append(DetectionEvent(leg, detector.kind, t0, t_stop, st.stop_reason, t_contact,
+        out.append(DetectionEvent(leg, detector.detector, t0, t_stop, st.stop_reason, t_contact,
                                   t_con, at_stop[2] if at_stop else math.nan, peak, overshoot, floor, rise))
     return out
 
@@ -341,6 +282,102 @@ def _recording_failed(text: str) -> None:
     """A write to the bag failed (disk full, ...): one line; the walk runs on, unrecorded."""
     import sys
     print(f'recording stopped: {text}; the walk runs on without recording', file=sys.stderr, flush=True)
+
+
+def _open_recorder(cfg: TrialConfig, robot: Robot, ground, live, recorder):
+    """Where the trial's topics go: the caller's ``recorder`` (in process), a recorder feeding the
+    ``live`` view (and ``cfg.record``, if set), a recorder process writing ``cfg.record``, or None."""
+    if recorder is None and live is not None:       # (a recorder given by the caller takes all, in process)
+        from hexapod_sim.bagio.recorder import Recorder
+        return Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live, scene=ground.to_text())
+    if recorder is None and cfg.record:   # by a process of its own, which closes the bag even if this one is killed
+        from hexapod_sim.bagio.recorder import RecorderProcess
+        return RecorderProcess(Path(cfg.record), robot=robot, on_error=_recording_failed, scene=ground.to_text())
+    return recorder
+
+
+class _Video:
+    """The frames of ``cfg.video``: one rendered every 1 / video_fps s of the truth probes."""
+
+    def __init__(self, cfg: TrialConfig, sim):
+        import mujoco
+        self.cfg = cfg
+        self.frames = []
+        self.renderer = mujoco.Renderer(sim.model, height=300, width=480)
+        self.every = max(1, int(round(1.0 / (cfg.video_fps * cfg.probe_period_s))))
+        self.count = 0
+
+    def on_probe(self, s) -> None:
+        from PIL import Image
+
+        from hexapod_sim.tools.render import render_frame
+        if self.count % self.every == 0:
+            self.frames.append(Image.fromarray(render_frame(s, self.renderer, distance=0.8, azimuth=120.0)))
+        self.count += 1
+
+    def close(self, on_video_write=None) -> None:
+        """Free the renderer and write the GIF (if any frame was taken)."""
+        self.renderer.close()
+        frames = self.frames
+        if frames:
+            if on_video_write is not None:
+                on_video_write(len(frames))
+            Path(self.cfg.video).parent.mkdir(parents=True, exist_ok=True)
+            frames[0].save(self.cfg.video, save_all=True, append_images=frames[1:], loop=0,
+                           duration=int(round(1000 / self.cfg.video_fps)))
+
+
+@dataclass
+class _Walk:
+    """How a walk went: where and when it began, how it ended, what the controller said."""
+
+    walk_start_s: float = math.nan
+    x0_m: float = math.nan
+    fell: bool = False
+    reached: bool = False
+    warnings: list[str] = field(default_factory=list)
+
+
+def _walk(cfg: TrialConfig, sim, probe: ProbeBus, controller: GaitController, odo, swing_downs, walk: _Walk,
+          progress=None) -> None:
+    """Stand up, then step gait phases until the time limit, the course end or a fall (into ``walk``)."""
+    from hexapod_locomotion.core.course import CourseKeeper
+    keeper = CourseKeeper() if cfg.heading_correction else None
+    warnings = walk.warnings
+    controller.startup(probe)
+    x0 = walk.x0_m = float(probe.pose_xyz[-1][0])
+    walk_start = walk.walk_start_s = sim.now()
+    probe.deadline_s = walk_start + cfg.duration_s
+    while sim.now() - walk_start < cfg.duration_s:
+        cmd = VelocityCommand(cfg.vx_mps, 0.0, cfg.wz_rad_s)
+        est = odo.tap.estimate
+        if keeper is not None and est is not None:
+            cmd = keeper.command(sim.now(), cmd, est.position[:2], float(est.rpy[2]),
+                                 controller.params.cycle_s(controller.gait))
+        try:
+            rep = controller.step_phase(odo.tap, cmd)
+            odo.tap.phase_done()
+        except LocomotionError as exc:
+            warnings.append(f'controller stopped: {exc}')
+            return
+        except TimeLimitReached:
+            warnings.append(f'time limit {cfg.duration_s:g} s reached within a gait phase'
+                            + ('' if swing_downs and swing_downs[-1].done else
+                               '; its swing-down is not counted'))
+            return
+        warnings.extend(rep.warnings)
+        pos, quat = sim.body_pose()
+        roll, pitch, _ = roll_pitch_yaw(quat)
+        clearance = pos[2] - sim.scene.terrain.height_at(pos[0], pos[1])
+        if abs(roll) > FALL_TILT_RAD or abs(pitch) > FALL_TILT_RAD or clearance < FALL_HEIGHT_M:
+            walk.fell = True
+            warnings.append(f'robot fell at t={sim.now():.1f} s (roll {roll:.2f}, pitch {pitch:.2f} rad)')
+            return
+        if progress is not None:
+            progress(sim.now() - walk_start, float(pos[0]) - x0)
+        if cfg.course_end_m is not None and pos[0] >= cfg.course_end_m:
+            walk.reached = True
+            return
 
 
 def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, recorder=None) -> TrialResult:
@@ -358,94 +395,40 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, r
     robot = load_robot(overlays=cfg.overlays)
     ground = Ground(cfg.terrain, cfg.seed, (cfg.start_x_m, 0.0))
     sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, t_com_s=cfg.t_com_s, start_xy_m=ground.start_xy_m)
-    if recorder is None and live is not None:       # (a recorder given by the caller takes all, in process)
-        from hexapod_sim.bagio.recorder import Recorder
-        recorder = Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live, scene=ground.to_text())
-    elif recorder is None and cfg.record:   # by a process of its own, which closes the bag even if this one is killed
-        from hexapod_sim.bagio.recorder import RecorderProcess
-        recorder = RecorderProcess(Path(cfg.record), robot=robot, on_error=_recording_failed, scene=ground.to_text())
-    frames, on_probe, renderer = [], None, None
-    if cfg.video:
-        import mujoco
-        from PIL import Image
-
-        from hexapod_sim.tools.render import render_frame
-        renderer = mujoco.Renderer(sim.model, height=300, width=480)
-        every = max(1, int(round(1.0 / (cfg.video_fps * cfg.probe_period_s))))
-        count = [0]
-
-        def on_probe(s):
-            if count[0] % every == 0:
-                frames.append(Image.fromarray(render_frame(s, renderer, distance=0.8, azimuth=120.0)))
-            count[0] += 1
-    probe = ProbeBus(sim, cfg.probe_period_s, recorder, on_probe, real_time=live is not None)
+    recorder = _open_recorder(cfg, robot, ground, live, recorder)
+    video = _Video(cfg, sim) if cfg.video else None
+    probe = ProbeBus(sim, cfg.probe_period_s, recorder, video.on_probe if video else None, real_time=live is not None)
     swing_downs: list[SwingDownPhase] = []
 
     def on_swing_start(phase):
         swing_downs.append(phase)
         probe.record_swing_start(phase)
     det = detector_config(cfg)
-    controller = GaitController(robot, get_gait(cfg.gait),
-                                locomotion_params(cfg),
-                                det, t_com_s=sim.t_com_s, on_read=probe.record_detection, on_swing_start=on_swing_start)
-    from hexapod_locomotion.core.course import CourseKeeper
+    controller = GaitController(robot, get_gait(cfg.gait), locomotion_params(cfg), det, t_com_s=sim.t_com_s,
+                                on_read=probe.record_detection, on_swing_start=on_swing_start)
     from hexapod_locomotion.trials.odometry_trial import TrialOdometry
     odo = TrialOdometry(probe, robot, controller, imu_first=cfg.odometry_imu, recorder=recorder)
-    keeper = CourseKeeper() if cfg.heading_correction else None
-    warnings: list[str] = []
-    fell = reached = False
+    walk = _Walk()
     try:
-        controller.startup(probe)
-        x0 = float(probe.pose_xyz[-1][0])
-        walk_start = sim.now()
-        probe.deadline_s = walk_start + cfg.duration_s
-        while sim.now() - walk_start < cfg.duration_s:
-            cmd = VelocityCommand(cfg.vx_mps, 0.0, cfg.wz_rad_s)
-            est = odo.tap.estimate
-            if keeper is not None and est is not None:
-                cmd = keeper.command(sim.now(), cmd, est.position[:2], float(est.rpy[2]),
-                                     controller.params.cycle_s(controller.gait))
-            try:
-                rep = controller.step_phase(odo.tap, cmd)
-                odo.tap.phase_done()
-            except LocomotionError as exc:
-                warnings.append(f'controller stopped: {exc}')
-                break
-            except TimeLimitReached:
-                warnings.append(f'time limit {cfg.duration_s:g} s reached within a gait phase'
-                                + ('' if swing_downs and swing_downs[-1].done else
-                                   '; its swing-down is not counted'))
-                break
-            warnings.extend(rep.warnings)
-            pos, quat = sim.body_pose()
-            roll, pitch, _ = roll_pitch_yaw(quat)
-            clearance = pos[2] - sim.scene.terrain.height_at(pos[0], pos[1])
-            if abs(roll) > FALL_TILT_RAD or abs(pitch) > FALL_TILT_RAD or clearance < FALL_HEIGHT_M:
-                fell = True
-                warnings.append(f'robot fell at t={sim.now():.1f} s (roll {roll:.2f}, pitch {pitch:.2f} rad)')
-                break
-            if progress is not None:
-                progress(sim.now() - walk_start, float(pos[0]) - x0)
-            if cfg.course_end_m is not None and pos[0] >= cfg.course_end_m:
-                reached = True
-                break
+        _walk(cfg, sim, probe, controller, odo, swing_downs, walk, progress)
     finally:
         probe.deadline_s = math.inf
         if recorder is not None:
             recorder.close()
             if getattr(recorder, 'close_error', None):
                 _recording_failed(f'the bag could not be closed: {recorder.close_error}')
-        if renderer is not None:
-            renderer.close()
-            if frames:
-                if on_video_write is not None:
-                    on_video_write(len(frames))
-                Path(cfg.video).parent.mkdir(parents=True, exist_ok=True)
-                frames[0].save(cfg.video, save_all=True, append_images=frames[1:], loop=0,
-                               duration=int(round(1000 / cfg.video_fps)))
+        if video is not None:
+            video.close(on_video_write)
+    return _result(cfg, robot, sim, probe, controller, odo, swing_downs, det, walk)
+
+
+def _result(cfg: TrialConfig, robot: Robot, sim, probe: ProbeBus, controller: GaitController, odo, swing_downs,
+            det: DetectorConfig, walk: _Walk) -> TrialResult:
+    """The figures of a finished walk, from the truth the probe sampled."""
+    warnings, walk_start = walk.warnings, walk.walk_start_s
     t = np.array(probe.pose_t)
     xyz = np.array(probe.pose_xyz)
-    walk = t >= walk_start - 1e-9
+    walking = t >= walk_start - 1e-9
     finished = [ph for ph in swing_downs if ph.done]      # a swing-down cut off by the time limit is not counted
     events = [e for ph in finished for e in _detection_events(robot, probe, ph, det)]
     try:
@@ -469,12 +452,12 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, r
     tib = [ALL_JOINTS.index(joint_name(leg, 'tibia')) for leg in LEGS]
     step = max(1, int(round(1.0 / cfg.probe_period_s)))
     return TrialResult(
-        config=asdict(cfg), sim_time_s=float(sim.now() - walk_start), walk_start_s=float(walk_start), distance_m=float(xyz[-1, 0] - x0),
-        path_length_m=float(np.sum(np.linalg.norm(np.diff(xyz[walk, :2], axis=0), axis=1))),
-        fell=fell, reached_course_end=reached, phases=len(finished), cot=cot, detection=detection,
+        config=asdict(cfg), sim_time_s=float(sim.now() - walk_start), walk_start_s=float(walk_start),
+        distance_m=float(xyz[-1, 0] - walk.x0_m),
+        path_length_m=float(np.sum(np.linalg.norm(np.diff(xyz[walking, :2], axis=0), axis=1))),
+        fell=walk.fell, reached_course_end=walk.reached, phases=len(finished), cot=cot, detection=detection,
         stability=stability, temperature_femur_c=temps[::step, fem].mean(axis=1).tolist(),
         temperature_tibia_c=temps[::step, tib].mean(axis=1).tolist(), temperature_t_s=t[::step].tolist(),
         warnings=sorted(set(warnings)), events=[asdict(e) for e in events],
-        odometry=odo.drift(t[walk], xyz[walk], np.array(probe.pose_quat)[walk], controller.params.cycle_s(controller.gait))
-        if walk.sum() > 1 else None)
-
+        odometry=odo.drift(t[walking], xyz[walking], np.array(probe.pose_quat)[walking],
+                           controller.params.cycle_s(controller.gait)) if walking.sum() > 1 else None)
