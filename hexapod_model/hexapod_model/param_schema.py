@@ -142,11 +142,15 @@ def values(schema, source, library: bool = False) -> dict[str, Any]:
     return {name: getattr(source, name) for name in specs(schema, library)}
 
 
-def merged_schema(name: str, groups: Iterable[type], module: str, doc: str = '') -> type:
+def merged_schema(name: str, groups: Iterable[type], module: str, doc: str = '',
+                  defaults: Mapping[str, Any] | None = None) -> type:
     """A frozen dataclass whose fields are the parameter fields of ``groups``, in order, each with its
     type, default and declaration (so :func:`specs` of it is theirs): a configuration that spans several
     groups (a trial: the walk's own settings, the gait's, the controller's and the detector's) without
-    restating any of them. ``module``: where the class is defined (pickling finds it by name there)."""
+    restating any of them. ``defaults``: the merged class's own default of a field (a trial's terrain),
+    checked against the field's declaration. ``module``: where the class is defined (pickling finds it
+    by name there)."""
+    defaults = dict(defaults or {})
     fields_, seen = [], {}
     for group in groups:
         hints = typing.get_type_hints(group)
@@ -157,8 +161,16 @@ def merged_schema(name: str, groups: Iterable[type], module: str, doc: str = '')
             if f.name in seen:
                 raise TypeError(f'{name}: {f.name} is declared by both {seen[f.name]} and {group.__name__}')
             seen[f.name] = group.__name__
-            fields_.append((f.name, hints[f.name], dataclasses.field(default=f.default, default_factory=f.default_factory,
-                                                                     metadata=f.metadata)))
+            if f.name in defaults:
+                why = check(specs(group)[f.name], defaults[f.name])
+                if why is not None:
+                    raise TypeError(f'{name}: default of {f.name} {why}')
+                field = dataclasses.field(default=defaults.pop(f.name), metadata=f.metadata)
+            else:
+                field = dataclasses.field(default=f.default, default_factory=f.default_factory, metadata=f.metadata)
+            fields_.append((f.name, hints[f.name], field))
+    if defaults:
+        raise TypeError(f'{name}: no field(s) {sorted(defaults)} to give a default')
     cls = dataclasses.make_dataclass(name, fields_, frozen=True)
     cls.__module__, cls.__qualname__ = module, name
     cls.__doc__ = doc or cls.__doc__
@@ -247,6 +259,15 @@ class RobotSource:
         """The :class:`hexapod_model.description.Robot` (raises DescriptionError naming the file and key)."""
         from hexapod_model.description import load_robot
         return load_robot(self.robot_description or None, list(self.robot_overlays))
+
+
+@dataclass(frozen=True)
+class ReadTime:
+    """How long one position read takes on the bus: the bus masters' and the controller's parameter."""
+
+    t_com_s: float = param(0.0, 'duration of one position read [s]: 0.001 hardware-accelerated, 0.016 stock USB '
+                           "adapter (in the simulation a multiple of the physics step); 0 = the robot description's "
+                           'bus.t_com_s', min=0.0)
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,17 @@ import numpy as np
 
 from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
 from hexapod_locomotion.core.odometry import wrap_angle
+from hexapod_model.param_schema import param
+
+
+@dataclass(frozen=True)
+class CourseChoice:
+    """Whether the walk follows the command with the odometry: locomotion_node's parameter and a
+    trial's field (declared once here; the trials default to the paper's open loop)."""
+
+    heading_correction: bool = param(True, 'follow /cmd_vel with the odometry (and /imu when it is published): '
+                                     'correct the heading towards the commanded yaw rate and the sideways drift off '
+                                     "the commanded line; false = the paper's open loop (the command as it is)")
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
-from hexapod_locomotion.core.course import CourseKeeper
+from hexapod_locomotion.core.course import CourseChoice, CourseKeeper
 from hexapod_locomotion.core.detector import DetectorConfig, DetectorError, swing_start_fields
 from hexapod_locomotion.core.gait import GaitChoice, GaitError, get_gait
 from hexapod_locomotion.core.odometry import OdometryError
@@ -49,7 +49,7 @@ from hexapod_model.bus import BusError
 from hexapod_model.contract import CMD_VEL, DIAGNOSTICS, GROUND_DETECTION, SWING_DOWN, stamp_msg, stamp_parts
 from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
 from hexapod_model.node_params import NodeParams, node_help, run_node
-from hexapod_model.param_schema import RobotSource
+from hexapod_model.param_schema import ReadTime, RobotSource
 
 
 class LocomotionNode(Node):
@@ -63,12 +63,14 @@ class LocomotionNode(Node):
         # the ROS bus master keeps its own read schedule: no background reads of the controller's
         gait_params = params.declare(LocomotionParams, background_reads=False)
         detector = params.declare(DetectorConfig)
+        t_com_s = params.declare(ReadTime).t_com_s
+        course = params.declare(CourseChoice)
         p = self.params = params.declare(LocomotionNodeParams)
         if bus is not None:
             t_com = bus.t_com_s
             self.bus = bus
         else:
-            t_com = p.t_com_s or self.robot.bus.t_com_s
+            t_com = t_com_s or self.robot.bus.t_com_s
             timeout = p.read_timeout_s or (10.0 if p.lockstep else 2.0)
             self.bus = RosBus(self, t_com, read_timeout_s=timeout, lockstep=p.lockstep)
         from geometry_msgs.msg import Twist
@@ -90,13 +92,13 @@ class LocomotionNode(Node):
             t_com_s=t_com, on_read=self._publish_read, on_phase=self._log_phase,
             on_swing_start=self._publish_swing_start)
         self.controller.warm_up()
-        self._setup_odometry(p)
+        self._setup_odometry(course.heading_correction)
         self._swing_start = {}
         self.failed = False
         self._worker = threading.Thread(target=self._run, daemon=True)
         self._worker.start()
 
-    def _setup_odometry(self, p) -> None:
+    def _setup_odometry(self, heading_correction: bool) -> None:
         from geometry_msgs.msg import TransformStamped
         from nav_msgs.msg import Odometry
         from sensor_msgs.msg import Imu, JointState
@@ -116,7 +118,7 @@ class LocomotionNode(Node):
         self.tf_pub = self.create_publisher(TFMessage, TF, 100) if TFMessage is not None else None
         self.tap = OdometryTap(self.bus, self.robot, self.controller.contact_legs, [(LegOdometry(), True)],
                                imu=lambda: self._imu, on_estimate=self._publish_odom)
-        self.keeper = CourseKeeper() if p.heading_correction else None
+        self.keeper = CourseKeeper() if heading_correction else None
         self.create_subscription(Imu, IMU, self._on_imu, 50)
         self.create_subscription(JointState, JOINT_STATES, self._on_joint_states, 500)
 

@@ -11,9 +11,10 @@ import re
 from dataclasses import dataclass
 
 from hexapod_locomotion.core.controller import LocomotionParams
+from hexapod_locomotion.core.course import CourseChoice
 from hexapod_locomotion.core.detector import DetectorConfig
 from hexapod_locomotion.core.gait import GaitChoice
-from hexapod_model.param_schema import NodeSpec, RobotSource, param
+from hexapod_model.param_schema import NodeSpec, ReadTime, RobotSource, param
 
 
 def _frame_id(value) -> str | None:
@@ -25,10 +26,11 @@ def _frame_id(value) -> str | None:
 
 @dataclass(frozen=True)
 class LocomotionNodeParams:
-    """What only the node has; the gait, the controller's and the detector's parameters are declared by
-    :class:`GaitChoice`, :class:`LocomotionParams` and :class:`DetectorConfig` (see :data:`NODE`)."""
+    """What only the node has; the gait, the controller's, the detector's, the read time's and the course
+    correction's parameters are declared by :class:`GaitChoice`, :class:`LocomotionParams`,
+    :class:`DetectorConfig`, :class:`ReadTime` and :class:`CourseChoice` (see :data:`NODE`)."""
 
-    t_com_s: float = param(0.0, 'duration of one bus read [s]; 0 = from the robot description', min=0.0)
+
     cmd_vel_timeout_s: float = param(
         2.0, 'stop walking (finish the phase, then stand) when the last /cmd_vel is older than this [s of bus '
         'time]; longer than the period of common publishers (ros2 topic pub: 1 s), so one late message does not '
@@ -42,9 +44,6 @@ class LocomotionNodeParams:
     base_frame: str = param('base_link', 'the body frame (REP 105): /odom\'s child_frame_id and the child of the '
                             'odometry transform; must be the robot description\'s root link for a connected TF tree',
                             rule=_frame_id)
-    heading_correction: bool = param(True, 'follow /cmd_vel with the odometry (and /imu when it is published): '
-                                     'correct the heading towards the commanded yaw rate and the sideways drift off the '
-                                     'commanded line; false = the paper\'s open loop (the command as it is)')
     lockstep: bool = param(False, 'drive a lock-stepped bus master (sim_node lockstep:=true): advance it by '
                            'publishing commands instead of waiting for wall time (the time is the reads\' stamps: '
                            'use_sim_time is not needed and only adds a /clock subscription)')
@@ -60,4 +59,4 @@ class ComposedParams:
 
 
 NODE = NodeSpec('hexapod_locomotion', 'locomotion_node', 'locomotion_node',
-                (RobotSource, GaitChoice, LocomotionParams, DetectorConfig, LocomotionNodeParams))
+                (RobotSource, GaitChoice, LocomotionParams, DetectorConfig, ReadTime, CourseChoice, LocomotionNodeParams))

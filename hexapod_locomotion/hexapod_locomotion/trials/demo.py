@@ -136,7 +136,7 @@ def main(argv=None) -> int:
                       start_x_m=args.start_x, video=args.video, overlays=tuple(args.overlay))
     print(f'hexapod demo: {cfg.gait} gait, {cfg.detector} ground detection, t_des={cfg.t_des_s} s, '
           f'terrain "{cfg.terrain}" (seed {cfg.seed}), simulated AX-12A bus with T_com='
-          f'{"description default" if cfg.t_com_s is None else cfg.t_com_s}', flush=True)
+          f'{cfg.t_com_s or "description default"}', flush=True)
     if args.duration < COT_WINDOW_S + STAND_UP_MARGIN_S:
         print(f'note: the cost of transport (Eq. 18) needs {COT_WINDOW_S:g} s of walking from the first swing-down; '
               f'--duration {args.duration:g} leaves less, so it will not be computed (use --duration '

@@ -1,11 +1,13 @@
 """What one trial walks: :class:`TrialConfig`, derived from the settings' declarations. No rclpy.
 
-A trial's own settings (terrain, seed, duration, command, outputs) are declared in
-:class:`TrialSettings`; the gait, the controller's and the detector's settings are those of
-locomotion_node (:class:`~hexapod_locomotion.core.gait.GaitChoice`,
+A trial's own settings (duration, command, outputs) are declared in :class:`TrialSettings`; the
+scene's are sim_node's (:class:`~hexapod_sim.physics.scene_params.SceneParams`), the read time is
+the bus masters' (:class:`~hexapod_model.param_schema.ReadTime`), the course correction
+(:class:`~hexapod_locomotion.core.course.CourseChoice`), the gait, the controller's and the
+detector's are locomotion_node's (:class:`~hexapod_locomotion.core.gait.GaitChoice`,
 :class:`~hexapod_locomotion.core.controller.LocomotionParams`,
 :class:`~hexapod_locomotion.core.detector.DetectorConfig`), with the same names, types, defaults
-and ranges. :class:`TrialConfig` is the union of these groups' parameter fields
+(but :data:`TRIAL_DEFAULTS`) and ranges. :class:`TrialConfig` is the union of these groups' parameter fields
 (:func:`hexapod_model.param_schema.merged_schema`): nothing is restated, and
 :func:`locomotion_params` / :func:`detector_config` read a group back by its field names.
 """
@@ -14,10 +16,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hexapod_locomotion.core.controller import LocomotionParams
+from hexapod_locomotion.core.course import CourseChoice
 from hexapod_locomotion.core.detector import DetectorConfig
 from hexapod_locomotion.core.gait import GaitChoice
-from hexapod_model.param_schema import merged_schema, param, values
-from hexapod_sim.physics.terrain import all_terrains
+from hexapod_model.param_schema import ReadTime, merged_schema, param, values
+from hexapod_sim.physics.scene_params import SceneParams
 
 
 def _positive(default, description: str):
@@ -26,34 +29,30 @@ def _positive(default, description: str):
 
 @dataclass(frozen=True)
 class TrialSettings:
-    """A trial's own settings: the walk's world, command, limits and outputs."""
+    """A trial's own settings: the walk's command, limits and outputs."""
 
-    terrain: str = param('mockup', 'terrain (hexapod_sim.physics.terrain)', choices=tuple(all_terrains()))
-    seed: int = param(0, 'seed of the random terrains (blocks, rough, mockup); a trial is deterministic for it',
-                      min=0)
     duration_s: float = _positive(60.0, 'simulated walking time limit [s]')
     course_end_m: float | None = param(None, 'stop once the trunk passes this x [m]; none = no course end')
     vx_mps: float = param(0.05, 'commanded forward speed [m/s]')
     wz_rad_s: float = param(0.0, 'commanded yaw rate [rad/s]')
-    t_com_s: float | None = _positive(None, "duration of one position read [s]; none = the description's "
-                                      'bus.t_com_s')
     probe_period_s: float = _positive(0.05, 'truth sampling period (pose, energy, temperature) [s]')
     record: str | None = param(None, 'bag directory to record to; none = no recording')
     overlays: tuple[str, ...] = param((), 'robot-description overlay YAMLs, in order')
-    start_x_m: float = param(0.0, 'where the robot stands at the start, along the course [m]')
     video: str | None = param(None, 'animated GIF of the walk (offscreen CPU rendering); none = no video')
     video_fps: float = _positive(10.0, 'frames per second of the GIF')
-    # leg odometry (always run, with and without the IMU): the course correction (CourseKeeper) off =
-    # the paper's open loop; odometry_imu: the odometry it uses (and /odom in the bag) has the IMU
-    heading_correction: bool = param(False, "follow the command with the odometry (the node's "
-                                     "heading_correction); false = the paper's open loop")
+    # leg odometry (always run, with and without the IMU): odometry_imu: the odometry the course correction
+    # (heading_correction, CourseChoice) uses, and /odom in the bag, has the IMU
     odometry_imu: bool = param(True, 'the odometry the course correction uses (and /odom in the bag) has the IMU')
 
 
-TRIAL_GROUPS = (GaitChoice, TrialSettings, LocomotionParams, DetectorConfig)
+TRIAL_GROUPS = (GaitChoice, SceneParams, TrialSettings, ReadTime, CourseChoice, LocomotionParams, DetectorConfig)
+# where a trial's default differs from the node's: the trials walk the paper's mockup (sim_node: flat)
+# in the paper's open loop (locomotion_node: the course correction on)
+TRIAL_DEFAULTS = {'terrain': 'mockup', 'heading_correction': False}
 TrialConfig = merged_schema(
     'TrialConfig', TRIAL_GROUPS, __name__,
-    'One trial: the parameter fields of ' + ', '.join(g.__name__ for g in TRIAL_GROUPS) + ', by their names.')
+    'One trial: the parameter fields of ' + ', '.join(g.__name__ for g in TRIAL_GROUPS) + ', by their names.',
+    defaults=TRIAL_DEFAULTS)
 
 
 def locomotion_params(cfg: TrialConfig) -> LocomotionParams:

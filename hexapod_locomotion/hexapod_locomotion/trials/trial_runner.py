@@ -393,8 +393,9 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, r
     from hexapod_sim.physics.plant import HexapodSim
     from hexapod_sim.physics.terrain import Ground
     robot = load_robot(overlays=cfg.overlays)
-    ground = Ground(cfg.terrain, cfg.seed, (cfg.start_x_m, 0.0))
-    sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, t_com_s=cfg.t_com_s, start_xy_m=ground.start_xy_m)
+    ground = Ground(cfg.terrain, cfg.seed, (cfg.start_x_m, cfg.start_y_m))
+    sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, t_com_s=cfg.t_com_s or None,
+                     start_xy_m=ground.start_xy_m)
     recorder = _open_recorder(cfg, robot, ground, live, recorder)
     video = _Video(cfg, sim) if cfg.video else None
     probe = ProbeBus(sim, cfg.probe_period_s, recorder, video.on_probe if video else None, real_time=live is not None)

@@ -5,22 +5,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hexapod_model.param_schema import NodeSpec, RobotSource, param
+from hexapod_model.param_schema import NodeSpec, ReadTime, RobotSource, param
 from hexapod_sim.node.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
 from hexapod_sim.physics.plant import DEFAULT_AMBIENT_C, DEFAULT_START_TEMPERATURE_C
-from hexapod_sim.physics.terrain import all_terrains
+from hexapod_sim.physics.scene_params import SceneParams
 
 
 @dataclass(frozen=True)
 class SimParams:
-    terrain: str = param('flat', 'terrain', choices=tuple(all_terrains()))
-    seed: int = param(0, 'seed of the random terrains (blocks, rough, mockup)', min=0)
-    t_com_s: float = param(0.0, 'duration of one position read [s]: 0.001 hardware-accelerated, 0.016 stock USB '
-                           "adapter; a multiple of the physics step; 0 = the description's bus.t_com_s", min=0.0)
+    """The simulation's own parameters; the scene's are :class:`SceneParams`, the read time
+    :class:`~hexapod_model.param_schema.ReadTime` (see :data:`NODE`)."""
+
     t_write_s: float = param(0.0, 'duration of one sync write [s]', min=0.0)
     fixed_base: bool = param(False, 'weld the trunk in the air with no ground (calibration stand, free swing)')
-    start_x_m: float = param(0.0, 'start position of the trunk along x [m]')
-    start_y_m: float = param(0.0, 'start position of the trunk along y [m]')
     real_time_factor: float = param(1.0, 'simulated seconds per wall second; 0 = as fast as possible; '
                                     'ignored in lockstep; may change at run time', min=0.0, read_only=False)
     lockstep: bool = param(False, 'advance one read-schedule cycle per /joint_commands message (deterministic runs)')
@@ -52,4 +49,4 @@ class SimParams:
         return 1.0 / rate_hz if rate_hz > 0 else 0.0
 
 
-NODE = NodeSpec('hexapod_sim', 'sim_node', 'sim_node', (RobotSource, SimParams))
+NODE = NodeSpec('hexapod_sim', 'sim_node', 'sim_node', (RobotSource, SceneParams, ReadTime, SimParams))

@@ -49,7 +49,7 @@ from hexapod_model import contract, diagnostics
 from hexapod_model.contract import stamp_msg
 from hexapod_model.description import ALL_JOINTS, DescriptionError
 from hexapod_model.node_params import EXIT_BAD_PARAMETER, NodeParams, node_help, run_node, spin_until_shutdown
-from hexapod_model.param_schema import RobotSource
+from hexapod_model.param_schema import ReadTime, RobotSource
 from hexapod_model.urdf import urdf_xml
 from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus, SwingDownStart, TerrainClass
 from hexapod_msgs.srv import SetReadSchedule
@@ -69,6 +69,7 @@ from hexapod_sim.node.live import LiveView, LiveViewError
 from hexapod_sim.node.local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from hexapod_sim.node.params import NODE, SimParams
 from hexapod_sim.physics.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
+from hexapod_sim.physics.scene_params import SceneParams
 from hexapod_sim.physics.terrain import Ground
 from hexapod_sim.physics.truth_log import TruthLog
 
@@ -83,12 +84,14 @@ class SimNode(Node):
         super().__init__('sim_node', **node_kwargs)
         params = NodeParams(self)
         robot = params.declare(RobotSource).load()
+        scene = self.scene = params.declare(SceneParams)
+        t_com_s = params.declare(ReadTime).t_com_s
         p = self.params = params.declare(SimParams)
-        self.sim = HexapodSim(robot, terrain=p.terrain, seed=p.seed, t_com_s=p.t_com_s or robot.bus.t_com_s,
+        self.sim = HexapodSim(robot, terrain=scene.terrain, seed=scene.seed, t_com_s=t_com_s or robot.bus.t_com_s,
                               fixed_base=p.fixed_base,
                               t_write_s=p.t_write_s, imu_rate_hz=p.imu_rate_hz,
                               ambient_c=p.ambient_temperature_c, initial_temperature_c=p.initial_temperature_c,
-                              start_xy_m=(p.start_x_m, p.start_y_m))     # SimError names what does not fit
+                              start_xy_m=(scene.start_x_m, scene.start_y_m))     # SimError names what does not fit
         self.loop = SimBusLoop(self.sim, power_period_s=p.period(p.power_rate_hz),
                                diagnostics_period_s=p.period(p.diagnostics_rate_hz),
                                timing_period_s=p.period(p.bus_timing_rate_hz),
@@ -112,11 +115,11 @@ class SimNode(Node):
             self.get_logger().info(f'Foxglove live view on {self.live.url}')
         if p.record or self.live is not None:     # the live view gets what a bag would hold
             path = resolve_bag_dir(p.record) if p.record else None
-            scene = Ground(p.terrain, p.seed, (p.start_x_m, p.start_y_m)).to_text()
+            scene_text = Ground(scene.terrain, scene.seed, (scene.start_x_m, scene.start_y_m)).to_text()
             if self.live is None:       # the bag alone: written by a process of its own
-                self.recorder = RecorderProcess(path, robot=robot, on_error=self._recording_failed, scene=scene)
+                self.recorder = RecorderProcess(path, robot=robot, on_error=self._recording_failed, scene=scene_text)
             else:                       # the live view serves from this process
-                self.recorder = RecorderThread(Recorder(path, robot=robot, live=self.live, scene=scene),
+                self.recorder = RecorderThread(Recorder(path, robot=robot, live=self.live, scene=scene_text),
                                                on_error=self._recording_failed)
             if path is not None:
                 self.get_logger().info(f'recording to {path}')
@@ -153,7 +156,7 @@ class SimNode(Node):
         self._timer = None if self.lockstep else self.create_timer(TIMER_PERIOD_S, self._on_timer)
         self._anchored = False         # simulated time starts with the first tick, not during set-up
         self.get_logger().info(
-            f'sim ready: terrain={p.terrain} seed={p.seed} t_com={self.sim.t_com_s * 1e3:g} ms '
+            f'sim ready: terrain={scene.terrain} seed={scene.seed} t_com={self.sim.t_com_s * 1e3:g} ms '
             f'{"lockstep" if self.lockstep else f"real_time_factor={self.pacer.rtf:g}"} '
             f'effects={len(robot.effects)}')
 
