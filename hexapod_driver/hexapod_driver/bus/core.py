@@ -311,7 +311,7 @@ class DynamixelBus:
         self.estopped = True
         self.commands.clear()
         ok, text = self.torque_off_report()
-        return ok, f'emergency stop: {text}; commands are refused until the driver restarts'
+        return ok, f'emergency stop: {text}; commands are refused until the driver restarts (or is deactivated and activated again)'
 
     def shutdown(self) -> tuple[bool, str]:
         """Torque off and close the port (safe to call twice): (confirmed, what the driver knows)."""
