@@ -90,20 +90,28 @@ class ServoPolicy:
         self.success(joint, r.error_bits)
         return Sample(joint, bus.to_theta(joint, tick), tick, r.stamp, r.t_com_s, r.error_bits)
 
+    def _read_block(self, joint: str, retries: int):
+        """Registers 24..46 in one READ into the servo's state (torque enable and limit, position,
+        load, voltage, temperature); the read's result."""
+        st = self.states[joint]
+        r = self.bus.read_register(joint, DIAG_START, DIAG_LEN, retries)
+        if r.data is not None:
+            d = {a: r.data[a - DIAG_START] for a in range(DIAG_START, DIAG_START + DIAG_LEN)}
+            st.torque_enabled = bool(d[24])
+            st.torque_limit = d[34] | d[35] << 8
+            st.present_tick = d[36] | d[37] << 8
+            st.load_fraction = p.decode_load(d[40] | d[41] << 8)
+            st.voltage_v = d[42] * p.VOLTAGE_UNIT_V
+            st.temperature_c = float(d[43])
+        return r
+
     def read_diagnostics(self, joint: str) -> None:
         """One diagnostics read of ``joint`` (registers 24..46)."""
         st = self.states[joint]
-        r = self.bus.read_register(joint, DIAG_START, DIAG_LEN, self.retries(joint))
+        r = self._read_block(joint, self.retries(joint))
         if r.data is None:
             self.failure(joint, self.bus.clock())
             return
-        d = {a: r.data[a - DIAG_START] for a in range(DIAG_START, DIAG_START + DIAG_LEN)}
-        st.torque_enabled = bool(d[24])
-        st.torque_limit = d[34] | d[35] << 8
-        st.present_tick = d[36] | d[37] << 8
-        st.load_fraction = p.decode_load(d[40] | d[41] << 8)
-        st.voltage_v = d[42] * p.VOLTAGE_UNIT_V
-        st.temperature_c = float(d[43])
         err = r.error_bits
         self.success(joint, err)
         if st.faulted:
@@ -164,7 +172,9 @@ class ServoPolicy:
         policy = self.config.fault_policy
         if alarm and not st.faulted:
             st.faulted = alarm
-            st.torque_limit = self._read_torque_limit(joint)
+            # the whole block, so the fault is reported with the temperature and torque limit it has now
+            if self._read_block(joint, self.config.read_retries).data is None:
+                st.torque_limit = None
             if policy == 'limp' and self.write_quiet(joint, 24, [0]):
                 st.torque_enabled = False
             st.message = self.fault_message(st)
