@@ -84,6 +84,13 @@ def spin_until(ex, cond: Callable[[], bool], timeout_s: float, what: str = 'a co
         ex.spin_once(timeout_sec=0.05)
 
 
+def logged(text: str, kind, joint: str | None = None) -> list[str]:
+    """The lines of a node's log that report a driver event of ``kind`` (a
+    ``hexapod_driver.bus.EventKind``: logged as ``[tag] text``), about ``joint`` if given."""
+    mark = f'[{kind.tag}] ' + (f'{joint} (id ' if joint else '')
+    return [ln for ln in text.splitlines() if mark in ln]
+
+
 class ProcessOutput:
     """A started process's stdout (stderr merged into it), read line by line in the background."""
 

@@ -31,8 +31,8 @@ import numpy as np
 from tqdm import tqdm
 
 from hexapod_driver import protocol as p
+from hexapod_driver.bus import DynamixelBus
 from hexapod_driver.config import DriverConfig
-from hexapod_driver.dynamixel_bus import DynamixelBus
 from hexapod_model.description import load_robot
 
 

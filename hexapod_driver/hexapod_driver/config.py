@@ -31,7 +31,7 @@ def _non_empty(value) -> str | None:
 
 @dataclass(frozen=True)
 class DriverConfig:
-    """Settings of :class:`hexapod_driver.dynamixel_bus.DynamixelBus` (the node's parameters)."""
+    """Settings of :class:`hexapod_driver.bus.DynamixelBus` (the node's parameters)."""
 
     device: str = param(DEFAULT_DEVICE, 'serial device of the Dynamixel adapter (udev symlink, or the bus '
                         'emulator pty)', rule=_non_empty)
@@ -78,12 +78,15 @@ class DriverConfig:
 
 @dataclass(frozen=True)
 class DriverNodeParams:
-    """What only the ROS node has: its publishers' periods."""
+    """What only the ROS node has: its publishers' periods and its lifecycle at start-up."""
 
     timing_period_s: float = param(1.0, 'period of /bus_timing messages [s]', min=0.0, min_exclusive=True)
     watchdog_timeout_s: float = param(
         2.0, 'report an ERROR (log and /servo_diagnostics) when no bus transaction has completed for this '
         'long [s]; 0 disables', min=0.0)
+    autostart: bool = param(
+        True, 'go through configure and activate at start-up (torque on, as a plain driver does); false: '
+        'stay unconfigured until the lifecycle services (/<node>/change_state) are called')
 
 
 def robot_defaults(robot) -> dict:

@@ -1,9 +1,17 @@
-"""ROS 2 node: the AX-12A bus as topics (recording contract of hexapod_model.contract).
+"""ROS 2 node: the AX-12A bus as topics (recording contract of hexapod_model.contract), as a managed
+(lifecycle) node, the convention of ros2_control hardware.
+
+Lifecycle: *configure* opens the port, verifies the servos and configures them (torque off);
+*activate* sets each goal to the present position, turns torque on and starts the bus loop;
+*deactivate* stops the loop and turns torque off; *cleanup* closes the port; *shutdown* (from any
+state) turns torque off and closes the port. With ``autostart`` (the default) the node goes to
+active at start-up, so ``ros2 run hexapod_driver driver_node`` drives the servos at once; with
+``autostart:=false`` it waits for ``/<node>/change_state``.
 
 Thin: declared parameters, message conversion, one library call per callback. The bus itself is
-:class:`hexapod_driver.dynamixel_bus.DynamixelBus`; its loop runs in a dedicated thread (one
-``DynamixelBus.step()`` per iteration), while the executor serves commands, the read schedule,
-the emergency stop and the timing publisher. One lock inside DynamixelBus owns the bus.
+:class:`hexapod_driver.bus.DynamixelBus` (built by ``bus_factory``); its loop runs in a dedicated
+thread while active (one ``DynamixelBus.step()`` per iteration), while the executor serves
+commands, the read schedule, the emergency stop, the lifecycle services and the timing publisher.
 
 In:  /joint_commands (sensor_msgs/JointState), /read_schedule (hexapod_msgs/ReadSchedule),
      /set_read_schedule (hexapod_msgs/SetReadSchedule, the same with an answer),
@@ -12,26 +20,26 @@ Out: /joint_states (one message per read, stamped at the start of the read trans
      /servo_diagnostics (hexapod_msgs/ServoDiagnostics), /bus_timing (hexapod_msgs/BusTiming),
      /diagnostics (diagnostic_msgs/DiagnosticArray: every servo and the bus, each timing period
      and at once on an error; the mapping is hexapod_model.diagnostics).
+Events of the bus are logged as ``[kind] text`` (:class:`hexapod_driver.bus.Event`).
 """
 from __future__ import annotations
 
-import os
-import signal
 import sys
 import threading
 import time
 import traceback
+from typing import Callable
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from hexapod_driver.bus import CommandError, DynamixelBus, Event
 from hexapod_driver.config import NODE, DriverConfig, DriverNodeParams, robot_defaults
-from hexapod_driver.dynamixel_bus import CommandError, DynamixelBus
 from hexapod_driver.local_bus import LocalDriverBus
 from hexapod_model import contract, diagnostics
 from hexapod_model.bus import BusError
@@ -46,58 +54,130 @@ EXIT_OK = 0                 # clean shutdown (Ctrl-C, SIGTERM)
 EXIT_STARTUP = 1            # bad parameter or start-up failure (nothing enabled, or torque turned off)
 EXIT_BUS_LOOP_CRASH = 3     # unexpected exception in the bus loop: torque turned off, ERROR on diagnostics
 
-# Test hook, not a parameter: with this environment variable set to 1, SIGUSR1 makes the bus loop
-# raise a RuntimeError at its next step, so the tests can prove the crash path through the real
-# process at a moment they choose (after their subscriptions have matched, say).
-TEST_HOOK_RAISE_ENV = 'HEXAPOD_DRIVER_TEST_RAISE_ON_SIGUSR1'
+SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 
 
-class DriverNode(Node):
-    def __init__(self, **node_kwargs):
+class DriverNode(LifecycleNode):
+    """The driver node; ``bus_factory(robot, config, clock=...)`` builds its bus (a test's, to
+    inject faults through the objects the node is built from)."""
+
+    def __init__(self, bus_factory: Callable[..., DynamixelBus] = DynamixelBus, **node_kwargs):
         super().__init__(NODE.node_name, **node_kwargs)
         params = NodeParams(self)
         robot = params.declare(RobotSource).load()        # servo mounting: the description's bus.joints
-        cfg = params.declare(DriverConfig, defaults=robot_defaults(robot))
+        self.cfg = params.declare(DriverConfig, defaults=robot_defaults(robot))
         own = params.declare(DriverNodeParams)
-        timing_period, self.watchdog_s = own.timing_period_s, own.watchdog_timeout_s
-        hook = os.environ.get(TEST_HOOK_RAISE_ENV, '')
-        if hook not in ('', '0', '1'):
-            raise ValueError(f'{TEST_HOOK_RAISE_ENV} (test hook) must be 0 or 1, got {hook!r}')
-        self._forced_raise = threading.Event()
-        if hook == '1':
-            signal.signal(signal.SIGUSR1, lambda *_: self._forced_raise.set())
+        self.watchdog_s = own.watchdog_timeout_s
         self.exit_code: int | None = None
         # The bus runs on ROS time: the system clock, read directly (rclpy's Clock.now() costs some
         # 15 us, several times per transaction), or /clock with use_sim_time.
         ros_time = lambda: self.get_clock().now().nanoseconds * 1e-9     # noqa: E731
-        self.core = DynamixelBus(robot, cfg, clock=ros_time if self.get_parameter('use_sim_time').value else time.time)
-        try:
-            self.core.start()
-        except BaseException:
-            self.core.close()            # torque off whatever was already enabled
-            raise
-        for level, text in self.core.take_events():
-            self._log(level, text)
-        self.get_logger().info(f'{cfg.device}: {len(ALL_JOINTS)} AX-12A servos verified and configured; torque on')
-
+        self.core = bus_factory(robot, self.cfg, clock=ros_time if self.get_parameter('use_sim_time').value
+                                else time.time)
+        self._active = False
+        self._configured = False                  # the port is open (configure succeeded, no cleanup since)
+        self._failure: BusError | None = None     # why the last transition failed
+        self._local: LocalDriverBus | None = None
+        self._running = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._watchdog_fired = False
+        self._quiet_failures = False              # at start-up a failure is main's one line, not a log line too
         self.pub_states = self.create_publisher(JointState, contract.JOINT_STATES, QoSProfile(depth=200))
         self.pub_diag = self.create_publisher(ServoDiagnostics, contract.SERVO_DIAGNOSTICS, 10)
         self.pub_timing = self.create_publisher(BusTiming, contract.BUS_TIMING, 10)
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, 10)
         self._timing_t0 = self.get_clock().now()
+        if own.autostart:                         # before the services: a client that finds them finds torque on
+            self._autostart()
         self._subs = [self.create_subscription(JointState, contract.JOINT_COMMANDS, self.on_command, 10),
                       self.create_subscription(ReadSchedule, contract.READ_SCHEDULE, self.on_schedule, 10)]
-        self._local: LocalDriverBus | None = None
         self.create_service(SetReadSchedule, contract.SET_READ_SCHEDULE, self.on_set_schedule)
         self.create_service(Trigger, contract.EMERGENCY_STOP, self.on_emergency_stop)
-        self.create_timer(timing_period, self.on_timing)
-        self._watchdog_fired = False
+        self.create_timer(own.timing_period_s, self.on_timing)
         if self.watchdog_s > 0:
             self.create_timer(self.watchdog_s / 4.0, self.on_watchdog)
-        self._running = threading.Event()
+
+    def _autostart(self) -> None:
+        """configure, then activate; a failure raises (the caller exits with one line)."""
+        self._quiet_failures = True
+        try:
+            for trigger in (self.trigger_configure, self.trigger_activate):
+                self._failure = None
+                if trigger() != SUCCESS:
+                    self.shutdown_bus()
+                    raise self._failure or BusError('lifecycle transition failed at start-up')
+        finally:
+            self._quiet_failures = False
+
+    # ------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Open the port, verify and configure the servos; torque stays off."""
+        try:
+            self.core.open(enable_torque=False)
+        except BusError as exc:
+            self.core.close()            # torque off whatever was already enabled
+            self._log_events(self.core.take_events())
+            return self._failed(exc, 'configure')
+        self._log_events(self.core.take_events())
+        self._configured = True
+        self.get_logger().info(f'{self.cfg.device}: {len(ALL_JOINTS)} AX-12A servos verified and configured; '
+                               f'torque off until activated')
+        return SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Goals to the present positions, torque on, the bus loop started."""
+        try:
+            self.core.enable_torque()
+        except BusError as exc:
+            ok, text = self.core.torque_off_report()
+            return self._failed(BusError(f'{exc}; {text}'), 'activate')
+        self._log_events(self.core.take_events())
+        self._active = True
+        self._watchdog_fired = False
         self._running.set()
         self._thread = threading.Thread(target=self._bus_loop, name='bus-loop', daemon=True)
         self._thread.start()
+        self.get_logger().info(f'{self.cfg.device}: torque on; the bus loop runs')
+        return SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """The bus loop stopped, torque off (read back)."""
+        self._stop_loop()
+        ok, text = self.core.torque_off_report()
+        self._log('info' if ok else 'error', f'deactivated: {text}')
+        return SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Torque off (again) and the port closed."""
+        ok, text = self.core.shutdown()
+        self._configured = False
+        self._log('info' if ok else 'error', f'cleaned up: {text}; port closed')
+        return SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Torque off and the port closed, from any state; then the process ends (exit code 0)."""
+        self.shutdown_bus()
+        if self.exit_code is None:
+            self.exit_code = EXIT_OK
+        return SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.shutdown_bus()
+        return SUCCESS
+
+    def _failed(self, exc: BusError, transition: str) -> TransitionCallbackReturn:
+        self._failure = exc
+        if not self._quiet_failures:
+            self.get_logger().error(f'{transition} failed: {exc}')
+        return FAILURE
+
+    def _stop_loop(self) -> None:
+        self._active = False
+        if self._local is not None:
+            self._local.stopped.set()    # the composed controller stops with the loop
+        self._running.clear()
+        if self._thread is not None and self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
 
     def local_bus(self) -> LocalDriverBus:
         """Hand the bus to a controller in this process (the ``robot`` executable): the bus-loop
@@ -107,6 +187,8 @@ class DriverNode(Node):
         published on ``/joint_commands`` instead, so the graph and its recordings look the same."""
         if self._local is not None:
             return self._local
+        if not self._active:
+            raise BusError('the driver is not active (autostart:=false?): a composed controller needs it active')
         self._running.clear()
         self._thread.join()
         for sub in self._subs:
@@ -127,8 +209,7 @@ class DriverNode(Node):
             pub_cmd.publish(js)
 
         self._local = LocalDriverBus(self.core, on_read, on_write, self._publish)
-        for level, text in self.core.take_events():
-            self._log(level, text)
+        self._log_events(self.core.take_events())
         return self._local
 
     def _log(self, level: str, text: str) -> None:
@@ -142,8 +223,15 @@ class DriverNode(Node):
         else:
             logger.info(text)
 
+    def _log_events(self, events: list[Event]) -> None:
+        for ev in events:
+            self._log(ev.level, ev.log_line())
+
     # ------------------------------------------------------------------ callbacks
     def on_command(self, msg: JointState) -> None:
+        if not self._active:
+            self.get_logger().warn('command ignored: the driver is not active (lifecycle)', throttle_duration_sec=1.0)
+            return
         stamp = contract.stamp_seconds(msg.header.stamp)
         try:
             warnings = self.core.set_command(list(msg.name), list(msg.position), stamp or None)
@@ -171,12 +259,16 @@ class DriverNode(Node):
         return True, 'reading ' + ', '.join(now)
 
     def on_emergency_stop(self, request, response):
+        if not self._configured:
+            response.success, response.message = False, 'emergency stop: the driver is unconfigured (port closed)'
+            self.get_logger().error(response.message)
+            return response
         response.success, response.message = self.core.emergency_stop()
         self._log('warn' if response.success else 'error', response.message)
         return response
 
     def on_watchdog(self) -> None:
-        if self.exit_code is not None:
+        if self.exit_code is not None or not self._active:
             return
         idle = self.core.clock() - self.core.last_ok_t
         alive = self._thread.is_alive() or self._local is not None   # composed: the controller runs the bus
@@ -230,14 +322,9 @@ class DriverNode(Node):
         self.pub_diagnostics.publish(diagnostics.diagnostic_array([bus, *self._servo_statuses(False, text)], stamp))
 
     def _bus_loop(self) -> None:
-        steps = 0
         try:
             while self._running.is_set() and self.context.ok():
-                if self._forced_raise.is_set():
-                    raise RuntimeError(f'{TEST_HOOK_RAISE_ENV}=1 and SIGUSR1 after {steps} steps: exception '
-                                       f'forced inside the bus loop (test hook)')
                 res = self.core.step()
-                steps += 1
                 try:
                     self._publish(res)
                 except Exception:        # noqa: BLE001 - Ctrl-C shuts the context down under this thread
@@ -253,6 +340,7 @@ class DriverNode(Node):
                 self._publish_error(f'ERROR bus loop crashed, turning torque off: {tb.strip().splitlines()[-1]}')
             except Exception:            # noqa: BLE001 - the context may be going down meanwhile
                 pass
+        self._active = False
         ok, torque = self.core.shutdown()
         text = f'bus loop crashed; {torque}; the driver exits with code {EXIT_BUS_LOOP_CRASH}'
         if self.context.ok():
@@ -288,9 +376,8 @@ class DriverNode(Node):
             self.pub_states.publish(js)
         if res.diagnostics is not None:
             self.pub_diag.publish(self._diagnostics(res.diagnostics))
-        for level, text in res.events:
-            self._log(level, text)
-        errors = [text for level, text in res.events if level == 'error']
+        self._log_events(res.events)
+        errors = [ev.text() for ev in res.events if ev.level == 'error']
         if errors:
             self._publish_now('; '.join(errors))
 
@@ -323,12 +410,12 @@ class DriverNode(Node):
         return msg
 
     def shutdown_bus(self) -> None:
-        """Stop the loop thread, torque off, close the port; log only what the driver knows."""
-        if self._local is not None:
-            self._local.stopped.set()
-        self._running.clear()
-        if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
+        """Stop the loop thread, torque off, close the port (safe to call twice); log only what the
+        driver knows. Unconfigured, the port is closed already and torque was never enabled."""
+        self._stop_loop()
+        if not self._configured:
+            return
+        self._configured = False
         ok, text = self.core.shutdown()
         if self.exit_code == EXIT_BUS_LOOP_CRASH:
             return                       # reported with the crash
@@ -353,7 +440,8 @@ def help_text() -> str:
     return '\n'.join(lines)
 
 
-def main(args=None) -> int:
+def main(args=None, bus_factory: Callable[..., DynamixelBus] = DynamixelBus) -> int:
+    """The executable; ``bus_factory`` builds the node's bus (see :class:`DriverNode`)."""
     rc = node_command_line(args, 'driver_node', help_text)      # --help never opens the serial device
     if rc is not None:
         return rc
@@ -363,7 +451,7 @@ def main(args=None) -> int:
     executor = SingleThreadedExecutor()
     try:
         refuse_unknown_parameters(NODE.node_name, NODE.names())      # before the device is opened
-        node = DriverNode()
+        node = DriverNode(bus_factory)
         executor.add_node(node)
         while node.exit_code is None and node.context.ok():
             try:

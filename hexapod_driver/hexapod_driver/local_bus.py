@@ -2,7 +2,7 @@
 
 Over DDS between Python processes the read-decide-write loop of Algorithm 1 cannot hold
 t_con = L x T_com (docs/architecture.md). On the robot, the computer that owns the serial port runs
-that loop: :class:`LocalDriverBus` hands the driver's :class:`~hexapod_driver.dynamixel_bus.DynamixelBus` to
+that loop: :class:`LocalDriverBus` hands the driver's :class:`~hexapod_driver.bus.DynamixelBus` to
 the controller's thread, which then *is* the bus loop. Every read and write still leaves through
 the node (``/joint_states`` per read, ``/joint_commands`` per write), so a recording of the composed
 robot reads like one of the separate processes.
@@ -15,7 +15,7 @@ from __future__ import annotations
 import threading
 from typing import Callable, Mapping, Sequence
 
-from hexapod_driver.dynamixel_bus import DynamixelBus, PortLostError, StepResult
+from hexapod_driver.bus import DynamixelBus, PortLostError, StepResult
 from hexapod_model.bus import BusError
 
 

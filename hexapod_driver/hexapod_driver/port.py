@@ -1,5 +1,5 @@
 """The serial port under the driver: dynamixel-sdk's port handler made fit for 1 ms reads, and the
-raw file-descriptor helpers the bus's transaction loop uses. No ROS import."""
+raw file-descriptor helpers of the bus's transport (:mod:`hexapod_driver.bus.transport`). No ROS import."""
 from __future__ import annotations
 
 import fcntl

@@ -12,8 +12,9 @@ Status packet (servo -> master)::
 little endian. ID 254 is the broadcast ID: no servo answers a broadcast instruction.
 
 The AX-12A has no SYNC_READ and does not implement BULK_READ; positions are read one servo at a
-time, which is the paper's T_com. Used by the bus emulator (the servo side) and by the tests;
-the driver itself talks through dynamixel-sdk.
+time, which is the paper's T_com. One :class:`PacketParser` frames the byte stream on both sides
+of the line: the bus emulator's (the servos) and the driver's transport
+(:mod:`hexapod_driver.bus.transport`).
 """
 from __future__ import annotations
 
@@ -172,6 +173,12 @@ class PacketParser:
     def pending(self) -> int:
         """Bytes received but not yet forming a complete packet."""
         return len(self._buf)
+
+    def clear(self) -> int:
+        """Forget the bytes not yet parsed (they answer nothing any more); returns how many."""
+        n = len(self._buf)
+        self._buf.clear()
+        return n
 
 
 # ----------------------------------------------------------------------------- control table

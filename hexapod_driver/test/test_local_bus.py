@@ -2,7 +2,7 @@
 controller's next step late. On a simulated clock: no wall time is involved."""
 import math
 
-from hexapod_driver.dynamixel_bus import StepResult
+from hexapod_driver.bus import StepResult
 from hexapod_driver.local_bus import LocalDriverBus
 
 

@@ -16,6 +16,7 @@ from geometry_msgs.msg import Twist  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 import hexapod_testing as testing  # noqa: E402
+from hexapod_driver.bus import EventKind  # noqa: E402
 from hexapod_driver.emulator import BusEmulator  # noqa: E402
 from hexapod_model import contract  # noqa: E402
 from hexapod_model.description import load_robot  # noqa: E402
@@ -136,7 +137,7 @@ def test_fault_at_startup_then_port_lost_at_ctrl_c(ros, tmp_path):
                      'walking on a lossy bus')
             emu.faults.cancel(rule)
             emu.disconnect()
-            wait_for(ex, lambda: 'port lost' in out.text(), 30.0, proc, out, 'the port loss in the log')
+            wait_for(ex, lambda: testing.logged(out.text(), EventKind.PORT_LOST), 30.0, proc, out, 'the port loss in the log')
             emu.reconnect()
         finally:
             rc, text = out.finish(proc)

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from hexapod_driver.bus import DynamixelBus
 from hexapod_driver.config import DriverConfig
-from hexapod_driver.dynamixel_bus import DynamixelBus
 from hexapod_driver.emulator import BACKEND_GROUP, BusEmulator, backend_plugins
 from hexapod_model.description import ALL_JOINTS, load_robot
 from hexapod_sim.node.emulator_backend import SimBackend

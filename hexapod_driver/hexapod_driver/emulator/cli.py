@@ -27,7 +27,8 @@ def _load_plugins(ap: argparse.ArgumentParser) -> dict:
     return plugins
 
 
-def main(argv=None) -> int:
+def _parser() -> tuple[argparse.ArgumentParser, dict]:
+    """The command line, with the options of every installed backend plug-in; (parser, plug-ins)."""
     ap = argparse.ArgumentParser(
         prog='bus_emulator',
         description='Emulated AX-12A bus (Dynamixel Protocol 1.0) on a pseudo-terminal: prints the port path, '
@@ -69,6 +70,12 @@ def main(argv=None) -> int:
                     help='append one JSON line per fault start and end, and at exit the servos\' torque registers')
     ap.add_argument('--replies-out', default=None, metavar='FILE.bin',
                     help='append every present position a servo reported (float64 rows: wall time, id, tick)')
+    return ap, plugins
+
+
+def _parse(argv) -> tuple[argparse.Namespace, dict, list]:
+    """(arguments, backend plug-ins, fault schedule); a bad argument is a one-line usage error."""
+    ap, plugins = _parser()
     args, unknown = ap.parse_known_args(argv)
     if args.backend != 'ideal' and args.backend not in plugins:
         ap.error(f"--backend {args.backend}: no such backend installed (installed: {', '.join(['ideal', *plugins])}); "
@@ -82,12 +89,19 @@ def main(argv=None) -> int:
             ap.error(f'--{name.replace("_", "-")} must be within 0..1, got {v}')
     if args.timing_out and not args.timing_out.endswith('.npy'):
         ap.error(f'--timing-out {args.timing_out}: must name a .npy file')
+    if args.reply_latency_ms < 0:
+        ap.error(f'--reply-latency-ms must be >= 0, got {args.reply_latency_ms}')
+    if args.servo_baud is not None and not 0 <= args.servo_baud <= 254:
+        ap.error(f'--servo-baud is register 4 (0..254), got {args.servo_baud}')
     try:
         schedule = load_schedule(args.fault_schedule) if args.fault_schedule else []
     except ScheduleError as exc:
         ap.error(f'--fault-schedule {exc}')
-    robot = load_robot(args.robot)
-    backend = None if args.backend == 'ideal' else plugins[args.backend].create(robot, args)
+    return args, plugins, schedule
+
+
+def _emulator(args: argparse.Namespace, robot, backend) -> BusEmulator:
+    """The emulator the arguments describe: its faults and the servos' registers set, not started."""
     # the transaction log is read by --verbose (as it goes) and --timing-out (at exit); kept short
     # otherwise, as 100,000 entries are 100,000 objects for the garbage collector to traverse
     emu = BusEmulator(robot, backend, link_path=args.link, wire_time=args.wire_time, absent_ids=tuple(args.absent),
@@ -96,16 +110,36 @@ def main(argv=None) -> int:
         emu.faults.drop_replies(count=None, probability=args.drop_probability)
     if args.corrupt_probability:
         emu.faults.corrupt_replies(count=None, probability=args.corrupt_probability)
-    if args.reply_latency_ms < 0:
-        ap.error(f'--reply-latency-ms must be >= 0, got {args.reply_latency_ms}')
     emu.faults.set_reply_latency(args.reply_latency_ms / 1000.0)
-    if args.servo_baud is not None and not 0 <= args.servo_baud <= 254:
-        ap.error(f'--servo-baud is register 4 (0..254), got {args.servo_baud}')
     for s in emu.servos:
         if args.servo_baud is not None:
             s.set_register('baud_rate', args.servo_baud)
         if args.status_return_level is not None:
             s.set_register('status_return_level', args.status_return_level)
+    return emu
+
+
+def _serve(emu: BusEmulator, verbose: bool) -> None:
+    """Until SIGTERM or Ctrl-C; with ``verbose`` every instruction packet is printed."""
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        while not stop.wait(0.2):
+            while verbose and emu.log:
+                e = emu.log.popleft()
+                print(f'{e.t:10.4f} id={e.servo_id:3d} {p.INSTRUCTION_NAMES.get(e.instruction, hex(e.instruction))}'
+                      f' addr={e.address} data={e.data.hex(" ")} err={e.error:#04x}'
+                      f'{" reply=" + e.reply_params.hex(" ") if e.replied else " (no reply: " + e.note + ")"}'
+                      f' rx={e.rx.hex(" ")} tx={e.tx.hex(" ")}', flush=True)
+    except KeyboardInterrupt:
+        pass
+
+
+def main(argv=None) -> int:
+    args, plugins, schedule = _parse(argv)
+    robot = load_robot(args.robot)
+    backend = None if args.backend == 'ideal' else plugins[args.backend].create(robot, args)
+    emu = _emulator(args, robot, backend)
     # What start-up made (the robot model, a backend's physics and compiled code) is moved out of the
     # garbage collector's reach, as the locomotion node does: a full collection over it held the
     # interpreter 64-107 ms now and then, the replies of that time missed the driver's timeout, and
@@ -120,18 +154,8 @@ def main(argv=None) -> int:
     print(f'AX-12A bus emulator: {len(ids)} servos (ids {ids}) on {emu.port}', flush=True)
     if args.link:
         print(f'pty: {emu._slave_name}', flush=True)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        while not stop.wait(0.2):
-            while args.verbose and emu.log:
-                e = emu.log.popleft()
-                print(f'{e.t:10.4f} id={e.servo_id:3d} {p.INSTRUCTION_NAMES.get(e.instruction, hex(e.instruction))}'
-                      f' addr={e.address} data={e.data.hex(" ")} err={e.error:#04x}'
-                      f'{" reply=" + e.reply_params.hex(" ") if e.replied else " (no reply: " + e.note + ")"}'
-                      f' rx={e.rx.hex(" ")} tx={e.tx.hex(" ")}', flush=True)
-    except KeyboardInterrupt:
-        pass
+        _serve(emu, args.verbose)
     finally:
         if runner is not None:
             runner.stop()

@@ -45,8 +45,8 @@ def build_parser():
 def main(argv=None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    from hexapod_driver.bus import DynamixelBus
     from hexapod_driver.config import DriverConfig
-    from hexapod_driver.dynamixel_bus import DynamixelBus
     from hexapod_model.bus import BusError
     from hexapod_model.description import DescriptionError, load_robot
     from hexapod_sim.calibration.plan import CalibrationError, calibration_plan, run_calibration

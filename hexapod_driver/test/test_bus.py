@@ -6,8 +6,8 @@ import time
 import pytest
 
 from hexapod_driver import protocol as p
+from hexapod_driver.bus import CommandError, DynamixelBus, EventKind, EventLog, ServoVerificationError
 from hexapod_driver.config import DriverConfig
-from hexapod_driver.dynamixel_bus import CommandError, DynamixelBus, ServoVerificationError
 from hexapod_driver.emulator import BusEmulator
 from hexapod_model.bus import BusError
 from hexapod_model.description import ALL_JOINTS, load_robot
@@ -67,15 +67,44 @@ def steps_until(bus, cond, timeout=3.0):
         seen.append(r)
         if cond(r):
             return seen
-    raise AssertionError(f'condition not met within {timeout} s; events: {[e for r in seen for e in r.events]}')
+    raise AssertionError(f'condition not met within {timeout} s; events: {[e.log_line() for e in events(seen)]}')
 
 
-def events(results):
-    return [text for r in results for _lvl, text in r.events]
+def events(results, kind=None):
+    """The events of these step results (of one kind)."""
+    return [e for r in results for e in r.events if kind is None or e.kind is kind]
+
+
+def has(kind, **fields):
+    """A step condition: an event of this kind with these fields."""
+    return lambda r: any(all(e.fields.get(k) == v for k, v in fields.items()) for e in events([r], kind))
 
 
 def sync_writes(emu):
     return [e for e in emu.log if e.instruction == p.SYNC_WRITE]
+
+
+# ----------------------------------------------------------------------------- events
+def test_events_are_typed_records_that_render_the_log_text():
+    clock = ManualClock()
+    log = EventLog(clock, throttle_s=1.0)
+    failed = dict(joint='leg1_femur', servo_id=2, attempts=3, reason='no reply (timeout)')
+    log.emit(EventKind.READ_FAILED, key='k', **failed)
+    log.emit(EventKind.READ_FAILED, key='k', **failed)           # within the window: counted
+    clock.advance(1.5)
+    log.emit(EventKind.READ_FAILED, key='k', **failed)           # the next window says how many
+    log.emit(EventKind.READ_FAILED, key='k', **failed)
+    log.end('k')                                                 # the series ends: one more summary
+    log.emit(EventKind.SERVO_ANSWERS, joint='leg1_femur', servo_id=2)
+    ev = log.drain()
+    assert [(e.kind, e.repeats, e.ended) for e in ev] == [
+        (EventKind.READ_FAILED, 0, False), (EventKind.READ_FAILED, 1, False), (EventKind.READ_FAILED, 1, True),
+        (EventKind.SERVO_ANSWERS, 0, False)]
+    assert (ev[0].level, ev[0].joint, ev[0].servo_id, ev[3].level) == ('warn', 'leg1_femur', 2, 'info')
+    assert ev[0].text() == 'leg1_femur (id 2): read failed after 3 attempts (no reply (timeout)); no position reported'
+    assert ev[1].text() == ev[0].text() + ' (and 1 more times in the last 1 s)'
+    assert ev[2].log_line() == '[read_failed] ' + ev[0].text() + ' (repeated 1 more times before it stopped)'
+    assert log.drain() == []
 
 
 # ----------------------------------------------------------------------------- start-up
@@ -251,7 +280,7 @@ def test_dropped_and_corrupt_replies_are_retried_counted_and_never_invented(emu,
     n0 = bus.states['leg1_femur'].failed_attempts
     emu.faults.corrupt_replies(ids=2, count=2)
     r = bus.step()
-    assert r.samples == [] and any('leg1_femur' in t and 'read failed' in t for t in events([r]))
+    assert r.samples == [] and [e.joint for e in events([r], EventKind.READ_FAILED)] == ['leg1_femur']
     assert bus.states['leg1_femur'].failed_attempts == n0 + 2
     assert bus.step().samples[0].joint == 'leg1_femur'
     bus.throttle_s = 60.0
@@ -262,7 +291,7 @@ def test_dropped_and_corrupt_replies_are_retried_counted_and_never_invented(emu,
     bus.throttle_s = 0.0
     emu.faults.corrupt_replies(ids=2, count=2)                   # window over: logged with the summary
     r = bus.step()
-    assert any('read failed' in t and '1 more times' in t for t in events([r]))
+    assert [(e.joint, e.repeats) for e in events([r], EventKind.READ_FAILED)] == [('leg1_femur', 1)]
 
 
 def test_a_late_reply_is_not_taken_for_the_answer(emu, bus):
@@ -281,14 +310,14 @@ def test_a_late_reply_is_not_taken_for_the_answer(emu, bus):
 def test_vanished_servo_is_reported_skipped_and_welcomed_back(emu, bus):
     bus.set_schedule(['leg2_coxa', 'leg2_femur'])
     emu.faults.remove_servo(4)                                    # leg2_coxa
-    seen = steps_until(bus, lambda r: any('stopped answering' in t for _l, t in r.events))
+    seen = steps_until(bus, has(EventKind.SERVO_MISSING))
     assert bus.states['leg2_coxa'].missing and not bus.states['leg2_coxa'].responding
-    assert any('leg2_coxa (id 4) stopped answering' in t for t in events(seen))
+    assert [(e.joint, e.servo_id) for e in events(seen, EventKind.SERVO_MISSING)] == [('leg2_coxa', 4)]
     more = [bus.step() for _ in range(10)]                       # re-probes are 50 ms apart: skipped meanwhile
     assert sum(len(r.samples) for r in more) >= 8
     assert all(s.joint == 'leg2_femur' for r in more for s in r.samples)
     emu.faults.restore_servo(4)
-    back = steps_until(bus, lambda r: any('answers again' in t for _l, t in r.events))
+    back = steps_until(bus, has(EventKind.SERVO_ANSWERS, joint='leg2_coxa'))
     assert any(s.joint == 'leg2_coxa' for r in back for s in r.samples)
     assert not bus.states['leg2_coxa'].missing
 
@@ -301,7 +330,7 @@ def test_overheating_triggers_the_fault_policy(robot, emu, policy):
         b.set_schedule(['leg2_tibia'])
         steps_until(b, lambda r: r.wrote)
         emu.faults.set_temperature(6, 85.0)
-        seen = steps_until(b, lambda r: any('overheating' in t and f'policy {policy}' in t for _l, t in r.events))
+        seen = steps_until(b, has(EventKind.FAULT, joint='leg2_tibia', alarm_bits=p.ERR_OVERHEATING, policy=policy))
         st = b.states['leg2_tibia']
         assert st.faulted & p.ERR_OVERHEATING and st.error_bits & p.ERR_OVERHEATING
         s = emu.servo(6)
@@ -327,7 +356,8 @@ def test_overheating_triggers_the_fault_policy(robot, emu, policy):
         else:
             assert b.states['leg2_tibia'].faulted                  # limp: stays out until restart
             assert s.get('torque_limit') == 0
-        assert any('leg2_tibia (id 6) reports: overheating' in t for t in events(seen))
+        assert any(e.joint == 'leg2_tibia' and e.servo_id == 6 and e.fields['error_bits'] & p.ERR_OVERHEATING
+                   for e in events(seen, EventKind.ERROR_BITS))
     finally:
         b.close()
 
@@ -356,15 +386,15 @@ def test_port_vanishes_is_survived_and_reconnected(robot, emu, bus):
     bus.set_schedule(['leg1_coxa'])
     assert bus.step().samples
     emu.disconnect()
-    lost = steps_until(bus, lambda r: any('port lost' in t for _l, t in r.events))
+    lost = steps_until(bus, has(EventKind.PORT_LOST))
     assert not bus.port_ok and all(not r.samples for r in lost)
-    failed = steps_until(bus, lambda r: any('reconnect failed' in t for _l, t in r.events))
+    failed = steps_until(bus, has(EventKind.RECONNECT_FAILED))
     assert all(not r.samples for r in failed)                     # no invented positions meanwhile
     emu.power_cycle()                                              # the servos lost power too
     assert emu.servo(1).get('torque_enable') == 0
     emu.reconnect()
     back = steps_until(bus, lambda r: bool(r.samples))
-    assert any('reopened' in t for t in events(back))
+    assert events(back, EventKind.RECONNECTED)
     assert all(s.get('torque_enable') == 1 for s in emu.servos)    # re-verified and re-configured
 
 
@@ -379,7 +409,7 @@ def test_stale_command_stream_holds_position(robot, emu):
         steps_until(b, lambda r: r.wrote)
         t_cmd = clock()
         clock.advance(0.09)                                        # younger than the timeout: nothing
-        assert not any('holding' in t for t in events([b.step() for _ in range(3)]))
+        assert not events([b.step() for _ in range(3)], EventKind.HOLDING)
         # wait (on a condition) until the servo has left its start, so "held where it was" is testable
         slot = emu.servo(1).slot
         t_end = time.monotonic() + 10.0
@@ -388,8 +418,9 @@ def test_stale_command_stream_holds_position(robot, emu):
         emu.log.clear()
         clock.advance(0.06)
         seen = [b.step()]
-        assert any(f'no command for {clock() - t_cmd:.2f} s (command_timeout_s=0.1): holding' in t
-                   for t in events(seen))
+        hold = events(seen, EventKind.HOLDING)
+        assert [(e.fields['idle_s'], e.fields['timeout_s'], e.fields['held']) for e in hold] == \
+            [(pytest.approx(clock() - t_cmd), 0.1, 18)]
         goal = emu.servo(1).get('goal_position')
         assert 512 < goal < b.to_tick('leg1_coxa', 0.9)           # held where it was, not at the old goal
         # the hold wrote exactly the position servo 1 reported to the hold's read, in one SYNC_WRITE

@@ -1,0 +1,24 @@
+"""The driver core: one AX-12A bus (Protocol 1.0), without any ROS import, in layers.
+
+=================  ===========================================================================
+``transport``      the serial port, reconnection, framing (:class:`~hexapod_driver.protocol.PacketParser`,
+                   shared with the bus emulator), a register read/write with N attempts
+``servo_setup``    start-up verification (PING, model number, reply latency) and configuration
+                   (EEPROM only when it differs, the servo law, goal = present position, torque)
+``policy``         per servo: failed reads, missing servos, error bits, the fault policy, diagnostics
+``commands``       goal validation, pending goals, the hold on a silent command stream, the read schedule
+``loop``           the bus loop, one step at a time: reopen, write, hold, read, diagnostics, clock watch
+``events``         what the driver says, as typed records (:class:`Event`: kind and fields)
+``core``           :class:`DynamixelBus`, built from the above; the ``ServoBus`` protocol
+=================  ===========================================================================
+"""
+from hexapod_driver.bus.commands import CommandError, Validated
+from hexapod_driver.bus.core import DynamixelBus
+from hexapod_driver.bus.events import Event, EventKind, EventLog
+from hexapod_driver.bus.loop import StepResult
+from hexapod_driver.bus.policy import Sample, ServoState
+from hexapod_driver.bus.servo_setup import ServoVerificationError
+from hexapod_driver.bus.transport import PortLostError, ReadResult, Transport
+
+__all__ = ['CommandError', 'DynamixelBus', 'Event', 'EventKind', 'EventLog', 'PortLostError', 'ReadResult',
+           'Sample', 'ServoState', 'ServoVerificationError', 'StepResult', 'Transport', 'Validated']
