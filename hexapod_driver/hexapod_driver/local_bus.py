@@ -16,10 +16,10 @@ import threading
 from typing import Callable, Mapping, Sequence
 
 from hexapod_driver.bus import DynamixelBus, PortLostError, StepResult
-from hexapod_model.bus import BusError
+from hexapod_model.bus import BusError, Scheduled, ServoBus, Stoppable
 
 
-class LocalDriverBus:
+class LocalDriverBus(ServoBus, Scheduled, Stoppable):
     """:class:`hexapod_model.bus.ServoBus` over a :class:`DynamixelBus`, called in the caller's thread.
 
     ``on_read(joint, theta, stamp)``, ``on_write(stamp, goals_rad)`` and ``on_step(StepResult)``

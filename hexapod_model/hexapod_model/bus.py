@@ -3,16 +3,33 @@ the ROS topic bridge all implement, so the locomotion library runs unchanged on 
 
 Time is explicit: every call returns the bus time at which it happened (seconds; sim time in the
 sim, ROS time on the robot). A read is one transaction of ``t_com_s``; reads are sequential.
+
+:class:`ServoBus` is what every caller needs. The capabilities that only some buses have are small
+protocols of their own; an implementation names each one it implements among its bases (so a
+reader sees at the class line what it offers), callers test for one with ``isinstance``, and
+``tests/test_bus_protocols.py`` checks every implementation against its declaration:
+
+======================  ==========================================================================
+:class:`ServoBus`       ``t_com_s``, ``now``, ``sync_write``, ``read_position``, ``wait_until``
+:class:`Scheduled`      ``set_schedule(joints)``: the joints the bus reads in turn between writes
+:class:`Stoppable`      ``stopped`` (``threading.Event``): set, every further call raises BusError
+:class:`MasterClocked`  a remote bus master's clock: ``time_hint()``, ``wait_for_master(log)``,
+                        ``read_age_s`` (how old the last read was when it arrived)
+:class:`SimulatedServos`  the plant's own view: ``sample_position`` (a read without its
+                        transaction cost), ``servo_state()``, ``set_torque_enabled(on, joints)``
+======================  ==========================================================================
 """
 from __future__ import annotations
 
-from typing import Mapping, Protocol
+import threading
+from typing import Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 
 class BusError(RuntimeError):
     """A bus transaction failed (timeout, corrupt packet, missing servo) after its retry budget."""
 
 
+@runtime_checkable
 class ServoBus(Protocol):
     t_com_s: float
 
@@ -27,3 +44,40 @@ class ServoBus(Protocol):
 
     def wait_until(self, t: float) -> None:
         """Let the bus idle until time ``t`` (no-op if already past)."""
+
+
+@runtime_checkable
+class Scheduled(Protocol):
+    def set_schedule(self, joints: Sequence[str]) -> object:
+        """Read these joints in turn, one per read transaction, from now on."""
+
+
+@runtime_checkable
+class Stoppable(Protocol):
+    stopped: threading.Event          # set: the bus refuses further calls (BusError)
+
+
+@runtime_checkable
+class MasterClocked(Protocol):
+    read_age_s: float | None          # how long after the master published it the last read arrived [s]
+
+    def time_hint(self) -> float | None:
+        """The master's time now, without waiting for it (None before the first read)."""
+
+    def wait_for_master(self, log: Callable[[str], None]) -> None:
+        """Block until the bus master answers, saying why through ``log``."""
+
+
+@runtime_checkable
+class SimulatedServos(Protocol):
+    def sample_position(self, joint: str) -> tuple[float, float]:
+        """What a read of ``joint`` would report now, without spending ``t_com_s``."""
+
+    def servo_state(self) -> object:
+        """Temperatures and loads of every servo (the plant's thermal and load model)."""
+
+    def set_torque_enabled(self, enabled: bool, joints: Sequence[str] | None = None) -> None:
+        """Torque on or off for these joints (all when None)."""
+
+
+CAPABILITIES = (Scheduled, Stoppable, MasterClocked, SimulatedServos)

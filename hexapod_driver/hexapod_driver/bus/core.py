@@ -29,14 +29,14 @@ from hexapod_driver.bus.servo_setup import ServoSetup
 from hexapod_driver.bus.transport import PortLostError, ReadResult, Transport
 from hexapod_driver.config import DriverConfig
 from hexapod_driver.timing import TimingStats
-from hexapod_model.bus import BusError
+from hexapod_model.bus import BusError, Scheduled, ServoBus
 from hexapod_model.description import ALL_JOINTS, BusJoint, Robot
 from hexapod_model.servo import servo_theta, servo_tick
 
 TORQUE_OFF_REOPEN_S = 1.0             # how long a torque-off (exit, emergency stop) tries to reopen a lost port
 
 
-class DynamixelBus:
+class DynamixelBus(ServoBus, Scheduled):
     """The AX-12A bus. Thread-safe: every transaction holds :attr:`lock`. ``transport`` replaces
     the serial port's (a test's, to inject what a port can do)."""
 

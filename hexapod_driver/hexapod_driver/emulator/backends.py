@@ -14,7 +14,7 @@ import math
 from importlib.metadata import entry_points
 from typing import Callable, Mapping, Protocol
 
-from hexapod_model.bus import ServoBus
+from hexapod_model.bus import ServoBus, SimulatedServos
 from hexapod_model.description import ALL_JOINTS, Robot
 from hexapod_model.servo import servo_theta, servo_tick
 
@@ -122,13 +122,14 @@ class ServoBusBackend:
         # Warm up before the clock starts: a JIT-compiled sim compiles on its first read/state
         # call, which must not happen while a driver waits for a reply.
         bus.read_position(ALL_JOINTS[0])
-        if hasattr(bus, 'servo_state'):
-            bus.servo_state()
+        self.plant = bus if isinstance(bus, SimulatedServos) else None
+        if self.plant is not None:
+            self.plant.servo_state()
         self.t0 = bus.now()
         self._joints = list(ALL_JOINTS)
         self._mount = [robot.bus.by_joint(j) for j in self._joints]
         self._last: dict[int, tuple[float, float]] = {}
-        self._sample = getattr(bus, 'sample_position', bus.read_position)
+        self._sample = bus.read_position if self.plant is None else self.plant.sample_position
 
     def _catch_up(self, t: float) -> None:
         self.bus.wait_until(min(self.t0 + t, self.bus.now() + self.max_catch_up_s))
@@ -145,16 +146,14 @@ class ServoBusBackend:
         self._catch_up(t)
 
     def torque(self, t: float, slot: int, enabled: bool) -> None:
-        setter = getattr(self.bus, 'set_torque_enabled', None)
-        if setter is not None:
+        if self.plant is not None:
             self._catch_up(t)
-            setter(bool(enabled), [self._joints[slot]])
+            self.plant.set_torque_enabled(bool(enabled), [self._joints[slot]])
 
     def status(self, slot: int) -> tuple[float | None, float | None]:
-        state = getattr(self.bus, 'servo_state', None)
-        if state is None:
+        if self.plant is None:
             return None, None
-        st = state()
+        st = self.plant.servo_state()
         return float(st.temperature_c[slot]), float(st.load_fraction[slot])
 
     def sample(self, t: float, slot: int) -> tuple[float, float]:

@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from hexapod_locomotion.core.odometry import ImuReading, LegOdometry, OdometryEstimate
+from hexapod_model.bus import ServoBus
 from hexapod_model.contract import stamp_dict
 from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import forward
@@ -23,7 +24,7 @@ ODOMETRY_PERIOD_S = 0.02     # update period [s of bus time]: the bus reads a le
 HANDOVER_S = 0.05            # longest time lifting feet stand in for landed ones not yet read
 
 
-class OdometryTap:
+class OdometryTap(ServoBus):
     """``estimators``: (odometry, uses the IMU) pairs, the first is :attr:`estimate`'s;
     ``imu``: returns the latest :class:`ImuReading` or None; ``on_estimate(estimate)`` after each
     update of the first estimator."""
@@ -49,8 +50,9 @@ class OdometryTap:
         self._lift_t = -np.inf
 
     # -- ServoBus, passed through
-    def __getattr__(self, name):
-        return getattr(self.bus, name)
+    @property
+    def t_com_s(self) -> float:
+        return self.bus.t_com_s
 
     def now(self) -> float:
         return self.bus.now()

@@ -45,7 +45,7 @@ from hexapod_locomotion.core.read_timing import ReadTiming
 from hexapod_locomotion.nodes.params import NODE, LocomotionNodeParams
 from hexapod_locomotion.nodes.ros_bus import RosBus
 from hexapod_model import diagnostics
-from hexapod_model.bus import BusError
+from hexapod_model.bus import BusError, MasterClocked
 from hexapod_model.contract import CMD_VEL, DIAGNOSTICS, GROUND_DETECTION, SWING_DOWN, stamp_msg, stamp_parts
 from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
 from hexapod_model.node_params import NodeParams, node_help, run_node
@@ -54,8 +54,8 @@ from hexapod_model.param_schema import ReadTime, RobotSource
 
 class LocomotionNode(Node):
     def __init__(self, bus=None, **node_kwargs):
-        """``bus``: a :class:`hexapod_model.bus.ServoBus` with ``stopped`` (threading.Event) and
-        ``set_schedule(joints)`` owned by a node in this process; None = the bus over ROS topics."""
+        """``bus``: a :class:`hexapod_model.bus.ServoBus` that is also ``Scheduled`` and ``Stoppable``,
+        owned by a node in this process; None = the bus over ROS topics."""
         super().__init__('locomotion_node', **node_kwargs)
         params = NodeParams(self)
         self.robot = params.declare(RobotSource).load()
@@ -166,8 +166,7 @@ class LocomotionNode(Node):
             self.get_logger().error(f'/cmd_vel rejected: {exc}', throttle_duration_sec=1.0)   # a flood: one a second
 
     def _bus_time(self) -> float | None:
-        hint = getattr(self.bus, 'time_hint', None)
-        return hint() if hint is not None else self.bus.now()
+        return self.bus.time_hint() if isinstance(self.bus, MasterClocked) else self.bus.now()
 
     def _current_cmd(self) -> VelocityCommand | None:
         timeout = self.get_parameter('cmd_vel_timeout_s').value
@@ -181,7 +180,7 @@ class LocomotionNode(Node):
 
     def _publish_read(self, r) -> None:
         # lock-stepped, the bus master waits for the goals: a read's age does not delay them
-        age = None if self.params.lockstep else getattr(self.bus, 'read_age_s', None)
+        age = self.bus.read_age_s if isinstance(self.bus, MasterClocked) and not self.params.lockstep else None
         warning = self.timing.on_read(r.leg, r.step, r.stamp_s, age)
         if warning is not None:
             self.get_logger().warning(warning)
@@ -220,9 +219,8 @@ class LocomotionNode(Node):
 
     def _run(self) -> None:
         try:
-            wait = getattr(self.bus, 'wait_for_master', None)
-            if wait is not None:
-                wait(self.get_logger().info)
+            if isinstance(self.bus, MasterClocked):
+                self.bus.wait_for_master(self.get_logger().info)
             self.bus.set_schedule(ALL_JOINTS)
             self.bus.wait_until(self.bus.now() + 0.5)
             self.controller.startup(self.bus)

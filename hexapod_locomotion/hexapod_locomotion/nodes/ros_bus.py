@@ -34,12 +34,12 @@ import time
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
-from hexapod_model.bus import BusError
+from hexapod_model.bus import BusError, MasterClocked, Scheduled, ServoBus, Stoppable
 from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE, SET_READ_SCHEDULE, stamp_parts, stamp_seconds
 from hexapod_model.description import ALL_JOINTS
 
 
-class RosBus:
+class RosBus(ServoBus, Scheduled, Stoppable, MasterClocked):
     def __init__(self, node, t_com_s: float, read_timeout_s: float = 0.5, lockstep: bool = False):
         from sensor_msgs.msg import JointState
 

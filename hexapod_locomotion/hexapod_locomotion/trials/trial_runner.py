@@ -28,6 +28,7 @@ from hexapod_locomotion.core.metrics import (
 )
 from hexapod_locomotion.trials.trial_config import TrialConfig, detector_config, locomotion_params
 from hexapod_model import diagnostics
+from hexapod_model.bus import ServoBus
 from hexapod_model.contract import (
     DIAGNOSTICS,
     GROUND_DETECTION,
@@ -57,7 +58,7 @@ class TimeLimitReached(Exception):
     """Raised by :class:`ProbeBus` once the simulated time passes its deadline (mid-phase)."""
 
 
-class ProbeBus:
+class ProbeBus(ServoBus):
     """ServoBus wrapper around a HexapodSim: samples truth and records, transparently.
 
     With ``deadline_s`` set, the first bus call at or after that simulated time raises

@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
-from hexapod_model.bus import BusError
+from hexapod_model.bus import BusError, Scheduled, ServoBus, Stoppable
 from hexapod_sim.node.bus_master_loop import JointSample, SimBusLoop
 from hexapod_sim.physics.plant import SimError
 
@@ -75,7 +75,7 @@ class Pacer:
         return 0.0 if target is None else (sim_t - target) / self.rtf
 
 
-class LocalSimBus:
+class LocalSimBus(ServoBus, Scheduled, Stoppable):
     """:class:`hexapod_model.bus.ServoBus` over a :class:`SimBusLoop` in the caller's thread, paced."""
 
     def __init__(self, loop: SimBusLoop, emit: Callable[[list], None], pacer: Pacer, lock: threading.RLock,

@@ -47,6 +47,7 @@ from typing import Callable, Iterable, Mapping
 import mujoco
 import numpy as np
 
+from hexapod_model.bus import ServoBus, SimulatedServos
 from hexapod_model.description import ALL_JOINTS, LEGS, Robot, load_robot
 from hexapod_model.dictionary import T_K, T_MU, T_PA, T_PP, T_PPH, T_REST, T_TS, joint_terms, supply_resistance_ohm
 from hexapod_model.servo import (
@@ -111,7 +112,7 @@ class FootContacts:
     force_world_n: np.ndarray    # (6, 3) total contact force on the foot geom, world frame
 
 
-class HexapodSim:
+class HexapodSim(ServoBus, SimulatedServos):
     """MuJoCo hexapod + AX-12A firmware + bus timing. See the module docstring for the conventions.
 
     ``robot``: the description (default :func:`load_robot`); ``terrain``: a name of
