@@ -362,7 +362,7 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, r
         from hexapod_sim.bagio.recorder import Recorder
         recorder = Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live, scene=ground.to_text())
     elif recorder is None and cfg.record:   # by a process of its own, which closes the bag even if this one is killed
-        from hexapod_sim.bagio.recorder import RecorderProcess
+        from hexapod_sim.bagio.recorder_process import RecorderProcess
         recorder = RecorderProcess(Path(cfg.record), robot=robot, on_error=_recording_failed, scene=ground.to_text())
     frames, on_probe, renderer = [], None, None
     if cfg.video:

@@ -20,7 +20,7 @@ the old schedule.
 ``record``: '' (off), 'auto' (``bags/sim_<UTC time>``), a name (``bags/<name>``) or a path: every
 topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag,
 with ``/robot_description``, ``/tf_static`` and ``/tf`` (hexapod_sim.bagio.recorder). The bag is written by
-a process of its own (:class:`~hexapod_sim.bagio.recorder.RecorderProcess`; with the Foxglove live view, by a
+a process of its own (:class:`~hexapod_sim.bagio.recorder_process.RecorderProcess`; with the Foxglove live view, by a
 thread of this node, :class:`~hexapod_sim.bagio.recorder.RecorderThread`): publishing and recording a message
 only enqueues it, so neither the controller's bus transactions nor the executor's callbacks wait for
 the bag, and the conversion and writing do not take this process's interpreter from the executor
@@ -54,7 +54,8 @@ from hexapod_model.urdf import urdf_xml
 from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus, SwingDownStart, TerrainClass
 from hexapod_msgs.srv import SetReadSchedule
 from hexapod_sim.bagio import BagError
-from hexapod_sim.bagio.recorder import Recorder, RecorderProcess, RecorderThread, resolve_bag_dir
+from hexapod_sim.bagio.recorder import Recorder, RecorderThread, resolve_bag_dir
+from hexapod_sim.bagio.recorder_process import RecorderProcess
 from hexapod_sim.node.bus_master_loop import (
     TRUTH_LAYOUT,
     BusTimingSample,
