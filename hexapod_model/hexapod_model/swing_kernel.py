@@ -252,7 +252,7 @@ def _eq15_goal(init_tick, fin_tick, k, n_interp, approach_from, approach_rate):
     return np.rint(init_tick + frac * (fin_tick - init_tick))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline='always')
 def _angle_ticks(q0, q_fin, center, rad_per_tick, ticks, direction):
     """The initial and final angles (``q0``, ``q_fin``: (L, 2) rad) as continuous ticks into ``ticks``
     (2, L, 2) (the operations of :func:`hexapod_model.servo.theta_to_tick`) and the sign of each
@@ -273,7 +273,7 @@ def _angle_ticks(q0, q_fin, center, rad_per_tick, ticks, direction):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline='always')
 def _goals_per_step(init_t, fin_t, n_interp, approach_from, approach_rate, goal_buf):
     """The Eq. 15 goals of every leg, one row per step: ``goal_buf`` (L, K, 2)."""
     for l in range(goal_buf.shape[0]):
@@ -282,7 +282,7 @@ def _goals_per_step(init_t, fin_t, n_interp, approach_from, approach_rate, goal_
             goal_buf[l, k, 1] = _eq15_goal(init_t[l, 1], fin_t[l, 1], k, n_interp, approach_from[l], approach_rate)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline='always')
 def _goals_per_period(init_t, fin_t, n_interp, approach_from, approach_rate, n_steps, t_con, dt, goal_buf):
     """The Eq. 15 goal of every leg in effect at each servo period: ``goal_buf`` (L, n, 2), step
     ``k = floor(t / t_con)`` (as :func:`hexapod_model.swing_model.goals_per_period`), capped at the last."""
@@ -301,7 +301,7 @@ def _goals_per_period(init_t, fin_t, n_interp, approach_from, approach_rate, n_s
             goal_buf[l, j, 1] = g3
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline='always')
 def _femur_at(q, last, dt, x):
     """The femur angle of ``q`` ((last + 1, 2) on the grid ``j dt``) at time ``x >= 0``: linear
     interpolation between servo periods, as ``np.interp``, the last row from its time on."""
@@ -318,7 +318,7 @@ def _femur_at(q, last, dt, x):
     return (q[j + 1, 0] - q[j, 0]) / ((j + 1) * dt - xj) * (x - xj) + q[j, 0]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline='always')
 def _sample_reads(out_q, ticks, direction, n_interp, approach_from, approach_rate, t_con, t_com, read_delay, dt,
                   center, rad_per_tick, epsilon, out_t_read, out_des, out_est, out_err, out_thr):
     """Per step ``k`` and leg slot ``l``: the read instant ``k t_con + l t_com``, the goal, the
