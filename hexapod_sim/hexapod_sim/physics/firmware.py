@@ -153,7 +153,7 @@ def write_goals(idx, vals, lim_lo, lim_hi, scale, base, max_tick, angle_bit, err
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def firmware_tick(win_n, max_tick, qpos, qvel, ctrl, jint, jflt, table, win_tau, win_omega, tau_out):
     """Every servo's firmware at a tick: the present tick quantised from its output angle, the torque
     for ``goal - present`` from the table into the actuator (held until the next tick), and the
@@ -167,7 +167,7 @@ def firmware_tick(win_n, max_tick, qpos, qvel, ctrl, jint, jflt, table, win_tau,
         win_omega[win_n, i] = qvel[jint[J_DOF, i]]
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def static_friction_tick(v_stick, qvel, dof_frictionloss, jint, stick_int, stick_flt):
     """The friction loss of each joint with static friction at a tick: the break-away level when it
     is at rest (slower than ``v_stick``, reversed since the last tick, or held there and slowing
