@@ -19,6 +19,7 @@ from typing import Any, Iterable, Mapping
 import yaml
 
 from hexapod_model.dictionary import TERM_PARAMS, check_params
+from hexapod_model.yaml_files import source_path, yaml_problem
 
 JOINT_ROLES = ('coxa', 'femur', 'tibia')
 LEGS = (1, 2, 3, 4, 5, 6)
@@ -410,11 +411,8 @@ def check_keys(data: Any, schema: Any = SCHEMA, where: str = '') -> None:
         check_keys(v, schema[k], f'{where}.{k}' if where else str(k))
 
 
-def robot_from_dict(d: Mapping[str, Any]) -> Robot:
-    """Validate a description mapping and build the frozen :class:`Robot`."""
-    check_keys(d)
-    dh = {r: _build(DHLink, _require(_require(d, 'dh', 'robot'), r, 'dh'), f'dh.{r}',
-                    nonneg=('a_m',)) for r in JOINT_ROLES}
+def _legs_from(d: Mapping[str, Any]) -> tuple[LegMount, ...]:
+    """The ``legs`` section: one mount per leg 1..6, in leg order."""
     legs_raw = _require(d, 'legs', 'robot')
     if not isinstance(legs_raw, list) or sorted(_require(x, 'leg', 'legs[]') for x in legs_raw) != list(LEGS):
         raise DescriptionError('legs: expected exactly one entry for each leg 1..6')
@@ -427,9 +425,11 @@ def robot_from_dict(d: Mapping[str, Any]) -> Robot:
         legs.append(LegMount(leg=int(x['leg']), beta_rad=_number(_require(x, 'beta_rad', w), w + '.beta_rad'),
                              px_m=_number(_require(x, 'px_m', w), w + '.px_m'),
                              py_m=_number(_require(x, 'py_m', w), w + '.py_m')))
-    links = {r: _build(LinkInertial, _require(_require(d, 'links', 'robot'), r, 'links'), f'links.{r}',
-                       positive=('mass_kg', 'inertia_about_com_kgm2'), nonneg=('com_from_joint_m',))
-             for r in JOINT_ROLES}
+    return tuple(legs)
+
+
+def _servo_from(d: Mapping[str, Any]) -> ServoParams:
+    """The ``servo`` section, its registers within what the AX-12A takes."""
     servo = _build(ServoParams, _require(d, 'servo', 'robot'), 'servo',
                    positive=('rotor_inertia_kgm2', 'gear_ratio', 'stall_torque_nm', 'range_deg', 'control_period_s',
                              'torque_constant_nm_per_a', 'winding_resistance_ohm', 'supply_voltage_v',
@@ -447,21 +447,11 @@ def robot_from_dict(d: Mapping[str, Any]) -> Robot:
                                f'modelled, got {servo.moving_speed}')
     if not 0 <= servo.center_tick < servo.ticks_per_range:
         raise DescriptionError('servo.center_tick: must lie within 0..ticks_per_range-1')
-    lim_raw = _require(d, 'joint_limits_rad', 'robot')
-    limits = {}
-    for r in JOINT_ROLES:
-        lo_hi = _require(lim_raw, r, 'joint_limits_rad')
-        if not isinstance(lo_hi, (list, tuple)) or len(lo_hi) != 2:
-            raise DescriptionError(f'joint_limits_rad.{r}: expected [low, high]')
-        lo, hi = (_number(v, f'joint_limits_rad.{r}') for v in lo_hi)
-        if lo >= hi:
-            raise DescriptionError(f'joint_limits_rad.{r}: low {lo} must be below high {hi}')
-        limits[r] = (lo, hi)
-    st = _require(d, 'default_stance', 'robot')
-    stance = tuple(_number(_require(st, f'{r}_rad', 'default_stance'), f'default_stance.{r}_rad') for r in JOINT_ROLES)
-    for r, v in zip(JOINT_ROLES, stance):
-        if not limits[r][0] <= v <= limits[r][1]:
-            raise DescriptionError(f'default_stance.{r}_rad={v} is outside joint_limits_rad.{r}={limits[r]}')
+    return servo
+
+
+def _bus_from(d: Mapping[str, Any]) -> BusConfig:
+    """The ``bus`` section: every joint's servo (ID, direction, offset; defaults leg by leg), IDs unique."""
     bus_raw = _require(d, 'bus', 'robot')
     overrides = bus_raw.get('joints') or {}
     if not isinstance(overrides, Mapping):
@@ -486,14 +476,42 @@ def robot_from_dict(d: Mapping[str, Any]) -> Robot:
     ids = [j.servo_id for j in bus_joints]
     if len(set(ids)) != len(ids):
         raise DescriptionError(f'bus.joints: servo IDs must be unique, got {ids}')
-    bus = BusConfig(baud_rate=int(_number(_require(bus_raw, 'baud_rate', 'bus'), 'bus.baud_rate', positive=True)),
-                    t_com_s=_number(_require(bus_raw, 't_com_s', 'bus'), 'bus.t_com_s', positive=True),
-                    joints=tuple(bus_joints))
+    return BusConfig(baud_rate=int(_number(_require(bus_raw, 'baud_rate', 'bus'), 'bus.baud_rate', positive=True)),
+                     t_com_s=_number(_require(bus_raw, 't_com_s', 'bus'), 'bus.t_com_s', positive=True),
+                     joints=tuple(bus_joints))
+
+
+def robot_from_dict(d: Mapping[str, Any]) -> Robot:
+    """Validate a description mapping and build the frozen :class:`Robot`."""
+    check_keys(d)
+    dh = {r: _build(DHLink, _require(_require(d, 'dh', 'robot'), r, 'dh'), f'dh.{r}',
+                    nonneg=('a_m',)) for r in JOINT_ROLES}
+    legs = _legs_from(d)
+    links = {r: _build(LinkInertial, _require(_require(d, 'links', 'robot'), r, 'links'), f'links.{r}',
+                       positive=('mass_kg', 'inertia_about_com_kgm2'), nonneg=('com_from_joint_m',))
+             for r in JOINT_ROLES}
+    servo = _servo_from(d)
+    lim_raw = _require(d, 'joint_limits_rad', 'robot')
+    limits = {}
+    for r in JOINT_ROLES:
+        lo_hi = _require(lim_raw, r, 'joint_limits_rad')
+        if not isinstance(lo_hi, (list, tuple)) or len(lo_hi) != 2:
+            raise DescriptionError(f'joint_limits_rad.{r}: expected [low, high]')
+        lo, hi = (_number(v, f'joint_limits_rad.{r}') for v in lo_hi)
+        if lo >= hi:
+            raise DescriptionError(f'joint_limits_rad.{r}: low {lo} must be below high {hi}')
+        limits[r] = (lo, hi)
+    st = _require(d, 'default_stance', 'robot')
+    stance = tuple(_number(_require(st, f'{r}_rad', 'default_stance'), f'default_stance.{r}_rad') for r in JOINT_ROLES)
+    for r, v in zip(JOINT_ROLES, stance):
+        if not limits[r][0] <= v <= limits[r][1]:
+            raise DescriptionError(f'default_stance.{r}_rad={v} is outside joint_limits_rad.{r}={limits[r]}')
+    bus = _bus_from(d)
     robot = Robot(
         name=str(_require(d, 'name', 'robot')),
         gravity_mps2=_number(_require(d, 'gravity_mps2', 'robot'), 'gravity_mps2', nonneg=True),
         total_mass_kg=_number(_require(d, 'total_mass_kg', 'robot'), 'total_mass_kg', positive=True),
-        dh=dh, legs=tuple(legs), links=links, servo=servo,
+        dh=dh, legs=legs, links=links, servo=servo,
         electronics_idle_power_w=_number(_require(d, 'electronics_idle_power_w', 'robot'),
                                          'electronics_idle_power_w', nonneg=True),
         joint_limits_rad=limits, default_stance_rad=stance, bus=bus,
@@ -516,26 +534,6 @@ def merge_overlay(base: Mapping[str, Any], overlay: Mapping[str, Any]) -> dict[s
         else:
             out[k] = v
     return out
-
-
-def source_path(path: str | Path) -> Path:
-    """The file a user edits: ``path`` with symlinks resolved (a ``--symlink-install`` build holds
-    links to the source tree; messages name the source, not the copy under build/ or install/)."""
-    p = Path(path)
-    try:
-        return p.resolve() if p.is_symlink() or any(q.is_symlink() for q in p.parents) else p
-    except OSError:
-        return p
-
-
-def yaml_problem(exc: yaml.YAMLError) -> str:
-    """What is wrong in a YAML file and where, on one line ('line 3, column 1: expected ...'),
-    without PyYAML's multi-line excerpt and its '"<unicode string>"' stream name."""
-    mark = getattr(exc, 'problem_mark', None)
-    problem = ' '.join(str(getattr(exc, 'problem', None) or exc).split())
-    context = ' '.join(str(getattr(exc, 'context', None) or '').split())
-    where = f'line {mark.line + 1}, column {mark.column + 1}: ' if mark is not None else ''
-    return where + (f'{context}: ' if context else '') + problem
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:

@@ -24,18 +24,8 @@ import math
 import numpy as np
 
 from hexapod_model.dictionary import N_TERMS, T_K, T_MU, T_PA, T_PP, T_PPH, T_REST, T_TS
-from hexapod_model.swing_model import (
-    _FASTMATH,
-    P_CONTROL,
-    P_OFF2,
-    P_OFF3,
-    P_SUBSTEPS,
-    _rigid_constants,
-    _rigid_substep,
-    _rotate,
-    _servo_torques,
-    njit,
-)
+from hexapod_model.swing_common import _FASTMATH, P_CONTROL, P_OFF2, P_OFF3, P_SUBSTEPS, _servo_torques, njit
+from hexapod_model.swing_kernel import _rigid_constants, _rigid_substep, _rotate
 
 
 @njit(cache=True, fastmath=_FASTMATH, nogil=True, inline='always')

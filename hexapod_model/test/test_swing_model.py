@@ -174,7 +174,7 @@ def test_kernel_servo_law_is_firmware_torque_nm_over_the_tick_range(robot):
     # float as firmware_torque_nm for every error the firmware can see, with and without dead-band,
     # punch and a reduced torque limit.
     from hexapod_model.servo import firmware_torque_nm
-    from hexapod_model.swing_model import _firmware_torque
+    from hexapod_model.swing_common import _firmware_torque
     s = robot.servo
     err = np.arange(-s.max_tick, s.max_tick + 1, dtype=float)
     for tmax, margin, punch in ((s.stall_torque_nm, 0.0, 0.0), (s.stall_torque_nm, 2.0, 0.0), (0.4, 1.0, 0.0),
@@ -196,7 +196,8 @@ def test_the_servo_law_has_the_ax12a_punch_outside_the_margin(robot):
     tau = firmware_torque_nm(np.array([1, 2, 3]), 0, g, s.stall_torque_nm, 2.0, s.punch_nm)
     np.testing.assert_allclose(tau, [0.0, 0.0, s.punch_nm + g])
     # the compiled model carries it: one tick of error drives a free joint harder than without punch
-    from hexapod_model.swing_model import P_PUNCH2, P_PUNCH3, LegModel
+    from hexapod_model.swing_common import P_PUNCH2, P_PUNCH3
+    from hexapod_model.swing_model import LegModel
     p = LegModel(robot, 1).params
     assert p[P_PUNCH2] == p[P_PUNCH3] == s.punch_nm
 

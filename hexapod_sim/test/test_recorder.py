@@ -8,6 +8,7 @@ import pytest
 from hexapod_model.contract import stamp_dict
 from hexapod_sim.bagio import BagReader, recorder
 from hexapod_sim.bagio.recorder import Recorder, resolve_bag_dir, ros_to_plain
+from hexapod_sim.bagio.recorder_process import RecorderProcess
 
 
 def test_bag_paths(monkeypatch, tmp_path):
@@ -273,7 +274,7 @@ def test_recorder_process_writes_what_the_recorder_writes_in_line(tmp_path):
                 rec.write(*args)
             elif rec.tf_due(args[0]):
                 rec.write_tf(*args)
-    child = recorder.RecorderProcess(tmp_path / 'child', max_queued=64)
+    child = RecorderProcess(tmp_path / 'child', max_queued=64)
     for kind, args in _calls(1500):
         (child.write if kind == 'write' else child.write_tf_if_due)(*args)
     child.close()
@@ -287,7 +288,7 @@ def test_recorder_process_writes_what_the_recorder_writes_in_line(tmp_path):
 
 def test_recorder_process_reports_a_failed_write_once_and_refuses_a_bad_place_in_one_line(tmp_path):
     errors = []
-    rec = recorder.RecorderProcess(tmp_path / 'bad', tf_rate_hz=0, on_error=errors.append)
+    rec = RecorderProcess(tmp_path / 'bad', tf_rate_hz=0, on_error=errors.append)
     rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(0.0)}, 0.0)
     rec.write('clock', 'std_msgs/msg/String', {'data': 'not a clock'}, 0.001)     # the topic has another type
     rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(0.002)}, 0.002)
@@ -299,5 +300,5 @@ def test_recorder_process_reports_a_failed_write_once_and_refuses_a_bad_place_in
     (tmp_path / 'full' / 'x').write_text('x')
     from hexapod_sim.bagio import BagError
     with pytest.raises(BagError, match='already exists and is not an empty directory') as exc:
-        recorder.RecorderProcess(tmp_path / 'full')
+        RecorderProcess(tmp_path / 'full')
     assert '\n' not in str(exc.value)

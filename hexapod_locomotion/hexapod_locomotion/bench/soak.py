@@ -353,7 +353,19 @@ class Soak:
                  f'{" (interrupted)" if self.interrupted else ""}{" (ended early)" if self.ended_early else ""} ===')
         if self.ended_early:
             checks.append(sc.Check('ran to the end', False, self.ended_early))
-        # processes
+        checks += self._process_checks(walked)
+        checks += self._period_checks(walked)
+        checks += self._fault_checks()
+        checks += self._end_checks()
+        checks += self._bag_checks()           # bag and positions
+        self.say('checks:')
+        for c in checks:
+            self.say(f'  {"PASS" if c.ok else "FAIL"}  {c.name}: {c.detail}')
+        return checks
+
+    def _process_checks(self, walked: float) -> list[sc.Check]:
+        """Each process's CPU and memory; its RSS growth after the first minute checked on long runs."""
+        checks: list[sc.Check] = []
         self.say('process     CPU s/s   RSS start  RSS@1min  RSS end   growth after 1 min')
         for p in self.procs.values():
             if len(p.samples) < 2:
@@ -368,7 +380,11 @@ class Soak:
                                        f'{self.args.rss_limit_mb:g} MB)'))
         self.say('(RSS growth is checked for the robot\'s processes on runs of 3 minutes or more; the soak '
                  'monitor keeps every diagnostics status and read in memory for the report, so it grows)')
-        # control period
+        return checks
+
+    def _period_checks(self, walked: float) -> list[sc.Check]:
+        """The control period per window with the load beside it; its drift checked on long runs."""
+        checks: list[sc.Check] = []
         ts, ps = sc.control_periods(self.reads)
         wins = sc.windows(ts, ps, self.t_walk0, self.window_s)
         self.say(f'control period per {self.window_s:g} s window (t_con between reads of a leg in a swing-down):')
@@ -390,7 +406,11 @@ class Soak:
         reads = sum(r for _, r, _ in self.timing)
         failed = sum(f for _, _, f in self.timing)
         self.say(f'reads: {reads / walked:.0f} per second, {failed} failed attempts')
-        # faults
+        return checks
+
+    def _fault_checks(self) -> list[sc.Check]:
+        """Whether every injected fault was reported on /diagnostics and recovered from."""
+        checks: list[sc.Check] = []
         faults = self._fault_lines()
         from hexapod_driver.emulator.fault_schedule import UNANSWERED, load_replies
         replies = load_replies(self.out / 'replies.bin')
@@ -416,7 +436,11 @@ class Soak:
         checks.append(sc.Check('faults reported', seen == len(verdicts) and len(verdicts) > 0,
                                f'{seen} of {len(verdicts)}'))
         checks.append(sc.Check('faults recovered', rec == len(due), f'{rec} of {len(due)}'))
-        # torque off
+        return checks
+
+    def _end_checks(self) -> list[sc.Check]:
+        """Torque off at the end, one /joint_states publisher, the robot's exit code."""
+        checks: list[sc.Check] = []
         final = self._final_registers()
         if final is None:
             checks.append(sc.Check('torque off at the end', False, 'the emulator wrote no final registers'))
@@ -430,11 +454,6 @@ class Soak:
                                f'its own)'))
         robot_rc = self.procs['robot'].popen.returncode
         checks.append(sc.Check('robot exit code', robot_rc == 0, str(robot_rc)))
-        # bag and positions
-        checks += self._bag_checks()
-        self.say('checks:')
-        for c in checks:
-            self.say(f'  {"PASS" if c.ok else "FAIL"}  {c.name}: {c.detail}')
         return checks
 
     def _bag_checks(self) -> list[sc.Check]:

@@ -14,8 +14,9 @@ from typing import Mapping
 
 import yaml
 
-from hexapod_model.description import LEGS, source_path, yaml_problem
+from hexapod_model.description import LEGS
 from hexapod_model.param_schema import param
+from hexapod_model.yaml_files import source_path, yaml_problem
 
 # stride of a gait whose definition gives none [m] (reach: about 11 cm). A 10 cm stride stalled the
 # real-time ROS graph at the first blocks of the mockup (docs/architecture.md); 9 cm is what tetrapod

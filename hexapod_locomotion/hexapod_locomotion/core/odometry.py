@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -133,6 +134,30 @@ def planar_fit(before: np.ndarray, after: np.ndarray) -> tuple[float, np.ndarray
     return dyaw, d, float(math.sqrt(np.mean(np.sum(res ** 2, axis=1))))
 
 
+class _LegFit(NamedTuple):
+    """The legs' motion since the keyframe (steps 2-3 of the module doc) in the level frame."""
+
+    dyaw: float            # yaw change [rad]
+    d_xy: np.ndarray       # horizontal displacement [m]
+    dz: float              # height change [m]
+    step: float            # |d_xy| [m]
+    var_legs: float        # the yaw's variance [rad^2] (inf without a fit)
+    used: int              # feet in the fit (0: none)
+    resid: float           # rms residual of the fit [m]
+    sig2: float            # one foot's position variance with that residual [m^2]
+
+
+def _fuse_yaw(fit: _LegFit, d_imu: float | None, var_imu: float) -> tuple[float, float]:
+    """Step 4: the legs' yaw change fused with the IMU's by their variances: ``(dyaw, var_yaw)``."""
+    if d_imu is not None and fit.used:
+        tot = var_imu + fit.var_legs
+        w_legs = var_imu / tot if tot > 0 else 0.0
+        return w_legs * fit.dyaw + (1 - w_legs) * d_imu, var_imu * fit.var_legs / tot if tot > 0 else 0.0
+    if d_imu is not None:
+        return d_imu, var_imu
+    return fit.dyaw, fit.var_legs if fit.used else 0.0
+
+
 @dataclass
 class LegOdometry:
     """Integrates the body pose from the stance feet (see the module doc)."""
@@ -166,7 +191,38 @@ class LegOdometry:
         The feet are fitted against a *keyframe*: the feet in contact when the current stance began
         (the last time a foot joined). Read noise (a tick is about 1 mm at the foot) then does not
         add up update after update, only once per keyframe."""
-        cfg = self.config
+        t_s, feet, contact, imu_quat, gyro = self._checked(t_s, feet_body, contact, imu)
+        dt = 0.0 if self.t_s is None else t_s - self.t_s
+        prev_pos, prev_yaw = self.position.copy(), self.yaw
+        tilt, tilt_var = self._tilt(feet, contact, imu_quat, plane)        # 1.
+        level = feet @ tilt.T
+        if gyro is not None and dt > 0:
+            self._gyro_yaw += float((tilt @ gyro)[2]) * dt      # the level frame's yaw rate
+        if self._key is None:
+            if contact.any():       # odom's origin on the ground under the start: z is the height above the feet
+                self.position[2] = -float(np.mean(level[contact, 2]))
+            self._rekey(level, contact, t_s)
+        key_contact = self._key[1]
+        both = contact & key_contact
+        fit = self._fit(level, both)                                       # 2.-3.
+        d_imu, var_imu = self._imu_yaw_change(imu_quat, gyro, t_s - self._key[6])    # 4.
+        dyaw, var_yaw = _fuse_yaw(fit, d_imu, var_imu)
+        self._advance_pose(fit, dyaw, var_yaw, d_imu, tilt_var, prev_pos, prev_yaw)   # 5.
+        moved = self.position - prev_pos
+        self.distance_m += float(np.hypot(moved[0], moved[1]))
+        if fit.used < self.config.min_feet or bool(np.any(contact & ~key_contact)):
+            self._rekey(level, contact, t_s)          # a foot joined (or too few are left): a new keyframe
+        elif bool(np.any(key_contact & ~contact)):   # a foot left: its keyframe position is gone with it
+            self._key = (self._key[0], both, *self._key[2:])
+        lin, ang, tw = self._twist(fit, d_imu, tilt_var, moved, prev_yaw, dt)
+        self.t_s = float(t_s)
+        self._last = OdometryEstimate(float(t_s), self.position.copy(), np.array([self.roll, self.pitch, self.yaw]),
+                                      lin, ang, self.cov.copy(), tw, fit.used, self.distance_m)
+        return self._last
+
+    def _checked(self, t_s: float, feet_body, contact, imu: ImuReading | None):
+        """The inputs of :meth:`update` checked: ``(t_s, feet, contact, imu_quat, gyro)``, the time no
+        earlier than the last update's (an instant computed two ways), the IMU's parts None if absent."""
         feet = np.asarray(feet_body, dtype=float)
         contact = np.asarray(contact, dtype=bool)
         if feet.shape != (6, 3) or contact.shape != (6,):
@@ -184,10 +240,12 @@ class LegOdometry:
         gyro = None if imu is None or imu.ang_vel_rad_s is None else np.asarray(imu.ang_vel_rad_s, dtype=float)
         if gyro is not None and not (gyro.shape == (3,) and np.all(np.isfinite(gyro))):
             raise OdometryError(f'odometry: IMU angular velocity must be 3 finite numbers, got {gyro!r}')
-        dt = 0.0 if self.t_s is None else t_s - self.t_s
-        prev_pos, prev_yaw = self.position.copy(), self.yaw
+        return t_s, feet, contact, imu_quat, gyro
 
-        # 1. tilt
+    def _tilt(self, feet: np.ndarray, contact: np.ndarray, imu_quat, plane) -> tuple[np.ndarray, float]:
+        """Step 1: roll and pitch (and the IMU's yaw) from the IMU's orientation, else from the plane of
+        the feet (the last tilt holds without one). Returns the tilt matrix and the tilt's variance."""
+        cfg = self.config
         if imu_quat is not None:
             w, x, y, z = imu_quat
             self.roll, self.pitch, self._imu_yaw = _rpy(Rotation.from_quat([x, y, z, w]).as_matrix())
@@ -199,88 +257,77 @@ class LegOdometry:
                 self.roll, self.pitch = rp
             spread = float(np.ptp(feet[contact, :2], axis=0).max()) if contact.sum() >= 2 else 0.1
             tilt_var = (cfg.foot_sigma_m / max(spread, 0.05)) ** 2 * 2
-        tilt = Rotation.from_euler('YX', [self.pitch, self.roll]).as_matrix()
-        level = feet @ tilt.T
-        if gyro is not None and dt > 0:
-            self._gyro_yaw += float((tilt @ gyro)[2]) * dt      # the level frame's yaw rate
+        return Rotation.from_euler('YX', [self.pitch, self.roll]).as_matrix(), tilt_var
 
-        if self._key is None:
-            if contact.any():       # odom's origin on the ground under the start: z is the height above the feet
-                self.position[2] = -float(np.mean(level[contact, 2]))
-            self._rekey(level, contact, t_s)
-        key_feet, key_contact, key_pos, key_yaw, key_cov, key_imu_yaw, key_t = self._key
-        both = contact & key_contact
+    def _fit(self, level: np.ndarray, both: np.ndarray) -> _LegFit:
+        """Steps 2-3: the motion since the keyframe from the feet in contact then and now (``both``),
+        in the level frame; no motion, and an infinite yaw variance, with fewer than ``min_feet``."""
+        cfg = self.config
+        key_feet = self._key[0]
         n = int(both.sum())
-        used, resid = 0, 0.0
-        if n >= cfg.min_feet:
-            # 2.-3. the motion since the keyframe
-            dyaw, d_xy, resid = planar_fit(key_feet[both], level[both])
-            dz = float(np.mean(key_feet[both, 2] - level[both, 2]))
-            used = n
-            spread2 = float(np.mean(np.sum((level[both, :2] - level[both, :2].mean(axis=0)) ** 2, axis=1)))
-            sig2 = cfg.foot_sigma_m ** 2 + resid ** 2
-            step = float(np.hypot(*d_xy))
-            var_legs = 2 * sig2 / (n * max(spread2, 1e-4)) + (cfg.yaw_slip_rad_per_m * step) ** 2
-        else:
-            dyaw, d_xy, dz, step, var_legs = 0.0, np.zeros(2), 0.0, 0.0, math.inf
-        # 4. the IMU's yaw change since the keyframe
-        span = t_s - key_t
-        if imu_quat is not None and key_imu_yaw is not None:
-            d_imu, var_imu = wrap_angle(self._imu_yaw - key_imu_yaw), (cfg.gyro_sigma_rad_s * span) ** 2
-        elif gyro is not None:
-            d_imu, var_imu = self._gyro_yaw, (cfg.gyro_sigma_rad_s * span) ** 2
-        else:
-            d_imu, var_imu = None, math.inf
-        if d_imu is not None and used:
-            tot = var_imu + var_legs
-            w_legs = var_imu / tot if tot > 0 else 0.0
-            dyaw = w_legs * dyaw + (1 - w_legs) * d_imu
-            var_yaw = var_imu * var_legs / tot if tot > 0 else 0.0
-        elif d_imu is not None:
-            dyaw, var_yaw = d_imu, var_imu
-        else:
-            var_yaw = var_legs if used else 0.0
+        if n < cfg.min_feet:
+            return _LegFit(0.0, np.zeros(2), 0.0, 0.0, math.inf, 0, 0.0, 0.0)
+        dyaw, d_xy, resid = planar_fit(key_feet[both], level[both])
+        dz = float(np.mean(key_feet[both, 2] - level[both, 2]))
+        spread2 = float(np.mean(np.sum((level[both, :2] - level[both, :2].mean(axis=0)) ** 2, axis=1)))
+        sig2 = cfg.foot_sigma_m ** 2 + resid ** 2
+        step = float(np.hypot(*d_xy))
+        var_legs = 2 * sig2 / (n * max(spread2, 1e-4)) + (cfg.yaw_slip_rad_per_m * step) ** 2
+        return _LegFit(dyaw, d_xy, dz, step, var_legs, n, resid, sig2)
 
-        # 5. the pose from the keyframe's, and its covariance
-        if not used:                 # no foot to fit: hold the pose (the keyframe is renewed below)
+    def _imu_yaw_change(self, imu_quat, gyro, span: float) -> tuple[float | None, float]:
+        """Step 4: the IMU's yaw change since the keyframe ``span`` seconds ago (orientation difference,
+        else the integrated yaw rate) and its variance; ``(None, inf)`` without one."""
+        sigma = self.config.gyro_sigma_rad_s
+        key_imu_yaw = self._key[5]
+        if imu_quat is not None and key_imu_yaw is not None:
+            return wrap_angle(self._imu_yaw - key_imu_yaw), (sigma * span) ** 2
+        if gyro is not None:
+            return self._gyro_yaw, (sigma * span) ** 2
+        return None, math.inf
+
+    def _advance_pose(self, fit: _LegFit, dyaw: float, var_yaw: float, d_imu, tilt_var: float,
+                      prev_pos: np.ndarray, prev_yaw: float) -> None:
+        """Step 5: the pose from the keyframe's (held without a fit), and its covariance grown by the
+        fit's residual and the slip, propagated through the heading."""
+        cfg = self.config
+        used = fit.used
+        _, _, key_pos, key_yaw, key_cov, _, _ = self._key
+        if not used:                 # no foot to fit: hold the pose (the keyframe is renewed by update)
             key_pos, key_yaw, key_cov = prev_pos, prev_yaw if d_imu is None else key_yaw, self.cov
+        d_xy = fit.d_xy
         c0, s0 = math.cos(key_yaw), math.sin(key_yaw)
         d_world = np.array([c0 * d_xy[0] - s0 * d_xy[1], s0 * d_xy[0] + c0 * d_xy[1]])
-        self.position = key_pos + np.array([d_world[0], d_world[1], dz])
+        self.position = key_pos + np.array([d_world[0], d_world[1], fit.dz])
         self.yaw = wrap_angle(key_yaw + dyaw)
         jac = np.eye(3)
         jac[0, 2], jac[1, 2] = -d_world[1], d_world[0]
         idx = [0, 1, 5]
-        var_xy = (sig2 / used if used else 0.0) + (cfg.slip_fraction * step) ** 2
+        var_xy = (fit.sig2 / used if used else 0.0) + (cfg.slip_fraction * fit.step) ** 2
         cov = key_cov.copy()
         cov[np.ix_(idx, idx)] = jac @ key_cov[np.ix_(idx, idx)] @ jac.T + np.diag([var_xy, var_xy, var_yaw])
-        cov[2, 2] = key_cov[2, 2] + (cfg.foot_sigma_m ** 2 / used if used else 0.0) + (cfg.slip_fraction * dz) ** 2
+        cov[2, 2] = key_cov[2, 2] + (cfg.foot_sigma_m ** 2 / used if used else 0.0) + (cfg.slip_fraction * fit.dz) ** 2
         cov[3, 3] = cov[4, 4] = tilt_var
         self.cov = cov
-        moved = self.position - prev_pos
-        self.distance_m += float(np.hypot(moved[0], moved[1]))
-        if used < cfg.min_feet or bool(np.any(contact & ~key_contact)):
-            self._rekey(level, contact, t_s)          # a foot joined (or too few are left): a new keyframe
-        elif bool(np.any(key_contact & ~contact)):   # a foot left: its keyframe position is gone with it
-            self._key = (key_feet, both, *self._key[2:])
 
-        # the twist over the last update, in the body's heading frame
+    def _twist(self, fit: _LegFit, d_imu, tilt_var: float, moved: np.ndarray, prev_yaw: float, dt: float):
+        """The twist over the last update, in the body's heading frame: ``(linear, angular, covariance)``
+        (the last update's velocities at the same instant)."""
+        cfg = self.config
         tw = np.zeros((6, 6))
         if dt > 0:
             c, s = math.cos(prev_yaw), math.sin(prev_yaw)
             lin = np.array([c * moved[0] + s * moved[1], -s * moved[0] + c * moved[1], moved[2]]) / dt
             ang = np.array([0.0, 0.0, wrap_angle(self.yaw - prev_yaw) / dt])
-            v_var = 2 * (cfg.foot_sigma_m ** 2 + resid ** 2) / max(used, 1) / dt ** 2
+            v_var = 2 * (cfg.foot_sigma_m ** 2 + fit.resid ** 2) / max(fit.used, 1) / dt ** 2
             tw[0, 0] = tw[1, 1] = tw[2, 2] = v_var
             tw[3, 3] = tw[4, 4] = tilt_var / dt ** 2
+            var_legs = fit.var_legs
             tw[5, 5] = 2 * (var_legs if d_imu is None else min(var_legs, (cfg.gyro_sigma_rad_s * dt) ** 2)) / dt ** 2 \
-                if (used or d_imu is not None) else 1e3
+                if (fit.used or d_imu is not None) else 1e3
         else:
             lin, ang = (np.zeros(3), np.zeros(3)) if self._last is None else (self._last.linear, self._last.angular)
-        self.t_s = float(t_s)
-        self._last = OdometryEstimate(float(t_s), self.position.copy(), np.array([self.roll, self.pitch, self.yaw]),
-                                      lin, ang, self.cov.copy(), tw, used, self.distance_m)
-        return self._last
+        return lin, ang, tw
 
     @property
     def estimate(self) -> OdometryEstimate | None:

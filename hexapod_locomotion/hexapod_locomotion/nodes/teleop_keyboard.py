@@ -136,6 +136,54 @@ def _show(text: str) -> None:
     sys.stdout.flush()
 
 
+def _start_publishing(node, pub, teleop: Teleop, rate: float, lock: threading.Lock,
+                      done: threading.Event) -> threading.Thread:
+    """Publish the teleop's command at ``rate`` (steady clock) from a thread spinning ``node`` until
+    ``done``; returns the started thread."""
+    import rclpy
+    from rclpy.clock import Clock, ClockType
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    def tick():
+        with lock:
+            msg = twist(teleop.command())
+        pub.publish(msg)
+
+    node.create_timer(1.0 / rate, tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+
+    def spin():
+        try:
+            while not done.is_set() and rclpy.ok():
+                executor.spin_once(timeout_sec=0.1)
+        except ExternalShutdownException:
+            pass
+
+    spinner = threading.Thread(target=spin, name='teleop_spin', daemon=True)
+    spinner.start()
+    return spinner
+
+
+def _read_keys(fd: int, teleop: Teleop, lock: threading.Lock, stop: StopFlag) -> None:
+    """Apply the keys typed on the raw terminal ``fd`` until a quit key, a signal or the terminal's end."""
+    _show(teleop.status())
+    running = True
+    while running and not stop.is_set():
+        ready, _, _ = select.select([fd], [], [], 0.1)
+        if not ready:
+            continue
+        data = os.read(fd, 64)
+        if not data:                       # terminal closed
+            break
+        for key in keys_from_bytes(data):
+            with lock:
+                running = teleop.press(key)
+            if not running:
+                break
+        _show(teleop.status())
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv if argv is None else argv)
     try:
@@ -154,9 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     import termios
     import tty
 
-    import rclpy
-    from rclpy.clock import Clock, ClockType
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
 
     stop = StopFlag()
     lock = threading.Lock()
@@ -166,42 +212,10 @@ def main(argv: list[str] | None = None) -> int:
     saved = termios.tcgetattr(fd)
     try:
         node, pub = start_ros('teleop_keyboard', argv, 'teleop_keyboard')
-
-        def tick():
-            with lock:
-                msg = twist(teleop.command())
-            pub.publish(msg)
-
-        node.create_timer(1.0 / rate, tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-
-        def spin():
-            try:
-                while not done.is_set() and rclpy.ok():
-                    executor.spin_once(timeout_sec=0.1)
-            except ExternalShutdownException:
-                pass
-
-        spinner = threading.Thread(target=spin, name='teleop_spin', daemon=True)
-        spinner.start()
+        spinner = _start_publishing(node, pub, teleop, rate, lock, done)
         print(HELP.format(topic=pub.topic_name, rate=rate, lin=teleop.lin_step, ang=teleop.ang_step), flush=True)
         tty.setraw(fd)
-        _show(teleop.status())
-        running = True
-        while running and not stop.is_set():
-            ready, _, _ = select.select([fd], [], [], 0.1)
-            if not ready:
-                continue
-            data = os.read(fd, 64)
-            if not data:                       # terminal closed
-                break
-            for key in keys_from_bytes(data):
-                with lock:
-                    running = teleop.press(key)
-                if not running:
-                    break
-            _show(teleop.status())
+        _read_keys(fd, teleop, lock, stop)
     except CliError as exc:
         print(f'{prog_name("teleop_keyboard")}: error: {exc}', file=sys.stderr)
         return 2

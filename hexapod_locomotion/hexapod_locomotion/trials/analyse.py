@@ -181,6 +181,85 @@ def swing_down_writes(commands, legs, t0: float, t_end: float) -> list[float]:
     return [t for t, n in commands[lo:hi] if n == names]
 
 
+def _replay_both(robot, msg, t0: float, i: int, reads: list, writes: list, taken: bool, models: dict,
+                 problems: list, out_of_order: list) -> tuple[dict, dict, list]:
+    """Replay swing-down ``i`` with the recorded detector and the other one: per detector its phase
+    and its per-leg read rows, and the reads of this swing-down (those in bus order cut at the step
+    in which the recorded detector's last leg stopped). A detector's error goes to ``problems``."""
+    kind = msg.detector
+    other = 'fixed' if kind == 'adaptive' else 'adaptive'
+    legs = tuple(int(x) for x in msg.legs)
+    res, tr = {}, {}
+    for det in (kind, other):
+        ph = phase_from_fields(robot, msg, t0, kind=det, models=models)
+        rows = defaultdict(list)
+        try:
+            replay_swing_down(ph, reads, writes=writes, on_read=lambda r, rows=rows: rows[r.leg].append(
+                (r.t_swing_s, r.err_tick, r.threshold_tick, r.stopped, r.stop_reason)))
+        except DetectorError as exc:
+            problems.append(f'swing-down {i} at t={t0:.3f} s, {det} detector: {exc}')
+            if det == kind and 'out of Algorithm 1 order' in str(exc):
+                out_of_order.append(i)
+        res[det] = ph
+        tr[det] = dict(rows)
+        if det == kind and not taken:
+            # the recorded swing-down ended with the step in which its last leg stopped: the
+            # bus's reads after it belong to the next phase (background reads), not to this one
+            # (the step ends with the read of the last leg in bus order)
+            done = [ph.state[leg].stop_time_s + (len(legs) - 1 - slot) * ph.t_com_s
+                    for slot, leg in enumerate(legs) if ph.state[leg].stopped]
+            if done:
+                end = max(done) + 1e-9
+                reads = [r for r in reads if r[2] <= end]
+    return res, tr, reads
+
+
+def _leg_verdict(i: int, leg: int, t0: float, kind: str, other: str, res: dict, rec: dict) -> LegVerdict:
+    """One leg's stop as recorded, as the recorded detector reproduces it and as the other would have
+    decided (earlier, the same, later, or undecided without a recorded decision)."""
+    same = res[kind].state[leg]
+    oth = res[other].state[leg]
+    r_stop, r_reason = rec.get(leg, (None, None))
+    s_stop = same.stop_time_s - t0 if same.stopped else None
+    o_stop = oth.stop_time_s - t0 if oth.stopped else None
+    reproduced = (r_stop is not None and s_stop is not None and abs(r_stop - s_stop) < 1e-6
+                  and r_reason == same.stop_reason)
+    if r_stop is None:
+        verdict = 'undecided'                    # the recording has no decision to compare with
+    elif o_stop is None:
+        verdict = 'later'                        # no stop before the recorded swing-down ended
+    elif abs(o_stop - r_stop) < 1e-6:
+        verdict = 'same'
+    elif o_stop < r_stop:
+        verdict = 'earlier'
+    else:
+        verdict = 'later'
+    return LegVerdict(i, leg, t0, kind, r_stop, r_reason, s_stop, same.stop_reason if same.stopped else None,
+                      reproduced, other, o_stop if verdict != 'later' else None,
+                      oth.stop_reason if verdict in ('same', 'earlier') else None, verdict)
+
+
+def _walk_metrics(out: dict, robot, swings, power, pose, imu, intervals) -> None:
+    """Cost of transport (with the body pose and /power) and stability (with the IMU) into ``out``."""
+    if power and pose:
+        tp, pw = np.array(power).T
+        ps = np.array(pose)
+        try:
+            out['cot'] = walk_cost_of_transport(ps[:, 0], ps[:, 1:3], tp, pw, swings[0][0], robot.total_mass_kg,
+                                                robot.gravity_mps2)
+        except MetricsError as exc:
+            out['cot'] = None
+            out['cot_note'] = str(exc)
+    else:
+        out['cot'] = None
+        out['cot_note'] = ('no body pose in the bag (a real robot has no external localisation here): speed and CoT '
+                           'need /sim/body_pose' if power else 'no /power in the bag')
+    if imu:
+        a = np.array(imu)
+        st = swing_down_variances(a[:, 0], a[:, 1], a[:, 2], a[:, 3], intervals)
+        out['stability'] = {k: float(np.median([s[k] for s in st])) for k in ('var_roll', 'var_pitch', 'var_acc_z')} if st else None
+
+
 def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool = False) -> dict:
     """Re-run both detectors over the bag at ``path``.
 
@@ -215,55 +294,14 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
             lo, hi = np.searchsorted(times, t0 - 1e-9), np.searchsorted(times, t_end - 1e-9)
             reads = [(leg, th, t) for t, leg, th in femur_reads[lo:hi] if leg in legs]
         writes = swing_down_writes(commands, legs, t0, t_end)
-        kind = msg.detector
-        other = 'fixed' if kind == 'adaptive' else 'adaptive'
-        res, tr = {}, {}
-        for det in (kind, other):
-            ph = phase_from_fields(robot, msg, t0, kind=det, models=models)
-            rows = defaultdict(list)
-            try:
-                replay_swing_down(ph, reads, writes=writes, on_read=lambda r, rows=rows: rows[r.leg].append(
-                    (r.t_swing_s, r.err_tick, r.threshold_tick, r.stopped, r.stop_reason)))
-            except DetectorError as exc:
-                problems.append(f'swing-down {i} at t={t0:.3f} s, {det} detector: {exc}')
-                if det == kind and 'out of Algorithm 1 order' in str(exc):
-                    out_of_order.append(i)
-            res[det] = ph
-            tr[det] = dict(rows)
-            if det == kind and not taken:
-                # the recorded swing-down ended with the step in which its last leg stopped: the
-                # bus's reads after it belong to the next phase (background reads), not to this one
-                # (the step ends with the read of the last leg in bus order)
-                done = [ph.state[leg].stop_time_s + (len(legs) - 1 - slot) * ph.t_com_s
-                        for slot, leg in enumerate(legs) if ph.state[leg].stopped]
-                if done:
-                    end = max(done) + 1e-9
-                    reads = [r for r in reads if r[2] <= end]
+        res, tr, reads = _replay_both(robot, msg, t0, i, reads, writes, taken, models, problems, out_of_order)
         if len(traces) < keep_traces:
-            traces.append(SwingTrace(legs, t0, kind, tr))
+            traces.append(SwingTrace(legs, t0, msg.detector, tr))
+        other = 'fixed' if msg.detector == 'adaptive' else 'adaptive'
         for leg in legs:
-            same = res[kind].state[leg]
-            oth = res[other].state[leg]
-            r_stop, r_reason = rec.get(leg, (None, None))
-            s_stop = same.stop_time_s - t0 if same.stopped else None
-            o_stop = oth.stop_time_s - t0 if oth.stopped else None
-            reproduced = (r_stop is not None and s_stop is not None and abs(r_stop - s_stop) < 1e-6
-                          and r_reason == same.stop_reason)
-            if r_stop is None:
-                verdict = 'undecided'                    # the recording has no decision to compare with
-            elif o_stop is None:
-                verdict = 'later'                        # no stop before the recorded swing-down ended
-            elif abs(o_stop - r_stop) < 1e-6:
-                verdict = 'same'
-            elif o_stop < r_stop:
-                verdict = 'earlier'
-            else:
-                verdict = 'later'
-            verdicts.append(LegVerdict(i, leg, t0, kind, r_stop, r_reason, s_stop, same.stop_reason if same.stopped else None,
-                                       reproduced, other, o_stop if verdict != 'later' else None,
-                                       oth.stop_reason if verdict in ('same', 'earlier') else None, verdict))
-            if r_stop is not None:
-                intervals.append((t0, t0 + r_stop, leg))
+            verdicts.append(_leg_verdict(i, leg, t0, msg.detector, other, res, rec))
+            if verdicts[-1].recorded_stop_s is not None:
+                intervals.append((t0, t0 + verdicts[-1].recorded_stop_s, leg))
     out: dict = {'bag': str(path), 'swing_downs': len(swings) - len(incomplete), 'legs_evaluated': len(verdicts),
                  'incomplete_swing_downs': incomplete, 'out_of_order_swing_downs': out_of_order,
                  'recorded_detector': sorted({v.recorded_detector for v in verdicts}),
@@ -275,23 +313,7 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
                                                if v.other_verdict == 'earlier']),
                  'verdicts': [asdict(v) for v in verdicts], 'problems': problems,
                  'bag_warnings': list(bag_warnings)}
-    if power and pose:
-        tp, pw = np.array(power).T
-        ps = np.array(pose)
-        try:
-            out['cot'] = walk_cost_of_transport(ps[:, 0], ps[:, 1:3], tp, pw, swings[0][0], robot.total_mass_kg,
-                                                robot.gravity_mps2)
-        except MetricsError as exc:
-            out['cot'] = None
-            out['cot_note'] = str(exc)
-    else:
-        out['cot'] = None
-        out['cot_note'] = ('no body pose in the bag (a real robot has no external localisation here): speed and CoT '
-                           'need /sim/body_pose' if power else 'no /power in the bag')
-    if imu:
-        a = np.array(imu)
-        st = swing_down_variances(a[:, 0], a[:, 1], a[:, 2], a[:, 3], intervals)
-        out['stability'] = {k: float(np.median([s[k] for s in st])) for k in ('var_roll', 'var_pitch', 'var_acc_z')} if st else None
+    _walk_metrics(out, robot, swings, power, pose, imu, intervals)
     out['_traces'] = traces
     return out
 

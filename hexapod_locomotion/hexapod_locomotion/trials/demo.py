@@ -97,12 +97,12 @@ def build_parser():
     return ap
 
 
-def main(argv=None) -> int:
-    ap = build_parser()
-    args = ap.parse_args(argv)
+def _checked_outputs(ap, args):
+    """Everything the run needs, checked before anything (the bag directory) is created: the course,
+    the robot description, the bag's place and the live view. Returns ``(bag directory or None,
+    live view or None)``; a problem ends the program with one line."""
     if args.course_end <= args.start_x:
         fail(ap, f'--course-end {args.course_end} must lie beyond --start-x {args.start_x}')
-    # everything the run needs is checked before anything (the bag directory) is created
     from hexapod_model.description import DescriptionError, load_robot
     try:
         load_robot(overlays=args.overlay)
@@ -129,11 +129,11 @@ def main(argv=None) -> int:
             if live is not None:
                 live.close()
             fail(ap, f'{bag}: cannot create the bag directory: {exc.strerror or exc}')
-    if live is not None:
-        print(f'live view: {live.url} (Foxglove app: Open connection -> Foxglove WebSocket)', flush=True)
-    cfg = TrialConfig(gait=args.gait, detector=args.detector, t_des_s=args.t_des, terrain=args.terrain,
-                      seed=args.seed, duration_s=args.duration, course_end_m=args.course_end, record=bag,
-                      start_x_m=args.start_x, video=args.video, overlays=tuple(args.overlay))
+    return bag, live
+
+
+def _announce(args, cfg: TrialConfig) -> None:
+    """What the demo runs, and a note when the walk is too short for the cost of transport."""
     print(f'hexapod demo: {cfg.gait} gait, {cfg.detector} ground detection, t_des={cfg.t_des_s} s, '
           f'terrain "{cfg.terrain}" (seed {cfg.seed}), simulated AX-12A bus with T_com='
           f'{cfg.t_com_s or "description default"}', flush=True)
@@ -141,6 +141,47 @@ def main(argv=None) -> int:
         print(f'note: the cost of transport (Eq. 18) needs {COT_WINDOW_S:g} s of walking from the first swing-down; '
               f'--duration {args.duration:g} leaves less, so it will not be computed (use --duration '
               f'{COT_WINDOW_S + STAND_UP_MARGIN_S:g} or more)', flush=True)
+
+
+def _interrupted(ap, bag: str | None, video: str | None) -> int:
+    """Ctrl-C during the walk (the trial closed its bag and wrote the GIF so far on the way out): an
+    empty bag folder is removed, and the line says what was kept."""
+    if bag and Path(bag).is_dir() and not any(Path(bag).iterdir()):
+        Path(bag).rmdir()         # stopped before the recording began: no empty bag folder left
+        bag = None
+    kept = [f'bag {bag} closed' if bag else '', f'video {video}' if video and Path(video).is_file() else '']
+    kept = [k for k in kept if k]
+    return interrupted(ap.prog, f'{" and ".join(kept)}, with the walk so far' if kept else 'nothing recorded')
+
+
+def _print_results(args, res, bag: str | None) -> None:
+    """The summary, the trial's first notes, where the bag and the video are, and the JSON file."""
+    for line in summary_lines(res):
+        print(line)
+    for w in res.warnings[:5]:
+        print(f'  note: {w}')
+    if len(res.warnings) > 5:
+        print(f'  ... {len(res.warnings) - 5} more notes in the JSON output')
+    if bag:
+        print(f'recorded bag: {bag}  (replay: ./hexapod replay {bag}; analyse: ./hexapod analyse {bag})')
+    if args.video:
+        print(f'video: {args.video}')
+    if args.json:
+        with open(args.json, 'w') as f:
+            json.dump(res.to_dict(), f, indent=1)
+        print(f'results written to {args.json}')
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    bag, live = _checked_outputs(ap, args)
+    if live is not None:
+        print(f'live view: {live.url} (Foxglove app: Open connection -> Foxglove WebSocket)', flush=True)
+    cfg = TrialConfig(gait=args.gait, detector=args.detector, t_des_s=args.t_des, terrain=args.terrain,
+                      seed=args.seed, duration_s=args.duration, course_end_m=args.course_end, record=bag,
+                      start_x_m=args.start_x, video=args.video, overlays=tuple(args.overlay))
+    _announce(args, cfg)
     from tqdm import tqdm
     total = round(max(args.course_end - args.start_x, 0.01), 2)
     bar = tqdm(total=total, unit='m', desc='walking', file=sys.stderr, mininterval=1.0, disable=not args.progress,
@@ -159,31 +200,13 @@ def main(argv=None) -> int:
         res = run_trial(cfg, progress=progress, on_video_write=on_video, live=live)
     except KeyboardInterrupt:         # the trial closed its bag (and wrote the GIF so far) on the way out
         bar.close()
-        if bag and Path(bag).is_dir() and not any(Path(bag).iterdir()):
-            Path(bag).rmdir()         # stopped before the recording began: no empty bag folder left
-            bag = None
-        kept = [f'bag {bag} closed' if bag else '', f'video {args.video}' if args.video and Path(args.video).is_file() else '']
-        kept = [k for k in kept if k]
-        return interrupted(ap.prog, f'{" and ".join(kept)}, with the walk so far' if kept else 'nothing recorded')
+        return _interrupted(ap, bag, args.video)
     finally:
         if live is not None:
             live.close()
     bar.close()
     print(f'done in {time.monotonic() - t0:.0f} s of wall time')
-    for line in summary_lines(res):
-        print(line)
-    for w in res.warnings[:5]:
-        print(f'  note: {w}')
-    if len(res.warnings) > 5:
-        print(f'  ... {len(res.warnings) - 5} more notes in the JSON output')
-    if bag:
-        print(f'recorded bag: {bag}  (replay: ./hexapod replay {bag}; analyse: ./hexapod analyse {bag})')
-    if args.video:
-        print(f'video: {args.video}')
-    if args.json:
-        with open(args.json, 'w') as f:
-            json.dump(res.to_dict(), f, indent=1)
-        print(f'results written to {args.json}')
+    _print_results(args, res, bag)
     return 1 if res.fell else 0
 
 

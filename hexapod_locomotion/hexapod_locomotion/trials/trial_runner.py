@@ -292,7 +292,7 @@ def _open_recorder(cfg: TrialConfig, robot: Robot, ground, live, recorder):
         from hexapod_sim.bagio.recorder import Recorder
         return Recorder(Path(cfg.record) if cfg.record else None, robot=robot, live=live, scene=ground.to_text())
     if recorder is None and cfg.record:   # by a process of its own, which closes the bag even if this one is killed
-        from hexapod_sim.bagio.recorder import RecorderProcess
+        from hexapod_sim.bagio.recorder_process import RecorderProcess
         return RecorderProcess(Path(cfg.record), robot=robot, on_error=_recording_failed, scene=ground.to_text())
     return recorder
 

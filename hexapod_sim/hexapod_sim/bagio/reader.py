@@ -72,6 +72,83 @@ def _collect_chunk_records(chunk: Chunk, scan: _FileScan) -> tuple[list[Message]
     return msgs, len(msgs)
 
 
+def _check_magic(path: Path, head: bytes, size: int) -> None:
+    """Refuse a file that is empty or does not start with the MCAP magic, saying which."""
+    if size == 0:
+        raise BagError(f'{path}: file is empty (0 bytes): no data was ever written to this bag')
+    if head != MCAP_MAGIC:
+        if MCAP_MAGIC.startswith(head):
+            raise BagError(f'{path}: truncated to {size} bytes, before the end of the MCAP magic; '
+                           'nothing is readable')
+        raise BagError(f'{path}: not an MCAP file (starts with {head[:8]!r}, expected the MCAP '
+                       f'magic {MCAP_MAGIC!r}); nothing is readable')
+
+
+def _record_header(f, scan: _FileScan, pos: int, size: int) -> tuple[int, int] | None:
+    """The opcode and length of the record at ``pos``; None, with the problem noted, when the header
+    is cut off, the opcode is invalid or the record runs past the end of the file."""
+    if size - pos < 9:
+        scan.problems.append(f'truncated at byte {size}: {size - pos} trailing byte(s) of an '
+                             'incomplete record header')
+        return None
+    f.seek(pos)
+    op, length = struct.unpack('<BQ', f.read(9))
+    if op not in _KNOWN_OPCODES and op < 0x80:
+        scan.problems.append(f'corrupt data at byte {pos}: invalid record opcode 0x{op:02x}; '
+                             f'the remaining {size - pos} bytes are unreadable')
+        return None
+    if pos + 9 + length > size:
+        scan.problems.append(
+            f'truncated at byte {size}: the {_opname(op)} record starting at byte {pos} needs '
+            f'{9 + length} bytes but only {size - pos} remain')
+        return None
+    return op, length
+
+
+def _scan_chunk(scan: _FileScan, stream, file_idx: int, pos: int, length: int) -> None:
+    """A chunk record: its messages counted and the chunk noted for reading; a corrupt chunk is skipped."""
+    chunk = Chunk.read(stream)
+    try:
+        msgs, n = _collect_chunk_records(chunk, scan)
+    except Exception as exc:      # bad compression / CRC / inner framing
+        scan.problems.append(f'corrupt chunk at byte {pos} ({exc}); its messages are '
+                             'skipped')
+    else:
+        if n:
+            scan.chunks.append(_ChunkRef(file_idx, pos, 9 + length,
+                                         chunk.message_start_time, chunk.message_end_time, n))
+            for m in msgs:
+                scan.counts[m.channel_id] = scan.counts.get(m.channel_id, 0) + 1
+
+
+def _scan_record(f, scan: _FileScan, file_idx: int, op: int, body: bytes, pos: int, length: int) -> bool:
+    """One record into ``scan``; True at the footer (the file is complete when the magic follows it)."""
+    stream = ReadDataStream(io.BytesIO(body))
+    if op == Opcode.CHUNK:
+        _scan_chunk(scan, stream, file_idx, pos, length)
+    elif op == Opcode.SCHEMA:
+        rec = Schema.read(stream)
+        scan.schemas.setdefault(rec.id, rec)
+    elif op == Opcode.CHANNEL:
+        rec = Channel.read(stream)
+        scan.channels.setdefault(rec.id, rec)
+    elif op == Opcode.MESSAGE:
+        rec = Message.read(stream, length)
+        scan.loose.append(rec)
+        scan.counts[rec.channel_id] = scan.counts.get(rec.channel_id, 0) + 1
+    elif op == Opcode.FOOTER:
+        Footer.read(stream)
+        f.seek(pos + 9 + length)
+        tail = f.read(len(MCAP_MAGIC))
+        if tail != MCAP_MAGIC:
+            scan.problems.append(f'footer at byte {pos} is not followed by the MCAP magic')
+        else:
+            scan.complete = True
+        scan.readable_bytes = pos + 9 + length + len(tail)
+        return True
+    return False
+
+
 def _scan_file(path: Path, file_idx: int) -> _FileScan:
     """Walk every record of one MCAP file; stop at the first broken/truncated record."""
     try:
@@ -81,69 +158,17 @@ def _scan_file(path: Path, file_idx: int) -> _FileScan:
         raise BagError(f'{path}: cannot open: {exc.strerror or exc}') from exc
     scan = _FileScan(path, size)
     with f:
-        head = f.read(len(MCAP_MAGIC))
-        if size == 0:
-            raise BagError(f'{path}: file is empty (0 bytes): no data was ever written to this bag')
-        if head != MCAP_MAGIC:
-            if MCAP_MAGIC.startswith(head):
-                raise BagError(f'{path}: truncated to {size} bytes, before the end of the MCAP magic; '
-                               'nothing is readable')
-            raise BagError(f'{path}: not an MCAP file (starts with {head[:8]!r}, expected the MCAP '
-                           f'magic {MCAP_MAGIC!r}); nothing is readable')
+        _check_magic(path, f.read(len(MCAP_MAGIC)), size)
         pos = len(MCAP_MAGIC)
         scan.readable_bytes = pos
         while pos < size:
-            if size - pos < 9:
-                scan.problems.append(f'truncated at byte {size}: {size - pos} trailing byte(s) of an '
-                                     'incomplete record header')
+            header = _record_header(f, scan, pos, size)
+            if header is None:
                 break
-            f.seek(pos)
-            op, length = struct.unpack('<BQ', f.read(9))
-            if op not in _KNOWN_OPCODES and op < 0x80:
-                scan.problems.append(f'corrupt data at byte {pos}: invalid record opcode 0x{op:02x}; '
-                                     f'the remaining {size - pos} bytes are unreadable')
-                break
-            if pos + 9 + length > size:
-                scan.problems.append(
-                    f'truncated at byte {size}: the {_opname(op)} record starting at byte {pos} needs '
-                    f'{9 + length} bytes but only {size - pos} remain')
-                break
+            op, length = header
             body = f.read(length)
             try:
-                rec = None
-                stream = ReadDataStream(io.BytesIO(body))
-                if op == Opcode.CHUNK:
-                    chunk = Chunk.read(stream)
-                    try:
-                        msgs, n = _collect_chunk_records(chunk, scan)
-                    except Exception as exc:      # bad compression / CRC / inner framing
-                        scan.problems.append(f'corrupt chunk at byte {pos} ({exc}); its messages are '
-                                             'skipped')
-                    else:
-                        if n:
-                            scan.chunks.append(_ChunkRef(file_idx, pos, 9 + length,
-                                                         chunk.message_start_time, chunk.message_end_time, n))
-                            for m in msgs:
-                                scan.counts[m.channel_id] = scan.counts.get(m.channel_id, 0) + 1
-                elif op == Opcode.SCHEMA:
-                    rec = Schema.read(stream)
-                    scan.schemas.setdefault(rec.id, rec)
-                elif op == Opcode.CHANNEL:
-                    rec = Channel.read(stream)
-                    scan.channels.setdefault(rec.id, rec)
-                elif op == Opcode.MESSAGE:
-                    rec = Message.read(stream, length)
-                    scan.loose.append(rec)
-                    scan.counts[rec.channel_id] = scan.counts.get(rec.channel_id, 0) + 1
-                elif op == Opcode.FOOTER:
-                    Footer.read(stream)
-                    f.seek(pos + 9 + length)
-                    tail = f.read(len(MCAP_MAGIC))
-                    if tail != MCAP_MAGIC:
-                        scan.problems.append(f'footer at byte {pos} is not followed by the MCAP magic')
-                    else:
-                        scan.complete = True
-                    scan.readable_bytes = pos + 9 + length + len(tail)
+                if _scan_record(f, scan, file_idx, op, body, pos, length):
                     break
             except Exception as exc:
                 scan.problems.append(f'corrupt {_opname(op)} record at byte {pos} ({exc}); the '

@@ -145,13 +145,8 @@ def _clip_to_limits(robot: Robot, q):
             raise CalibrationError(f'calibration pose {r}={q[i]:.3f} rad is outside the joint limits [{lo}, {hi}]')
 
 
-def calibration_plan(robot: Robot, legs=LEGS, phases=PHASES, repeats: int = 1, speed_scale: float = 1.0) -> CalibrationPlan:
-    """The stand calibration routine for ``legs`` (see the module docstring).
-
-    ``phases``: subset/order of :data:`PHASES` (``settle`` is always first). ``repeats``: how often
-    each motion pattern repeats within its phase (more data per condition). ``speed_scale``
-    scales every speed (e.g. 0.5 for a gentler first run on a real robot).
-    """
+def _check_plan_args(legs, phases, repeats: int, speed_scale: float) -> tuple[int, ...]:
+    """:func:`calibration_plan`'s arguments checked; the legs as a tuple of ints."""
     legs = tuple(int(x) for x in legs)
     if not legs or any(leg not in LEGS for leg in legs) or len(set(legs)) != len(legs):
         raise CalibrationError(f'legs must be distinct leg numbers from {LEGS}, got {legs!r}')
@@ -162,89 +157,116 @@ def calibration_plan(robot: Robot, legs=LEGS, phases=PHASES, repeats: int = 1, s
         raise CalibrationError(f'repeats must be >= 1, got {repeats}')
     if not speed_scale > 0:
         raise CalibrationError(f'speed_scale must be > 0, got {speed_scale}')
+    return legs
+
+
+def _coxa_motion(tr: _Track, v: float, small: float, vertical: float) -> None:
+    """One repetition of the coxa phase (leg stretched out: large inertia)."""
+    tr.triangle(0, -0.35, 0.35, 0.35 * v)
+    tr.move((0.0, None, None), speed=0.35 * v)
+    tr.hold(0.3)
+    tr.triangle(0, -0.35, 0.35, 1.4 * v, cycles=2)
+    tr.move((0.0, None, None), speed=1.4 * v)
+    tr.hold(0.3)
+    for target, hold in ((0.3, 0.5), (-0.3, 0.6), (0.1, 0.4), (-0.1, 0.4), (0.0, 0.5)):
+        tr.step((target, None, None), hold)
+    for target in (small, 0.0, -small, 0.0, 2 * small, 0.0):
+        tr.step((target, None, None), 0.35)
+
+
+def _femur_motion(tr: _Track, v: float, small: float, vertical: float) -> None:
+    """One repetition of the femur phase."""
+    tr.triangle(1, -0.3, 0.8, 0.4 * v)
+    tr.move((None, 0.2, None), speed=0.4 * v)
+    tr.hold(0.3)
+    tr.triangle(1, -0.3, 0.8, 1.5 * v, cycles=2)
+    tr.move((None, 0.2, None), speed=1.5 * v)
+    tr.hold(0.3)
+    for target, hold in ((0.6, 0.5), (-0.2, 0.6), (0.8, 0.5), (-0.3, 0.5), (0.2, 0.5)):
+        tr.step((None, target, None), hold)
+    for target in (0.2 + small, 0.2, 0.2 - small, 0.2, 0.2 + 2 * small, 0.2):
+        tr.step((None, target, None), 0.35)
+
+
+def _tibia_motion(tr: _Track, v: float, small: float, vertical: float) -> None:
+    """One repetition of the tibia phase, about the tibia hanging straight down (``vertical``)."""
+    tr.triangle(2, vertical - 0.45, vertical + 0.6, 0.4 * v)
+    tr.move((None, None, vertical + 0.35), speed=0.4 * v)
+    tr.hold(0.3)
+    tr.triangle(2, vertical - 0.45, vertical + 0.6, 1.5 * v, cycles=2)
+    tr.move((None, None, vertical + 0.35), speed=1.5 * v)
+    tr.hold(0.3)
+    for d, hold in ((-0.35, 0.5), (0.5, 0.5), (-0.2, 0.5), (0.2, 0.5), (0.35, 0.5)):
+        tr.step((None, None, vertical + d), hold)
+    base = vertical + 0.35
+    for target in (base + small, base, base - small, base, base + 2 * small, base):
+        tr.step((None, None, target), 0.35)
+
+
+def _femur_reversal_motion(tr: _Track, v: float, small: float, vertical: float) -> None:
+    """One repetition of the femur reversal phase (tibia folded back over the femur)."""
+    tr.triangle(1, 1.15, 1.68, 0.3 * v)
+    tr.hold(0.3)
+
+
+def _swing_motion(tr: _Track, v: float, small: float, vertical: float) -> None:
+    """One repetition of the swing phase: swing-downs of 0.5, 1.0 and 0.3 s."""
+    for t_des in (0.5, 1.0, 0.3):
+        tr.move((None, 0.45, 0.1), speed=1.0 * v)
+        tr.hold(0.3)
+        tr.move((None, -0.15, -0.05), duration=t_des / v)
+        tr.hold(0.4)
+
+
+# per phase after settle: its start pose (given the tibia's vertical angle), the joints it reads and
+# one repetition of its motion
+_PHASE_MOTIONS = {
+    'coxa': (lambda vertical: (0.0, 0.0, 0.6), ('coxa',), _coxa_motion),
+    'femur': (lambda vertical: (0.0, 0.2, 0.3), ('femur',), _femur_motion),
+    'tibia': (lambda vertical: (0.0, 0.0, vertical + 0.35), ('tibia',), _tibia_motion),
+    'femur_reversal': (lambda vertical: (0.0, 1.15, 1.5), ('femur', 'tibia'), _femur_reversal_motion),
+    'swing': (lambda vertical: (0.0, 0.45, 0.1), ('femur', 'tibia'), _swing_motion),
+}
+
+
+def _plan_phases(spans, now: float, dt: float) -> tuple[Phase, ...]:
+    """The phases from their spans; the transitions between phases belong to the following phase,
+    reading its joints, and the last phase ends a control period after ``now``."""
+    phases_out = []
+    prev_end = 0.0
+    for i, (name, a, b, roles) in enumerate(spans):
+        start = prev_end if i > 0 else 0.0
+        end_t = b if i < len(spans) - 1 else now + dt
+        phases_out.append(Phase(name, start, end_t, tuple(roles)))
+        prev_end = end_t
+    return tuple(phases_out)
+
+
+def calibration_plan(robot: Robot, legs=LEGS, phases=PHASES, repeats: int = 1, speed_scale: float = 1.0) -> CalibrationPlan:
+    """The stand calibration routine for ``legs`` (see the module docstring).
+
+    ``phases``: subset/order of :data:`PHASES` (``settle`` is always first). ``repeats``: how often
+    each motion pattern repeats within its phase (more data per condition). ``speed_scale``
+    scales every speed (e.g. 0.5 for a gentler first run on a real robot).
+    """
+    legs = _check_plan_args(legs, phases, repeats, speed_scale)
     v = speed_scale
     s = robot.servo
-    tick = s.rad_per_tick
-    small = 3 * tick                       # a 3-tick step: below a strong break-away torque or dead-band
-    off2, off3 = robot.dh['femur'].theta_off_rad, robot.dh['tibia'].theta_off_rad
+    small = 3 * s.rad_per_tick             # a 3-tick step: below a strong break-away torque or dead-band
+    vertical = -math.pi / 2 - robot.dh['femur'].theta_off_rad - robot.dh['tibia'].theta_off_rad  # tibia straight down
     tr = _Track(_HOME)
-    spans: list[tuple[str, float, float, tuple[str, ...]]] = []
-
-    def begin(name, pose, roles):
-        tr.move(pose, speed=0.8 * v)
-        tr.hold(0.4)
-        spans.append((name, tr.now, math.nan, roles))
-
-    def end():
-        name, a, _, roles = spans[-1]
-        spans[-1] = (name, a, tr.now, roles)
-
-    spans.append(('settle', 0.0, math.nan, JOINT_ROLES))
     tr.hold(0.6)
-    end()
+    spans: list[tuple[str, float, float, tuple[str, ...]]] = [('settle', 0.0, tr.now, JOINT_ROLES)]
     for name in phases:
         if name == 'settle':
             continue
-        if name == 'coxa':
-            pose = (0.0, 0.0, 0.6)                               # leg stretched out: large inertia
-            begin(name, pose, ('coxa',))
-            for _ in range(repeats):
-                tr.triangle(0, -0.35, 0.35, 0.35 * v)
-                tr.move((0.0, None, None), speed=0.35 * v)
-                tr.hold(0.3)
-                tr.triangle(0, -0.35, 0.35, 1.4 * v, cycles=2)
-                tr.move((0.0, None, None), speed=1.4 * v)
-                tr.hold(0.3)
-                for target, hold in ((0.3, 0.5), (-0.3, 0.6), (0.1, 0.4), (-0.1, 0.4), (0.0, 0.5)):
-                    tr.step((target, None, None), hold)
-                for target in (small, 0.0, -small, 0.0, 2 * small, 0.0):
-                    tr.step((target, None, None), 0.35)
-            end()
-        elif name == 'femur':
-            begin(name, (0.0, 0.2, 0.3), ('femur',))
-            for _ in range(repeats):
-                tr.triangle(1, -0.3, 0.8, 0.4 * v)
-                tr.move((None, 0.2, None), speed=0.4 * v)
-                tr.hold(0.3)
-                tr.triangle(1, -0.3, 0.8, 1.5 * v, cycles=2)
-                tr.move((None, 0.2, None), speed=1.5 * v)
-                tr.hold(0.3)
-                for target, hold in ((0.6, 0.5), (-0.2, 0.6), (0.8, 0.5), (-0.3, 0.5), (0.2, 0.5)):
-                    tr.step((None, target, None), hold)
-                for target in (0.2 + small, 0.2, 0.2 - small, 0.2, 0.2 + 2 * small, 0.2):
-                    tr.step((None, target, None), 0.35)
-            end()
-        elif name == 'tibia':
-            vertical = -math.pi / 2 - off2 - off3                 # tibia hangs straight down (femur level)
-            begin(name, (0.0, 0.0, vertical + 0.35), ('tibia',))
-            for _ in range(repeats):
-                tr.triangle(2, vertical - 0.45, vertical + 0.6, 0.4 * v)
-                tr.move((None, None, vertical + 0.35), speed=0.4 * v)
-                tr.hold(0.3)
-                tr.triangle(2, vertical - 0.45, vertical + 0.6, 1.5 * v, cycles=2)
-                tr.move((None, None, vertical + 0.35), speed=1.5 * v)
-                tr.hold(0.3)
-                for d, hold in ((-0.35, 0.5), (0.5, 0.5), (-0.2, 0.5), (0.2, 0.5), (0.35, 0.5)):
-                    tr.step((None, None, vertical + d), hold)
-                base = vertical + 0.35
-                for target in (base + small, base, base - small, base, base + 2 * small, base):
-                    tr.step((None, None, target), 0.35)
-            end()
-        elif name == 'femur_reversal':
-            begin(name, (0.0, 1.15, 1.5), ('femur', 'tibia'))      # tibia folded back over the femur
-            for _ in range(repeats):
-                tr.triangle(1, 1.15, 1.68, 0.3 * v)
-                tr.hold(0.3)
-            end()
-        elif name == 'swing':
-            begin(name, (0.0, 0.45, 0.1), ('femur', 'tibia'))
-            for _ in range(repeats):
-                for t_des in (0.5, 1.0, 0.3):
-                    tr.move((None, 0.45, 0.1), speed=1.0 * v)
-                    tr.hold(0.3)
-                    tr.move((None, -0.15, -0.05), duration=t_des / v)
-                    tr.hold(0.4)
-            end()
+        pose, roles, motion = _PHASE_MOTIONS[name]
+        tr.move(pose(vertical), speed=0.8 * v)
+        tr.hold(0.4)
+        start = tr.now
+        for _ in range(repeats):
+            motion(tr, v, small, vertical)
+        spans.append((name, start, tr.now, roles))
     tr.move(_HOME, speed=0.8 * v)
     tr.hold(0.3)
     name, a, _, roles = spans[-1]
@@ -253,15 +275,7 @@ def calibration_plan(robot: Robot, legs=LEGS, phases=PHASES, repeats: int = 1, s
     goals = tr.sample(dt)
     for q in (goals.min(axis=0), goals.max(axis=0)):
         _clip_to_limits(robot, q)
-    phases_out = []
-    prev_end = 0.0
-    for i, (name, a, b, roles) in enumerate(spans):
-        # transitions between phases belong to the following phase, reading its joints
-        start = prev_end if i > 0 else 0.0
-        end_t = b if i < len(spans) - 1 else tr.now + dt
-        phases_out.append(Phase(name, start, end_t, tuple(roles)))
-        prev_end = end_t
-    return CalibrationPlan(legs=legs, dt_s=dt, goals_rad=goals, phases=tuple(phases_out))
+    return CalibrationPlan(legs=legs, dt_s=dt, goals_rad=goals, phases=_plan_phases(spans, tr.now, dt))
 
 
 def run_calibration(bus, plan: CalibrationPlan, progress: bool = True, robot: Robot | None = None):

@@ -96,6 +96,20 @@ def term_lines(a: Analysis) -> list[str]:
 
 def text_report(a: Analysis, max_windows: int = 8) -> str:
     """A short plain-language report for a person."""
+    judged = {j: v for j, v in a.joints.items() if v.n_heldout > 0}
+    lines = _header_lines(a, max_windows)
+    lines += _finding_lines(a, judged)
+    lines += _blind_lines(a)
+    lines += _heldout_lines(a, judged)
+    lines += _phase_fit_lines(a)
+    if a.whole_walk is not None:
+        lines += _whole_walk_lines(a.whole_walk)
+    lines += _mismatch_lines(a, judged, max_windows)
+    return '\n'.join(lines)
+
+
+def _header_lines(a: Analysis, max_windows: int) -> list[str]:
+    """The recording, the analysis's notes and the glitches of its input."""
     n_reads = sum(len(r.t_s) for r in a.replay.reads.values())
     lines = [f'discrepancy report for {a.source}',
              f'  {a.duration_s:.1f} s recording, {len(a.replay.joints)} joints, {n_reads} reads; '
@@ -108,7 +122,13 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
         if len(a.glitches) > max_windows:
             lines.append(f'    ... and {len(a.glitches) - max_windows} more (all in --json)')
     lines.append('')
-    judged = {j: v for j, v in a.joints.items() if v.n_heldout > 0}
+    return lines
+
+
+def _finding_lines(a: Analysis, judged: dict) -> list[str]:
+    """What the analysis found: the effects the simulation left out, the dictionary's terms and the
+    mismatches no candidate explains (or that nothing is missing)."""
+    lines = []
     if not a.effects and judged:
         worst_j, worst = max(judged.items(), key=lambda kv: kv[1].heldout_rmse_ticks_before)
         rmse = worst.heldout_rmse_ticks_before
@@ -140,20 +160,32 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
             line += (f'; the nearest candidate, {c.describe(next(iter(u.nearest.params.values())))}, leaves '
                      f'{u.nearest_rmse_ticks:.2f} ticks and is not named: something outside the library')
         lines.append(line + '.')
-    if a.blind:
-        n_j = len(a.replay.joints)
-        lines.append('')
-        lines.append(f'what this recording cannot show (a typical size of the effect changes the prediction of the '
-                     f'fitting or the held-out reads by less than the {least_confirmable_change(a.min_drop_ticks):.2f} '
-                     f'tick RMS that an effect needs to gain {a.min_drop_ticks:g} tick over tick rounding, or on too '
-                     f'few held-out reads):')
-        for name, js in a.blind.items():
-            c = BY_NAME[name]
-            n_all = n_j - (sum(1 for j in a.replay.joints if j.endswith('_coxa')) if name == 'mass_error' else 0)
-            where = 'any analysed joint' if len(js) == n_all else ', '.join(js)
-            lines.append(f'  {c.describe(c.typical)} on {where} (it needs {REVEALED_BY[name]}; '
-                         'not found there means not shown, not absent)')
+    return lines
+
+
+def _blind_lines(a: Analysis) -> list[str]:
+    """The effects this recording cannot show."""
+    if not a.blind:
+        return []
+    lines = []
+    n_j = len(a.replay.joints)
     lines.append('')
+    lines.append(f'what this recording cannot show (a typical size of the effect changes the prediction of the '
+                 f'fitting or the held-out reads by less than the {least_confirmable_change(a.min_drop_ticks):.2f} '
+                 f'tick RMS that an effect needs to gain {a.min_drop_ticks:g} tick over tick rounding, or on too '
+                 f'few held-out reads):')
+    for name, js in a.blind.items():
+        c = BY_NAME[name]
+        n_all = n_j - (sum(1 for j in a.replay.joints if j.endswith('_coxa')) if name == 'mass_error' else 0)
+        where = 'any analysed joint' if len(js) == n_all else ', '.join(js)
+        lines.append(f'  {c.describe(c.typical)} on {where} (it needs {REVEALED_BY[name]}; '
+                     'not found there means not shown, not absent)')
+    return lines
+
+
+def _heldout_lines(a: Analysis, judged: dict) -> list[str]:
+    """The held-out RMS error per joint, three joints a line."""
+    lines = ['']
     lines.append('held-out RMS error per joint [ticks], nominal model -> with the effects:')
     row = []
     for j, v in judged.items():
@@ -166,36 +198,43 @@ def text_report(a: Analysis, max_windows: int = 8) -> str:
     unjudged = [j for j, v in a.joints.items() if v.n_heldout == 0]
     if unjudged:
         lines.append(f'  (no held-out reads, not judged: {", ".join(unjudged)})')
-    if a.phase_fit:
-        lines.append('')
-        lines.append('walk: RMS error per joint and gait phase [ticks], nominal -> with the effects (analysed reads; '
-                     'stance and leveling are not analysed: the leg carries the body there):')
-        used = [ph for ph in PHASES if any(ph in row for row in a.phase_fit.values())]
-        lines.append('  ' + f'{"":11s}' + ''.join(f'{ph.replace("_", "-"):>16s}' for ph in used))
-        for j, row in a.phase_fit.items():
-            cells = [(f'{row[ph].rmse_ticks_before:.2f}->{row[ph].rmse_ticks_after:.2f}' if ph in row else '-')
-                     for ph in used]
-            lines.append('  ' + f'{j:11s}' + ''.join(f'{c:>16s}' for c in cells))
-    if a.whole_walk is not None:
-        lines += _whole_walk_lines(a.whole_walk)
-    if a.mismatches:
-        lines.append('')
-        close = not a.effects and judged and max(v.heldout_rmse_ticks_before for v in judged.values()) <= CLOSE_FIT_TICKS
-        if close:
-            lines.append(f'{len(a.mismatches)} short stretch(es) where the residual over {WINDOW_S:g} s briefly exceeds '
-                         'tick rounding, too brief to raise the held-out RMS above it; largest '
-                         f'{min(max_windows, len(a.mismatches))}:')
-        else:
-            lines.append(f'{len(a.mismatches)} mismatch window(s) where the residual over {WINDOW_S:g} s exceeds tick '
-                         f'rounding in the nominal replay; largest {min(max_windows, len(a.mismatches))}:')
-        lines.append(f'  {"joint":11s} {"window [s]":>15s}  {"peak":>5s} / {"whole":>5s} ticks RMS  condition')
-        for m in sorted(a.mismatches, key=lambda m: -m.rmse_ticks * math.sqrt(m.t_end - m.t_start + 1e-3))[:max_windows]:
-            lines.append(f'  {m.joint:11s} {m.t_start:7.2f}-{m.t_end:7.2f}  {m.peak_rmse_ticks:5.2f} / {m.rmse_ticks:5.2f}'
-                         f'             {m.condition}' + (f' ({m.phase.replace("_", "-")})' if m.phase else ''))
+    return lines
+
+
+def _phase_fit_lines(a: Analysis) -> list[str]:
+    """A walk's RMS error per joint and gait phase."""
+    if not a.phase_fit:
+        return []
+    lines = ['']
+    lines.append('walk: RMS error per joint and gait phase [ticks], nominal -> with the effects (analysed reads; '
+                 'stance and leveling are not analysed: the leg carries the body there):')
+    used = [ph for ph in PHASES if any(ph in row for row in a.phase_fit.values())]
+    lines.append('  ' + f'{"":11s}' + ''.join(f'{ph.replace("_", "-"):>16s}' for ph in used))
+    for j, row in a.phase_fit.items():
+        cells = [(f'{row[ph].rmse_ticks_before:.2f}->{row[ph].rmse_ticks_after:.2f}' if ph in row else '-')
+                 for ph in used]
+        lines.append('  ' + f'{j:11s}' + ''.join(f'{c:>16s}' for c in cells))
+    return lines
+
+
+def _mismatch_lines(a: Analysis, judged: dict, max_windows: int) -> list[str]:
+    """The largest windows where the nominal replay departs from the recording beyond tick rounding."""
+    if not a.mismatches:
+        return ['', 'No time window departs from the nominal replay beyond tick rounding.']
+    lines = ['']
+    close = not a.effects and judged and max(v.heldout_rmse_ticks_before for v in judged.values()) <= CLOSE_FIT_TICKS
+    if close:
+        lines.append(f'{len(a.mismatches)} short stretch(es) where the residual over {WINDOW_S:g} s briefly exceeds '
+                     'tick rounding, too brief to raise the held-out RMS above it; largest '
+                     f'{min(max_windows, len(a.mismatches))}:')
     else:
-        lines.append('')
-        lines.append('No time window departs from the nominal replay beyond tick rounding.')
-    return '\n'.join(lines)
+        lines.append(f'{len(a.mismatches)} mismatch window(s) where the residual over {WINDOW_S:g} s exceeds tick '
+                     f'rounding in the nominal replay; largest {min(max_windows, len(a.mismatches))}:')
+    lines.append(f'  {"joint":11s} {"window [s]":>15s}  {"peak":>5s} / {"whole":>5s} ticks RMS  condition')
+    for m in sorted(a.mismatches, key=lambda m: -m.rmse_ticks * math.sqrt(m.t_end - m.t_start + 1e-3))[:max_windows]:
+        lines.append(f'  {m.joint:11s} {m.t_start:7.2f}-{m.t_end:7.2f}  {m.peak_rmse_ticks:5.2f} / {m.rmse_ticks:5.2f}'
+                     f'             {m.condition}' + (f' ({m.phase.replace("_", "-")})' if m.phase else ''))
+    return lines
 
 
 def overlay_yaml(a: Analysis) -> str:

@@ -20,7 +20,7 @@ the old schedule.
 ``record``: '' (off), 'auto' (``bags/sim_<UTC time>``), a name (``bags/<name>``) or a path: every
 topic above plus ``/ground_detection``, ``/swing_down`` and ``/cmd_vel`` is written to a rosbag2 MCAP bag,
 with ``/robot_description``, ``/tf_static`` and ``/tf`` (hexapod_sim.bagio.recorder). The bag is written by
-a process of its own (:class:`~hexapod_sim.bagio.recorder.RecorderProcess`; with the Foxglove live view, by a
+a process of its own (:class:`~hexapod_sim.bagio.recorder_process.RecorderProcess`; with the Foxglove live view, by a
 thread of this node, :class:`~hexapod_sim.bagio.recorder.RecorderThread`): publishing and recording a message
 only enqueues it, so neither the controller's bus transactions nor the executor's callbacks wait for
 the bag, and the conversion and writing do not take this process's interpreter from the executor
@@ -54,7 +54,8 @@ from hexapod_model.urdf import urdf_xml
 from hexapod_msgs.msg import BusTiming, LegGroundDetection, ReadSchedule, ServoDiagnostics, ServoStatus, SwingDownStart, TerrainClass
 from hexapod_msgs.srv import SetReadSchedule
 from hexapod_sim.bagio import BagError
-from hexapod_sim.bagio.recorder import Recorder, RecorderProcess, RecorderThread, resolve_bag_dir
+from hexapod_sim.bagio.recorder import Recorder, RecorderThread, resolve_bag_dir
+from hexapod_sim.bagio.recorder_process import RecorderProcess
 from hexapod_sim.node.bus_master_loop import (
     TRUTH_LAYOUT,
     BusTimingSample,
@@ -309,95 +310,113 @@ class SimNode(Node):
         self._record(topic, msg, t_s)
 
     def _publish(self, ev) -> None:
-        if isinstance(ev, JointSample):
-            m = JointState()
-            m.header.stamp = stamp_msg(ev.t_s)
-            m.name = [ev.joint]
-            m.position = [ev.theta_rad]
-            self._send(contract.JOINT_STATES, m, ev.t_s + self.sim.t_com_s)
-        elif isinstance(ev, CommandSample):
-            m = JointState()
-            m.header.stamp = stamp_msg(ev.t_s)
-            m.name = list(ev.goals_rad)
-            m.position = [float(v) for v in ev.goals_rad.values()]
-            self._send(contract.JOINT_COMMANDS, m, ev.t_s)
-        elif isinstance(ev, ScheduleSample):
-            m = ReadSchedule(joint_names=list(ev.joint_names))
-            m.header.stamp = stamp_msg(ev.t_s)
-            self._record(contract.READ_SCHEDULE, m, ev.t_s)
-        elif isinstance(ev, ClockTick):
-            self._send(contract.CLOCK, Clock(clock=stamp_msg(ev.t_s)), ev.t_s)
-        elif isinstance(ev, ImuSample):
-            m = Imu()
-            m.header.stamp = stamp_msg(ev.t_s)
-            m.header.frame_id = 'trunk'
-            w, x, y, z = (float(v) for v in ev.quat_wxyz)
-            m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z = w, x, y, z
-            m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = (float(v) for v in ev.ang_vel_rad_s)
-            m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = (
-                float(v) for v in ev.lin_acc_mps2)
-            self._send(contract.IMU, m, ev.t_s)
-        elif isinstance(ev, PowerSample):
-            m = BatteryState()
-            m.header.stamp = stamp_msg(ev.t_s)
-            m.voltage = float(ev.voltage_v)
-            m.current = -float(ev.current_a)          # sensor_msgs convention: negative when discharging
-            nan = float('nan')
-            m.charge = m.capacity = m.design_capacity = m.percentage = m.temperature = nan
-            m.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
-            m.present = True
-            self._send(contract.POWER, m, ev.t_s)
-        elif isinstance(ev, ServoTelemetry):
-            m = ServoDiagnostics()
-            m.header.stamp = stamp_msg(ev.t_s)
-            ids = self.sim.servo_ids
-            for i, name in enumerate(ALL_JOINTS):
-                s = ServoStatus()
-                s.joint_name = name
-                s.id = int(ids[i])
-                s.temperature_c = float(ev.temperature_c[i])
-                s.voltage_v = float(ev.voltage_v[i])
-                s.load_fraction = float(ev.load_fraction[i])
-                s.error_bits = int(ev.error_bits[i])
-                s.responding = True
-                s.torque_enabled = bool(ev.torque_enabled[i])
-                s.message = _error_text(int(ev.error_bits[i]), bool(ev.torque_enabled[i]))
-                m.servos.append(s)
-            self._send(contract.SERVO_DIAGNOSTICS, m, ev.t_s)
-            self._diagnostics([diagnostics.servo_status(
-                self.sim.robot, self.get_name(), name, int(ids[i]), temperature_c=float(ev.temperature_c[i]),
-                voltage_v=float(ev.voltage_v[i]), load_fraction=float(ev.load_fraction[i]),
-                error_bits=int(ev.error_bits[i]), responding=True, torque_enabled=bool(ev.torque_enabled[i]),
-                torque_limit=None) for i, name in enumerate(ALL_JOINTS)], ev.t_s)
-        elif isinstance(ev, BusTimingSample):
-            m = BusTiming()
-            m.header.stamp = stamp_msg(ev.t_s)
-            m.reads = ev.reads
-            m.failed_reads = 0
-            m.t_com_mean_s = m.t_com_p99_s = m.t_com_max_s = float(ev.t_com_s)
-            m.write_mean_s = float(ev.t_write_s)
-            self._send(contract.BUS_TIMING, m, ev.t_s)
-            window = ev.t_s - self._last_timing_t_s
-            self._last_timing_t_s = ev.t_s
-            t_com = float(ev.t_com_s)
-            self._diagnostics([diagnostics.bus_status(
-                self.sim.robot, self.get_name(), window_s=window, reads=ev.reads, failed_reads=0, t_com_mean_s=t_com,
-                t_com_p99_s=t_com, t_com_max_s=t_com, write_mean_s=float(ev.t_write_s))], ev.t_s)
-        elif isinstance(ev, TruthSample):
-            m = Float64MultiArray()
-            m.layout.dim = [MultiArrayDimension(label=lab, size=n, stride=n) for lab, n in TRUTH_LAYOUT]
-            m.data = truth_vector(ev.contacts)
-            self._send(contract.SIM_TRUTH_CONTACTS, m, ev.t_s)
-            p = PoseStamped()
-            p.header.stamp = stamp_msg(ev.t_s)
-            p.header.frame_id = 'world'
-            p.pose.position.x, p.pose.position.y, p.pose.position.z = (float(v) for v in ev.position_m)
-            w, x, y, z = (float(v) for v in ev.quat_wxyz)
-            p.pose.orientation.w, p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z = w, x, y, z
-            self._send(contract.SIM_TRUTH_POSE, p, ev.t_s)
-            rec = self.recorder
-            if rec is not None:                                 # TF of the truth in the bag, when due
-                rec.write_tf_if_due(ev.t_s, ALL_JOINTS, ev.joint_angles_rad, (ev.position_m, ev.quat_wxyz))
+        """Publish (and record) one event of the sim by its type (:attr:`_PUBLISHERS`); other events are dropped."""
+        publish = self._PUBLISHERS.get(type(ev))
+        if publish is not None:
+            publish(self, ev)
+
+    def _publish_joint(self, ev: JointSample) -> None:
+        m = JointState()
+        m.header.stamp = stamp_msg(ev.t_s)
+        m.name = [ev.joint]
+        m.position = [ev.theta_rad]
+        self._send(contract.JOINT_STATES, m, ev.t_s + self.sim.t_com_s)
+
+    def _publish_command(self, ev: CommandSample) -> None:
+        m = JointState()
+        m.header.stamp = stamp_msg(ev.t_s)
+        m.name = list(ev.goals_rad)
+        m.position = [float(v) for v in ev.goals_rad.values()]
+        self._send(contract.JOINT_COMMANDS, m, ev.t_s)
+
+    def _publish_schedule(self, ev: ScheduleSample) -> None:
+        m = ReadSchedule(joint_names=list(ev.joint_names))
+        m.header.stamp = stamp_msg(ev.t_s)
+        self._record(contract.READ_SCHEDULE, m, ev.t_s)
+
+    def _publish_clock(self, ev: ClockTick) -> None:
+        self._send(contract.CLOCK, Clock(clock=stamp_msg(ev.t_s)), ev.t_s)
+
+    def _publish_imu(self, ev: ImuSample) -> None:
+        m = Imu()
+        m.header.stamp = stamp_msg(ev.t_s)
+        m.header.frame_id = 'trunk'
+        w, x, y, z = (float(v) for v in ev.quat_wxyz)
+        m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z = w, x, y, z
+        m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = (float(v) for v in ev.ang_vel_rad_s)
+        m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = (
+            float(v) for v in ev.lin_acc_mps2)
+        self._send(contract.IMU, m, ev.t_s)
+
+    def _publish_power(self, ev: PowerSample) -> None:
+        m = BatteryState()
+        m.header.stamp = stamp_msg(ev.t_s)
+        m.voltage = float(ev.voltage_v)
+        m.current = -float(ev.current_a)          # sensor_msgs convention: negative when discharging
+        nan = float('nan')
+        m.charge = m.capacity = m.design_capacity = m.percentage = m.temperature = nan
+        m.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
+        m.present = True
+        self._send(contract.POWER, m, ev.t_s)
+
+    def _publish_servos(self, ev: ServoTelemetry) -> None:
+        m = ServoDiagnostics()
+        m.header.stamp = stamp_msg(ev.t_s)
+        ids = self.sim.servo_ids
+        for i, name in enumerate(ALL_JOINTS):
+            s = ServoStatus()
+            s.joint_name = name
+            s.id = int(ids[i])
+            s.temperature_c = float(ev.temperature_c[i])
+            s.voltage_v = float(ev.voltage_v[i])
+            s.load_fraction = float(ev.load_fraction[i])
+            s.error_bits = int(ev.error_bits[i])
+            s.responding = True
+            s.torque_enabled = bool(ev.torque_enabled[i])
+            s.message = _error_text(int(ev.error_bits[i]), bool(ev.torque_enabled[i]))
+            m.servos.append(s)
+        self._send(contract.SERVO_DIAGNOSTICS, m, ev.t_s)
+        self._diagnostics([diagnostics.servo_status(
+            self.sim.robot, self.get_name(), name, int(ids[i]), temperature_c=float(ev.temperature_c[i]),
+            voltage_v=float(ev.voltage_v[i]), load_fraction=float(ev.load_fraction[i]),
+            error_bits=int(ev.error_bits[i]), responding=True, torque_enabled=bool(ev.torque_enabled[i]),
+            torque_limit=None) for i, name in enumerate(ALL_JOINTS)], ev.t_s)
+
+    def _publish_bus_timing(self, ev: BusTimingSample) -> None:
+        m = BusTiming()
+        m.header.stamp = stamp_msg(ev.t_s)
+        m.reads = ev.reads
+        m.failed_reads = 0
+        m.t_com_mean_s = m.t_com_p99_s = m.t_com_max_s = float(ev.t_com_s)
+        m.write_mean_s = float(ev.t_write_s)
+        self._send(contract.BUS_TIMING, m, ev.t_s)
+        window = ev.t_s - self._last_timing_t_s
+        self._last_timing_t_s = ev.t_s
+        t_com = float(ev.t_com_s)
+        self._diagnostics([diagnostics.bus_status(
+            self.sim.robot, self.get_name(), window_s=window, reads=ev.reads, failed_reads=0, t_com_mean_s=t_com,
+            t_com_p99_s=t_com, t_com_max_s=t_com, write_mean_s=float(ev.t_write_s))], ev.t_s)
+
+    def _publish_truth(self, ev: TruthSample) -> None:
+        m = Float64MultiArray()
+        m.layout.dim = [MultiArrayDimension(label=lab, size=n, stride=n) for lab, n in TRUTH_LAYOUT]
+        m.data = truth_vector(ev.contacts)
+        self._send(contract.SIM_TRUTH_CONTACTS, m, ev.t_s)
+        p = PoseStamped()
+        p.header.stamp = stamp_msg(ev.t_s)
+        p.header.frame_id = 'world'
+        p.pose.position.x, p.pose.position.y, p.pose.position.z = (float(v) for v in ev.position_m)
+        w, x, y, z = (float(v) for v in ev.quat_wxyz)
+        p.pose.orientation.w, p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z = w, x, y, z
+        self._send(contract.SIM_TRUTH_POSE, p, ev.t_s)
+        rec = self.recorder
+        if rec is not None:                                 # TF of the truth in the bag, when due
+            rec.write_tf_if_due(ev.t_s, ALL_JOINTS, ev.joint_angles_rad, (ev.position_m, ev.quat_wxyz))
+
+    # the sim's events by type (none derives from another): what publishes each
+    _PUBLISHERS = {JointSample: _publish_joint, CommandSample: _publish_command, ScheduleSample: _publish_schedule,
+                   ClockTick: _publish_clock, ImuSample: _publish_imu, PowerSample: _publish_power,
+                   ServoTelemetry: _publish_servos, BusTimingSample: _publish_bus_timing, TruthSample: _publish_truth}
 
     def _diagnostics(self, statuses, t_s: float) -> None:
         """/diagnostics (simulated time stamps); recorded as plain data (the byte level field)."""

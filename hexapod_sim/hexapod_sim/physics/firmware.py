@@ -89,6 +89,15 @@ D_JOINT, D_DOF, D_STICK = range(3)
 DF_K, DF_REST, DF_PA, DF_PP, DF_PPH, DF_MU, DF_BASE = range(7)
 
 
+@njit(cache=True, inline='always')
+def output_angle(qpos, jint, i):
+    """Joint ``i``'s servo output angle: its motor hinge plus its backlash play, if any."""
+    q = qpos[jint[J_QPOS, i]]
+    if jint[J_PLAY, i] >= 0:
+        q += qpos[jint[J_PLAY, i]]
+    return q
+
+
 @njit(cache=True)
 def dictionary_pass(win_row, qpos, ctrl, dof_frictionloss, qfrc_applied, jint, tau_out, win_tau, dint, dflt, supply):
     """The dictionary's torque terms at a firmware tick, after the firmware torques (see
@@ -108,9 +117,7 @@ def dictionary_pass(win_row, qpos, ctrl, dof_frictionloss, qfrc_applied, jint, t
             win_tau[win_row, i] = tau_out[i]
     for k in range(dint.shape[1]):
         i = dint[D_JOINT, k]
-        q = qpos[jint[J_QPOS, i]]
-        if jint[J_PLAY, i] >= 0:
-            q += qpos[jint[J_PLAY, i]]
+        q = output_angle(qpos, jint, i)
         dof = dint[D_DOF, k]
         qfrc_applied[dof] = -dflt[DF_K, k] * (q - dflt[DF_REST, k])
         x = dflt[DF_MU, k] * abs(tau_out[i])
@@ -146,6 +153,38 @@ def write_goals(idx, vals, lim_lo, lim_hi, scale, base, max_tick, angle_bit, err
     return -1
 
 
+@njit(cache=True, inline='always')
+def firmware_tick(win_n, max_tick, qpos, qvel, ctrl, jint, jflt, table, win_tau, win_omega, tau_out):
+    """Every servo's firmware at a tick: the present tick quantised from its output angle, the torque
+    for ``goal - present`` from the table into the actuator (held until the next tick), and the
+    torque and speed into row ``win_n`` of the power window."""
+    for i in range(jint.shape[1]):
+        present = quantize1(output_angle(qpos, jint, i) * jflt[F_SCALE, i] + jflt[F_BASE, i], max_tick)
+        tau = table[jint[J_ROW_OFF, i] + jint[J_GOAL_IDX, i] - present]
+        ctrl[jint[J_ACT, i]] = tau
+        tau_out[i] = tau
+        win_tau[win_n, i] = tau
+        win_omega[win_n, i] = qvel[jint[J_DOF, i]]
+
+
+@njit(cache=True, inline='always')
+def static_friction_tick(v_stick, qvel, dof_frictionloss, jint, stick_int, stick_flt):
+    """The friction loss of each joint with static friction at a tick: the break-away level when it
+    is at rest (slower than ``v_stick``, reversed since the last tick, or held there and slowing
+    down), the Coulomb level when it slips; its velocity and state kept for the next tick."""
+    for k in range(stick_int.shape[1]):
+        v = qvel[jint[J_DOF, stick_int[0, k]]]
+        v0 = stick_flt[2, k]
+        held = (abs(v) < v_stick or v * v0 < 0.0
+                or (stick_flt[3, k] > 0.0 and abs(v) < abs(v0)))
+        if held:
+            dof_frictionloss[stick_int[1, k]] = stick_flt[0, k]
+        else:
+            dof_frictionloss[stick_int[1, k]] = stick_flt[1, k]
+        stick_flt[2, k] = v
+        stick_flt[3, k] = 1.0 if held else 0.0
+
+
 @njit(cache=True)
 def run(target, m_ptr, d_ptr, st, spm, max_tick, v_stick, imu_adr,
         qpos, qvel, qacc, ctrl, dof_frictionloss,
@@ -179,27 +218,8 @@ def run(target, m_ptr, d_ptr, st, spm, max_tick, v_stick, imu_adr,
         if step == next_fw:
             if win_n == n_win:
                 break
-            for i in range(n):
-                q = qpos[jint[J_QPOS, i]]
-                if jint[J_PLAY, i] >= 0:
-                    q += qpos[jint[J_PLAY, i]]
-                present = quantize1(q * jflt[F_SCALE, i] + jflt[F_BASE, i], max_tick)
-                tau = table[jint[J_ROW_OFF, i] + jint[J_GOAL_IDX, i] - present]
-                ctrl[jint[J_ACT, i]] = tau
-                tau_out[i] = tau
-                win_tau[win_n, i] = tau
-                win_omega[win_n, i] = qvel[jint[J_DOF, i]]
-            for k in range(stick_int.shape[1]):
-                v = qvel[jint[J_DOF, stick_int[0, k]]]
-                v0 = stick_flt[2, k]
-                held = (abs(v) < v_stick or v * v0 < 0.0
-                        or (stick_flt[3, k] > 0.0 and abs(v) < abs(v0)))
-                if held:
-                    dof_frictionloss[stick_int[1, k]] = stick_flt[0, k]
-                else:
-                    dof_frictionloss[stick_int[1, k]] = stick_flt[1, k]
-                stick_flt[2, k] = v
-                stick_flt[3, k] = 1.0 if held else 0.0
+            firmware_tick(win_n, max_tick, qpos, qvel, ctrl, jint, jflt, table, win_tau, win_omega, tau_out)
+            static_friction_tick(v_stick, qvel, dof_frictionloss, jint, stick_int, stick_flt)
             if dint.shape[1] > 0 or supply[0] > 0.0:
                 dictionary_pass(win_n, qpos, ctrl, dof_frictionloss, qfrc_applied, jint, tau_out, win_tau,
                                 dint, dflt, supply)
@@ -208,10 +228,7 @@ def run(target, m_ptr, d_ptr, st, spm, max_tick, v_stick, imu_adr,
         if n_hist > 0:
             row = step % n_hist
             for i in range(n):
-                q = qpos[jint[J_QPOS, i]]
-                if jint[J_PLAY, i] >= 0:
-                    q += qpos[jint[J_PLAY, i]]
-                hist[row, i] = q
+                hist[row, i] = output_angle(qpos, jint, i)
         if n_sens > 0 and sens_n == n_sens:
             break
         if n_sens > 0 and qa >= 0:
