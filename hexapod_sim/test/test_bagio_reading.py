@@ -170,14 +170,15 @@ def test_custom_definition_topic(tmp_path):
 
 # ------------------------------------------------------------------------------ joint series ----
 
-def test_joint_series(tmp_path):
+def test_joint_series_per_joint(tmp_path):
     with BagWriter(tmp_path / 'b') as w:
         for k in range(5):
             t = T0 + k * 4_000_000
             w.write(contract.JOINT_COMMANDS, JS, joint_state(t, ['leg1_coxa', 'leg1_femur'], [0.1 * k, 0.2 * k]), t)
             # one read per message, stamped at the sample time (earlier than the record time)
             w.write(contract.JOINT_STATES, JS, joint_state(t + 1_000_000, ['leg1_femur'], [0.2 * k - 0.05]), t + 1_500_000)
-    js = bagio.joint_series(BagReader(tmp_path / 'b'))
+    bag = bagio.load_bag(tmp_path / 'b')
+    js = {contract.JOINT_COMMANDS: bag.joint_commands.per_joint(), contract.JOINT_STATES: bag.joint_states.per_joint()}
     base = T0 / 1e9
     femur_cmd = js[contract.JOINT_COMMANDS]['leg1_femur']
     assert femur_cmd.shape == (5, 2)
@@ -189,7 +190,7 @@ def test_joint_series(tmp_path):
     with BagWriter(tmp_path / 'bad') as w:
         w.write(contract.JOINT_STATES, JS, joint_state(T0, ['a', 'b'], [1.0]), T0)
     with pytest.raises(BagError, match='names 2 joint'):
-        bagio.joint_series(BagReader(tmp_path / 'bad'))
+        bagio.load_bag(tmp_path / 'bad')
 
 
 def test_relative_contract_names_and_old_absolute_bags_are_one_topic(tmp_path):
@@ -206,7 +207,7 @@ def test_relative_contract_names_and_old_absolute_bags_are_one_topic(tmp_path):
         assert r.resolve('joint_states') == r.resolve('/joint_states') == '/joint_states'
         assert [m[0] for m in r.messages(topics=[contract.JOINT_STATES])] == ['/joint_states']
         assert [m[0] for m in r.messages(topics=['/joint_states'])] == ['/joint_states']
-        assert bagio.joint_series(r)[contract.JOINT_STATES]['leg1_femur'][0, 1] == 0.5
+        assert bagio.load_bag(tmp_path / name).joint_states.per_joint()['leg1_femur'][0, 1] == 0.5
         assert r.resolve(contract.JOINT_COMMANDS) is None
 
 

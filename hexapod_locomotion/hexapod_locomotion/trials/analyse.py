@@ -39,21 +39,10 @@ from hexapod_model.cli_common import (
     output_file,
     plot_extensions,
 )
-from hexapod_model.contract import (
-    GROUND_DETECTION,
-    IMU,
-    JOINT_COMMANDS,
-    JOINT_STATES,
-    MSG_TYPES,
-    POWER,
-    SIM_TRUTH_POSE,
-    SWING_DOWN,
-    stamp_seconds,
-    topic_key,
-)
+from hexapod_model.contract import GROUND_DETECTION, IMU, JOINT_COMMANDS, JOINT_STATES, POWER, SIM_TRUTH_POSE, SWING_DOWN
 from hexapod_model.description import LEGS, DescriptionError, joint_name, load_robot, parse_joint_name
 from hexapod_model.swing_model import LegModel
-from hexapod_sim.bagio import BagError, BagReader, BagWarning, one_warning
+from hexapod_sim.bagio import BagError, BagWarning, load_bag, one_warning
 
 
 class AnalysisError(RuntimeError):
@@ -85,69 +74,53 @@ class SwingTrace:
     traces: dict                        # detector -> leg -> list of (t_swing, err, threshold)
 
 
-def load_bag(path: str):
-    with warnings.catch_warnings():      # the problems are returned (reader.warnings) and reported by the caller
+@dataclass(frozen=True)
+class BagViews:
+    """What the re-run takes from a bag (:func:`hexapod_sim.bagio.load_bag`), in the shapes it replays."""
+
+    swings: list                # (stamp [s], /swing_down message), in log order
+    femur_reads: list           # (stamp [s], leg, femur angle [rad]) of /joint_states, sorted by stamp
+    recorded: dict              # swing start (rounded) -> leg -> (stop time since the start [s], stop reason)
+    consumed: dict              # swing start (rounded) -> leg -> stamps [ns] the controller read
+    femur_at: dict              # (leg, stamp [ns]) -> (femur angle, stamp [s])
+    commands: list              # (stamp [s], frozenset of joint names) of /joint_commands, sorted by stamp
+    warnings: list              # the reader's problems with a damaged bag
+
+
+def bag_views(path: str) -> tuple[BagViews, object]:
+    """The re-run's views of the bag at ``path`` and the bag's contents (for the walk's metrics)."""
+    with warnings.catch_warnings():      # the problems are returned (contents.warnings) and reported by the caller
         warnings.simplefilter('ignore', BagWarning)
-        reader = BagReader(path)
-    topics = {topic_key(t) for t in reader.topics()}      # bags store '/swing_down'; the contract: 'swing_down'
-    if SWING_DOWN not in topics:
-        raise AnalysisError(f'{path}: no /{SWING_DOWN} topic - the swing-down inputs of Algorithm 1 were not '
-                            f'recorded (record with ./hexapod demo or a locomotion_node of this version)')
-    if JOINT_STATES not in topics:
-        raise AnalysisError(f'{path}: no /{JOINT_STATES} topic - there are no servo reads to analyse')
-    for name, msg_type in reader.topics().items():       # a topic of another type would be read field by field
-        key = topic_key(name)
-        if key in MSG_TYPES and msg_type != MSG_TYPES[key]:
-            raise AnalysisError(f'{path}: {name} is recorded as {msg_type or "an unknown type"}, expected '
-                                f'{MSG_TYPES[key]}')
-    swings, femur_reads, recorded = [], [], defaultdict(dict)
-    consumed = defaultdict(lambda: defaultdict(list))     # swing start -> leg -> stamps [ns] the controller read
-    femur_at = {}                                         # (leg, stamp [ns]) -> (femur angle, stamp [s])
-    power, pose, imu, commands = [], [], [], []
-    wanted = [t for t in (SWING_DOWN, JOINT_STATES, JOINT_COMMANDS, GROUND_DETECTION, POWER, SIM_TRUTH_POSE, IMU)
-              if t in topics]
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore', BagWarning)
-        messages = list(reader.messages(topics=wanted))
-    for bag_name, _type, t_ns, msg in messages:
-        topic = topic_key(bag_name)
-        if topic == SWING_DOWN:
-            swings.append((stamp_seconds(msg.header.stamp), msg))
-        elif topic == JOINT_STATES:
-            for name, pos in zip(msg.name, msg.position):
-                try:
-                    leg, role = parse_joint_name(name)
-                except DescriptionError:
-                    continue
-                if role == 'femur':
-                    femur_reads.append((stamp_seconds(msg.header.stamp), leg, float(pos)))
-                    femur_at[(leg, _ns(msg.header.stamp))] = (float(pos), stamp_seconds(msg.header.stamp))
-        elif topic == JOINT_COMMANDS:
-            commands.append((stamp_seconds(msg.header.stamp), frozenset(msg.name)))
-        elif topic == GROUND_DETECTION:
-            start = round(stamp_seconds(msg.swing_start), 6)
-            consumed[start][int(msg.leg)].append(_ns(msg.header.stamp))
-            if msg.stopped and msg.leg not in recorded[start]:
-                recorded[start][msg.leg] = (stamp_seconds(msg.header.stamp) - stamp_seconds(msg.swing_start), int(msg.stop_reason))
-        elif topic == POWER:
-            power.append((stamp_seconds(msg.header.stamp), abs(msg.voltage * msg.current)))
-        elif topic == SIM_TRUTH_POSE:
-            p = msg.pose.position
-            pose.append((stamp_seconds(msg.header.stamp), p.x, p.y, p.z))
-        elif topic == IMU:
-            q = msg.orientation
-            roll, pitch, _ = roll_pitch_yaw((q.w, q.x, q.y, q.z))
-            imu.append((stamp_seconds(msg.header.stamp), roll, pitch, msg.linear_acceleration.z))
-    if not swings:
+        bag = load_bag(path, topics=(SWING_DOWN, JOINT_STATES, JOINT_COMMANDS, GROUND_DETECTION, POWER,
+                                     SIM_TRUTH_POSE, IMU),
+                       required={SWING_DOWN: 'the swing-down inputs of Algorithm 1 were not recorded (record with '
+                                             './hexapod demo or a locomotion_node of this version)',
+                                 JOINT_STATES: 'there are no servo reads to analyse'})
+    if not bag.swing_downs:
         raise AnalysisError(f'{path}: /{SWING_DOWN} has no messages - the recording contains no swing-down')
+    femur_reads, femur_at = [], {}
+    js = bag.joint_states
+    for t_s, t_ns, names, positions in zip(js.stamp_s, js.stamp_ns, js.name, js.position):
+        for name, pos in zip(names, positions):
+            try:
+                leg, role = parse_joint_name(name)
+            except DescriptionError:
+                continue
+            if role == 'femur':
+                femur_reads.append((t_s, leg, pos))
+                femur_at[(leg, t_ns)] = (pos, t_s)
+    recorded = defaultdict(dict)
+    consumed = defaultdict(lambda: defaultdict(list))
+    for d in bag.detections:
+        start = round(d.swing_start_s, 6)
+        consumed[start][d.leg].append(d.t_ns)
+        if d.stopped and d.leg not in recorded[start]:
+            recorded[start][d.leg] = (d.t_s - d.swing_start_s, d.stop_reason)
     femur_reads.sort(key=lambda r: r[0])
-    commands.sort(key=lambda c: c[0])
-    return (swings, femur_reads, recorded, power, pose, imu, commands,
-            reader.warnings if hasattr(reader, 'warnings') else [], (consumed, femur_at))
-
-
-def _ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    cmd = bag.joint_commands
+    commands = sorted(zip(cmd.stamp_s, (frozenset(n) for n in cmd.name)), key=lambda c: c[0])
+    return BagViews([(s.t_s, s.msg) for s in bag.swing_downs], femur_reads, recorded, consumed, femur_at, commands,
+                    list(bag.warnings)), bag
 
 
 def controller_reads(consumed: dict, femur_at: dict, legs) -> list | None:
@@ -239,11 +212,11 @@ def _leg_verdict(i: int, leg: int, t0: float, kind: str, other: str, res: dict, 
                       oth.stop_reason if verdict in ('same', 'earlier') else None, verdict)
 
 
-def _walk_metrics(out: dict, robot, swings, power, pose, imu, intervals) -> None:
+def _walk_metrics(out: dict, robot, swings, bag, intervals) -> None:
     """Cost of transport (with the body pose and /power) and stability (with the IMU) into ``out``."""
-    if power and pose:
-        tp, pw = np.array(power).T
-        ps = np.array(pose)
+    if len(bag.power) and len(bag.truth_pose):
+        tp, pw = np.column_stack([bag.power.t_s, bag.power.values]).T
+        ps = np.column_stack([bag.truth_pose.t_s, bag.truth_pose.values])
         try:
             out['cot'] = walk_cost_of_transport(ps[:, 0], ps[:, 1:3], tp, pw, swings[0][0], robot.total_mass_kg,
                                                 robot.gravity_mps2)
@@ -253,9 +226,11 @@ def _walk_metrics(out: dict, robot, swings, power, pose, imu, intervals) -> None
     else:
         out['cot'] = None
         out['cot_note'] = ('no body pose in the bag (a real robot has no external localisation here): speed and CoT '
-                           'need /sim/body_pose' if power else 'no /power in the bag')
-    if imu:
-        a = np.array(imu)
+                           'need /sim/body_pose' if len(bag.power) else 'no /power in the bag')
+    imu = bag.imu
+    if len(imu):
+        rp = np.array([roll_pitch_yaw(q)[:2] for q in imu.quat_wxyz.tolist()]).reshape(-1, 2)
+        a = np.column_stack([imu.t_s, rp, imu.accel[:, 2]])
         st = swing_down_variances(a[:, 0], a[:, 1], a[:, 2], a[:, 3], intervals)
         out['stability'] = {k: float(np.median([s[k] for s in st])) for k in ('var_roll', 'var_pitch', 'var_acc_z')} if st else None
 
@@ -269,7 +244,9 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
     phase cut off by its time limit.
     """
     robot = robot or load_robot()
-    swings, femur_reads, recorded, power, pose, imu, commands, bag_warnings, (consumed, femur_at) = load_bag(path)
+    views, bag = bag_views(path)
+    swings, femur_reads, recorded, commands = views.swings, views.femur_reads, views.recorded, views.commands
+    consumed, femur_at = views.consumed, views.femur_at
     models = {leg: LegModel(robot, leg) for leg in LEGS}
     times = np.array([r[0] for r in femur_reads])
     verdicts: list[LegVerdict] = []
@@ -312,8 +289,8 @@ def rerun_detectors(path: str, robot=None, keep_traces: int = 6, progress: bool 
                  'other_earlier_by_s': _stats([v.recorded_stop_s - v.other_stop_s for v in verdicts
                                                if v.other_verdict == 'earlier']),
                  'verdicts': [asdict(v) for v in verdicts], 'problems': problems,
-                 'bag_warnings': list(bag_warnings)}
-    _walk_metrics(out, robot, swings, power, pose, imu, intervals)
+                 'bag_warnings': views.warnings}
+    _walk_metrics(out, robot, swings, bag, intervals)
     out['_traces'] = traces
     return out
 

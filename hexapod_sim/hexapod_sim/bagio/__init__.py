@@ -26,8 +26,9 @@ class and encoded field by field like a dict.
 
 The package by job: :mod:`.common` (errors, records, constants), :mod:`.definitions` (message
 definition lookup and type hashes), :mod:`.cdr` (message conversion and CDR encoding/decoding),
-:mod:`.writer` (:class:`BagWriter`), :mod:`.reader` (:class:`BagReader`, :func:`recover_bag`,
-:func:`joint_series`).
+:mod:`.writer` (:class:`BagWriter`), :mod:`.reader` (:class:`BagReader`, :func:`recover_bag`),
+:mod:`.contents` (:func:`load_bag`, the one loader of a contract bag's topics as typed series,
+:class:`BagContents`).
 """
 from hexapod_sim.bagio.common import (
     DEFAULT_QOS_PROFILE,
@@ -38,12 +39,13 @@ from hexapod_sim.bagio.common import (
     TopicInfo,
     one_warning,
 )
+from hexapod_sim.bagio.contents import BagContents, load_bag
 from hexapod_sim.bagio.definitions import _EMBEDDED_PATH, message_definition, normalize_type_name, type_hash  # noqa: F401
-from hexapod_sim.bagio.reader import BagReader, imu_series, joint_series, recover_bag
+from hexapod_sim.bagio.reader import BagReader, recover_bag
 from hexapod_sim.bagio.writer import BagWriter, encode_message
 
 __all__ = [
     'BagError', 'BagWarning', 'MessageEncodeError', 'BagMessage', 'TopicInfo', 'BagWriter',
-    'BagReader', 'imu_series', 'joint_series', 'message_definition', 'type_hash', 'normalize_type_name',
+    'BagReader', 'BagContents', 'load_bag', 'message_definition', 'type_hash', 'normalize_type_name',
     'DEFAULT_QOS_PROFILE', 'recover_bag', 'encode_message', 'one_warning',
 ]

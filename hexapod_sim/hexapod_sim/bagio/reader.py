@@ -1,5 +1,5 @@
 """Reading rosbag2-layout MCAP bags record by record, tolerant of a cut-off or corrupt file (see the
-package docstring); :func:`recover_bag` and :func:`joint_series`."""
+package docstring); :func:`recover_bag`."""
 from __future__ import annotations
 
 import heapq
@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
@@ -484,58 +483,3 @@ def copy_messages(reader: 'BagReader', w) -> int:
         w.write(topic, msg_type, data, t_ns)
         n += 1
     return n
-
-
-def joint_series(reader: BagReader, log_time: bool = False) -> dict[str, dict[str, np.ndarray]]:
-    """Per-joint position series of ``/joint_commands`` and ``/joint_states``.
-
-    Returns ``{topic: {joint_name: array (N, 2)}}`` with columns (header.stamp [s], position
-    [rad]), sorted by stamp (stable). ``log_time=True`` adds a third column, the bag's log
-    (record) time [s], so a stamp that disagrees with when the message was recorded can be found.
-    A topic absent from the bag maps to ``{}``. A message whose ``position`` is shorter than its
-    ``name`` list raises :class:`BagError` naming it.
-    """
-    topics = (contract.JOINT_COMMANDS, contract.JOINT_STATES)
-    in_bag = {t: reader.resolve(t) for t in topics}
-    present = [t for t in topics if in_bag[t] is not None]
-    for t in present:
-        if reader.topics()[in_bag[t]] != contract.MSG_TYPES[t]:
-            raise BagError(f'{in_bag[t]} is recorded as {reader.topics()[in_bag[t]]}, expected {contract.MSG_TYPES[t]}')
-    acc: dict[str, dict[str, list]] = {t: {} for t in topics}
-    for bag_name, _, t_ns, msg in reader.messages(topics=present or None) if present else ():
-        topic = contract.topic_key(bag_name)
-        names = list(msg.name)
-        pos = list(msg.position)
-        if len(pos) < len(names):
-            raise BagError(f'{topic} message at t={t_ns} ns names {len(names)} joint(s) but has '
-                           f'{len(pos)} position(s)')
-        stamp = contract.stamp_seconds(msg.header.stamp)
-        series = acc[topic]
-        for n, p in zip(names, pos):
-            series.setdefault(n, []).append((stamp, p, t_ns * 1e-9) if log_time else (stamp, p))
-    out: dict[str, dict[str, np.ndarray]] = {}
-    for topic, series in acc.items():
-        out[topic] = {}
-        for n, rows in series.items():
-            a = np.asarray(rows, dtype=float).reshape(-1, 3 if log_time else 2)
-            out[topic][n] = a[np.argsort(a[:, 0], kind='stable')]
-    return out
-
-
-def imu_series(reader: BagReader) -> np.ndarray | None:
-    """``/imu`` as an array (N, 7): header.stamp [s], the specific force in the body frame
-    (``linear_acceleration`` x, y, z [m/s^2]) and the angular velocity (``angular_velocity`` x, y, z
-    [rad/s]), sorted by stamp; rows with a non-finite value are dropped. None if the bag has no ``/imu``
-    of the contract's type, or fewer than two usable samples."""
-    name = reader.resolve(contract.IMU)
-    if name is None or reader.topics()[name] != contract.MSG_TYPES[contract.IMU]:
-        return None
-    rows = []
-    for _, _, _, msg in reader.messages(topics=[contract.IMU]):
-        a, w = msg.linear_acceleration, msg.angular_velocity
-        rows.append((contract.stamp_seconds(msg.header.stamp), a.x, a.y, a.z, w.x, w.y, w.z))
-    out = np.asarray(rows, dtype=float).reshape(-1, 7)
-    out = out[np.all(np.isfinite(out), axis=1)]
-    if len(out) < 2:
-        return None
-    return out[np.argsort(out[:, 0], kind='stable')]

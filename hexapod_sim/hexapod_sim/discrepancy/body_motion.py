@@ -23,28 +23,29 @@ from __future__ import annotations
 import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, Robot, joint_name
+from hexapod_model.imu import ImuSeries
 from hexapod_model.servo import theta_to_tick
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.simulate import Replay
 
 
-def gravity_per_period(imu: np.ndarray, n_periods: int, dt: float) -> np.ndarray:
+def gravity_per_period(imu: ImuSeries, n_periods: int, dt: float) -> np.ndarray:
     """(n_periods, 3) gravity for a welded trunk, minus the body's acceleration, in its frame: ``-f`` of
     the IMU interpolated onto the firmware's grid (held at the ends)."""
     t = np.arange(n_periods) * dt
-    return np.column_stack([np.interp(t, imu[:, 0], -imu[:, 1 + c]) for c in range(3)])
+    return np.column_stack([np.interp(t, imu.t_s, -imu.accel[:, c]) for c in range(3)])
 
 
 ALPHA_SMOOTH_S = 0.01      # angular acceleration: derivative of omega over +-10 ms (the IMU samples at 400 Hz)
 
 
-def rotation_per_period(imu: np.ndarray, n_periods: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def rotation_per_period(imu: ImuSeries, n_periods: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """(omega, alpha), each (n_periods, 3) in the body frame: the IMU's angular velocity interpolated onto
     the firmware's grid, and its central difference over ``ALPHA_SMOOTH_S``."""
     t = np.arange(n_periods) * dt
-    w = np.column_stack([np.interp(t, imu[:, 0], imu[:, 4 + c]) for c in range(3)])
+    w = np.column_stack([np.interp(t, imu.t_s, imu.gyro[:, c]) for c in range(3)])
     h = ALPHA_SMOOTH_S
-    a = np.column_stack([(np.interp(t + h, imu[:, 0], imu[:, 4 + c]) - np.interp(t - h, imu[:, 0], imu[:, 4 + c]))
+    a = np.column_stack([(np.interp(t + h, imu.t_s, imu.gyro[:, c]) - np.interp(t - h, imu.t_s, imu.gyro[:, c]))
                          / (2 * h) for c in range(3)])
     return w, a
 

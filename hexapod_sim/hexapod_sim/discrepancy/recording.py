@@ -7,8 +7,8 @@ DH joint angles ``theta`` in radians, a write's stamp is the time of the write, 
 the time the position was sampled. Times are seconds since ``t0_ns`` (the earliest stamp floored
 to a whole millisecond, so the 1 kHz firmware grid of the sim stays aligned).
 
-:func:`load_recording` reads a rosbag2 directory or a single ``.mcap`` file through
-:mod:`hexapod_sim.bagio`; :meth:`Recording.write_bag` writes one back (tests, benchmark).
+:func:`load_recording` builds one from a rosbag2 directory or a single ``.mcap`` file read by
+:func:`hexapod_sim.bagio.load_bag`; :meth:`Recording.write_bag` writes one back (tests, benchmark).
 """
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ import numpy as np
 
 from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, bag_topic, stamp_parts_ns
 from hexapod_model.description import ALL_JOINTS, DescriptionError, parse_joint_name
+from hexapod_model.imu import ImuSeries
 
 IMU_MIN_SPECIFIC_FORCE = 1.0     # [m/s^2]: /imu samples below are left out (see load_recording)
 
@@ -52,10 +53,9 @@ class Recording:
     t0_ns: int = 0
     source: str = '<memory>'
     glitches: tuple = ()     # samples left out as physically impossible (glitches.Glitch)
-    # /imu where the recording has one: (N, 7) stamp [s, same clock as the reads], specific force [m/s^2]
-    # and angular velocity [rad/s] in the body frame; the walk replay takes the body's motion from it
-    # (body_motion.py)
-    imu: np.ndarray | None = None
+    # /imu where the recording has one, stamped on the same clock as the reads; the walk replay takes
+    # the body's motion from its specific force and angular velocity (body_motion.py)
+    imu: ImuSeries | None = None
     # what a simulated robot walked on (hexapod_sim.physics.terrain.Ground), from the bag's /sim/scene
     ground: object | None = None
 
@@ -131,18 +131,23 @@ def _to_series(d: Mapping[str, list], what: str) -> dict[str, Series]:
 IMU_COVER_S = 1.0      # /imu must start and end within this of the joint reads, or it is not used
 
 
-def screen_imu(imu: np.ndarray, t0_s: float, duration_s: float) -> tuple[np.ndarray | None, tuple]:
-    """``/imu`` rows (stamp [s], specific force, angular velocity) on the recording's clock (``t0_s`` taken
-    off), or None with a :class:`~.glitches.Glitch` saying why it is not used: stamps that do not cover the
-    joint reads (another clock: a bag whose /imu is stamped in wall time and its reads in sim time).
-    Samples with (almost) no specific force are left out silently: a trunk on its legs feels about g,
-    and the sim's sample before its first physics step, or a dropout, would replay the legs weightless."""
+def screen_imu(imu: ImuSeries, t0_s: float, duration_s: float) -> tuple[ImuSeries | None, tuple]:
+    """``/imu`` samples on the recording's clock (``t0_s`` taken off), or None with a
+    :class:`~.glitches.Glitch` saying why it is not used: stamps that do not cover the joint reads
+    (another clock: a bag whose /imu is stamped in wall time and its reads in sim time). Samples with
+    a non-finite value are dropped and the rest sorted by stamp; those with (almost) no specific force
+    are left out silently: a trunk on its legs feels about g, and the sim's sample before its first
+    physics step, or a dropout, would replay the legs weightless."""
     from hexapod_sim.discrepancy.glitches import Glitch
-    imu = imu[np.linalg.norm(imu[:, 1:4], axis=1) >= IMU_MIN_SPECIFIC_FORCE].copy()
+    imu = imu.take(imu.finite())
     if len(imu) < 2:
         return None, ()
-    imu[:, 0] -= t0_s
-    a, b = float(imu[0, 0]), float(imu[-1, 0])
+    imu = imu.take(np.argsort(imu.t_s, kind='stable'))
+    imu = imu.take(np.linalg.norm(imu.accel, axis=1) >= IMU_MIN_SPECIFIC_FORCE)
+    if len(imu) < 2:
+        return None, ()
+    imu = imu.shifted(t0_s)
+    a, b = float(imu.t_s[0]), float(imu.t_s[-1])
     if a > IMU_COVER_S or b < duration_s - IMU_COVER_S:
         return None, (Glitch('imu', '', max(a, 0.0), 'clock',
                              f'/imu stamped {a:.1f} to {b:.1f} s, the joint reads 0 to {duration_s:.1f} s: '
@@ -150,19 +155,15 @@ def screen_imu(imu: np.ndarray, t0_s: float, duration_s: float) -> tuple[np.ndar
     return imu, ()
 
 
-def _ground(reader, p: Path):
+def _ground(scene: str | None, p: Path):
     """The ground of the bag's ``/sim/scene`` (a recording of the sim), None if it has none."""
-    from hexapod_model import contract
     from hexapod_sim.physics.terrain import Ground, TerrainError
-    name = reader.resolve(contract.SIM_SCENE)
-    if name is None or reader.topics()[name] != contract.MSG_TYPES[contract.SIM_SCENE]:
+    if scene is None:
         return None
-    for _, _, _, msg in reader.messages(topics=[contract.SIM_SCENE]):
-        try:
-            return Ground.from_text(msg.data)
-        except TerrainError as exc:
-            raise RecordingError(f'{p}: /sim/scene: {exc}') from None
-    return None
+    try:
+        return Ground.from_text(scene)
+    except TerrainError as exc:
+        raise RecordingError(f'{p}: /sim/scene: {exc}') from None
 
 
 def load_recording(path: str | Path, robot=None) -> Recording:
@@ -177,16 +178,17 @@ def load_recording(path: str | Path, robot=None) -> Recording:
         from hexapod_model.description import load_robot
         robot = load_robot()
     p = Path(path)
-    if not p.exists():
-        raise RecordingError(f'{p}: no such bag (expected a rosbag2 directory or a .mcap file)')
-    from hexapod_sim.bagio import BagError, BagReader, imu_series, joint_series
+    from hexapod_model import contract
+    from hexapod_sim.bagio import BagError, load_bag
     try:
-        reader = BagReader(str(p))
-        series = joint_series(reader, log_time=True)
-        imu = imu_series(reader)
-        ground = _ground(reader, p)
+        bag = load_bag(p, topics=(JOINT_COMMANDS, JOINT_STATES, contract.IMU, contract.SIM_SCENE),
+                       required={JOINT_COMMANDS: 'the tool replays the recorded goals',
+                                 JOINT_STATES: 'nothing to compare the model with'})
     except BagError as exc:
         raise RecordingError(str(exc) if str(exc).startswith(str(p)) else f'{p}: {exc}') from None   # named once
+    series = {JOINT_COMMANDS: bag.joint_commands.per_joint(log_time=True),
+              JOINT_STATES: bag.joint_states.per_joint(log_time=True)}
+    ground = _ground(bag.scene, p)
     for topic, d in series.items():
         for j, a in d.items():
             if not np.all(np.isfinite(a[:, :2])):
@@ -210,10 +212,8 @@ def load_recording(path: str | Path, robot=None) -> Recording:
         for j, a in d.items():
             out[j] = [(float(t) - t0, float(v)) for t, v in a]
         return _to_series(out, what)
-    imu_glitches: tuple = ()
-    if imu is not None:
-        duration = max(float(a[-1, 0]) for d in (cmds, reads) for a in d.values() if len(a)) - t0
-        imu, imu_glitches = screen_imu(imu, t0, duration)
+    duration = max(float(a[-1, 0]) for d in (cmds, reads) for a in d.values() if len(a)) - t0
+    imu, imu_glitches = screen_imu(bag.imu, t0, duration)
     glitches = tuple(sorted((Glitch(topic, j, t - t0, kind, detail)
                              for topic, found in (('command', bad_c), ('read', bad_r))
                              for j, t, kind, detail in found), key=lambda g: (g.t_s, g.joint))) + imu_glitches
