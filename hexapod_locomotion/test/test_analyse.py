@@ -48,11 +48,14 @@ def test_plot_of_a_fixed_detector_bag_marks_what_the_fixed_detector_did(tmp_path
     assert 'adaptive stop (threshold crossed)' in labels and 'fixed threshold' in labels
 
 
-def test_bag_without_swing_downs_is_refused(tmp_path):
+def test_bag_without_swing_downs_is_refused(tmp_path, capsys):
     with BagWriter(tmp_path / 'js') as w:
         w.write('/joint_states', 'sensor_msgs/msg/JointState', {'name': ['leg1_femur'], 'position': [0.1]}, 1000)
     with pytest.raises(BagError, match='no /swing_down topic'):     # one line, from the one bag loader
         rerun_detectors(str(tmp_path / 'js'))
+    assert main([str(tmp_path / 'js'), '--no-progress']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'no /swing_down topic - ' in err[0], err
 
 
 def test_garbage_gives_clear_error(tmp_path, capsys):

@@ -4,7 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from hexapod_locomotion.core.odometry import ImuReading, LegOdometry, OdometryConfig, OdometryError, planar_fit, plane_tilt
+from hexapod_locomotion.core.odometry import LegOdometry, OdometryConfig, OdometryError, planar_fit, plane_tilt
+from hexapod_model.imu import ImuReading
 
 # six feet on flat ground, world frame, the body 0.1 m above them at the start
 WORLD = np.array([[0.2, 0.15, 0.0], [0.0, 0.2, 0.0], [-0.2, 0.15, 0.0],
@@ -114,7 +115,7 @@ def test_gyro_rate_alone_gives_the_yaw_when_no_foot_set_fits():
     odo = LegOdometry()
     none = np.zeros(6, bool)
     odo.update(0.0, body_feet(WORLD, 0, 0, 0.1, 0), none)
-    e = odo.update(0.5, body_feet(WORLD, 0, 0, 0.1, 0), none, ImuReading(ang_vel_rad_s=np.array([0, 0, 0.3])))
+    e = odo.update(0.5, body_feet(WORLD, 0, 0, 0.1, 0), none, ImuReading(gyro=np.array([0, 0, 0.3])))
     assert e.rpy[2] == pytest.approx(0.15)
 
 
@@ -165,7 +166,7 @@ def test_heading_uncertainty_becomes_lateral_uncertainty():
     (lambda o: o.update(0.0, np.zeros((5, 3)), ALL), '6 feet'),
     (lambda o: o.update(math.nan, WORLD, ALL), 'time'),
     (lambda o: o.update(0.0, WORLD, ALL, ImuReading(quat_wxyz=np.zeros(4))), 'IMU orientation'),
-    (lambda o: o.update(0.0, WORLD, ALL, ImuReading(ang_vel_rad_s=np.array([0, 0, np.inf]))), 'angular velocity'),
+    (lambda o: o.update(0.0, WORLD, ALL, ImuReading(gyro=np.array([0, 0, np.inf]))), 'angular velocity'),
 ])
 def test_bad_input_is_named(bad, match):
     with pytest.raises(OdometryError, match=match):

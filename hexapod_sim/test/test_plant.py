@@ -371,8 +371,8 @@ def test_imu_at_rest_and_its_400hz_stamps(stand, robot):
     np.testing.assert_allclose([s.t_s for s in samples], np.arange(40) * 0.0025, atol=1e-12)
     for s in samples:
         np.testing.assert_allclose(s.quat_wxyz, [1, 0, 0, 0], atol=1e-9)
-        np.testing.assert_allclose(s.lin_acc_mps2, [0, 0, robot.gravity_mps2], atol=1e-6)
-        np.testing.assert_allclose(s.ang_vel_rad_s, 0, atol=1e-9)
+        np.testing.assert_allclose(s.accel, [0, 0, robot.gravity_mps2], atol=1e-6)
+        np.testing.assert_allclose(s.gyro, 0, atol=1e-9)
 
 
 def test_imu_equals_mujocos_own_sensors(robot):
@@ -397,9 +397,9 @@ def test_imu_equals_mujocos_own_sensors(robot):
     for smp in got:
         w = want[round(smp.t_s / 0.0005)]
         np.testing.assert_allclose(smp.quat_wxyz, w[:4], atol=1e-9)
-        np.testing.assert_allclose(smp.lin_acc_mps2, w[4:7], atol=1e-6)
-        np.testing.assert_allclose(smp.ang_vel_rad_s, w[7:10], atol=1e-9)
-    assert max(abs(smp.lin_acc_mps2[2] - robot.gravity_mps2) for smp in got) > 0.5   # it really moved
+        np.testing.assert_allclose(smp.accel, w[4:7], atol=1e-6)
+        np.testing.assert_allclose(smp.gyro, w[7:10], atol=1e-9)
+    assert max(abs(smp.accel[2] - robot.gravity_mps2) for smp in got) > 0.5   # it really moved
 
 
 def test_imu_interpolates_between_physics_steps(robot):
@@ -415,8 +415,8 @@ def test_imu_interpolates_between_physics_steps(robot):
     qb = np.array([s.quat_wxyz for s in b])
     np.testing.assert_allclose(np.linalg.norm(qa, axis=1), 1.0, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(qb, axis=1), 1.0, atol=1e-12)
-    za = np.array([s.lin_acc_mps2[2] for s in a])
-    zb = np.array([s.lin_acc_mps2[2] for s in b])
+    za = np.array([s.accel[2] for s in a])
+    zb = np.array([s.accel[2] for s in b])
     assert np.median(np.abs(za - zb)) < 0.5            # the same signal (different step sizes)
 
 

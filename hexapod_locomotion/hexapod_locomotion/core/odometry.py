@@ -32,6 +32,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hexapod_model.imu import ImuReading
+
 TIME_JITTER_S = 1e-6      # [s] an earlier time by less than this is the same instant (float rounding of ns stamps)
 
 
@@ -64,15 +66,6 @@ class OdometryConfig:
                 raise OdometryError(f'odometry {name} must be a finite number > 0, got {v!r}')
         if not (isinstance(self.min_feet, int) and self.min_feet >= 2):
             raise OdometryError(f'odometry min_feet must be an integer >= 2 (a yaw needs two feet), got {self.min_feet!r}')
-
-
-@dataclass(frozen=True)
-class ImuReading:
-    """What the odometry takes from an IMU: orientation in a gravity-aligned frame (w, x, y, z) and/or
-    the body-frame angular velocity [rad/s]. Either may be None."""
-
-    quat_wxyz: np.ndarray | None = None
-    ang_vel_rad_s: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -237,7 +230,7 @@ class LegOdometry:
         if imu_quat is not None and not (imu_quat.shape == (4,) and np.all(np.isfinite(imu_quat))
                                          and np.linalg.norm(imu_quat) > 0):
             raise OdometryError(f'odometry: IMU orientation must be 4 finite numbers, not all 0, got {imu_quat!r}')
-        gyro = None if imu is None or imu.ang_vel_rad_s is None else np.asarray(imu.ang_vel_rad_s, dtype=float)
+        gyro = None if imu is None or imu.gyro is None else np.asarray(imu.gyro, dtype=float)
         if gyro is not None and not (gyro.shape == (3,) and np.all(np.isfinite(gyro))):
             raise OdometryError(f'odometry: IMU angular velocity must be 3 finite numbers, got {gyro!r}')
         return t_s, feet, contact, imu_quat, gyro

@@ -14,10 +14,11 @@ from typing import Callable
 
 import numpy as np
 
-from hexapod_locomotion.core.odometry import ImuReading, LegOdometry, OdometryEstimate
+from hexapod_locomotion.core.odometry import LegOdometry, OdometryEstimate
 from hexapod_model.bus import ServoBus
 from hexapod_model.contract import stamp_dict
 from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
+from hexapod_model.imu import ImuReading
 from hexapod_model.kinematics import forward
 
 ODOMETRY_PERIOD_S = 0.02     # update period [s of bus time]: the bus reads a leg's 3 joints in ~4 ms

@@ -103,9 +103,10 @@ class LocomotionNode(Node):
         from nav_msgs.msg import Odometry
         from sensor_msgs.msg import Imu, JointState
 
-        from hexapod_locomotion.core.odometry import ImuReading, LegOdometry
+        from hexapod_locomotion.core.odometry import LegOdometry
         from hexapod_locomotion.core.odometry_tap import OdometryTap
         from hexapod_model.contract import IMU, JOINT_STATES, ODOM, TF
+        from hexapod_model.imu import ImuReading
         self._Odometry, self._ImuReading, self._TransformStamped = Odometry, ImuReading, TransformStamped
         self._imu = None
         self.odom_pub = self.create_publisher(Odometry, ODOM, 50)
@@ -127,7 +128,7 @@ class LocomotionNode(Node):
         quat = [q.w, q.x, q.y, q.z]
         # sensor_msgs/Imu: orientation covariance[0] = -1 means no orientation
         self._imu = self._ImuReading(quat_wxyz=None if msg.orientation_covariance[0] == -1 or not any(quat) else quat,
-                                     ang_vel_rad_s=[w.x, w.y, w.z])
+                                     gyro=[w.x, w.y, w.z])
 
     def _on_joint_states(self, msg) -> None:
         if len(msg.name) == len(msg.position):

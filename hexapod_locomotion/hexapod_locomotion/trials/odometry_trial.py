@@ -12,9 +12,10 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hexapod_locomotion.core.odometry import ImuReading, LegOdometry, OdometryEstimate, wrap_angle
+from hexapod_locomotion.core.odometry import LegOdometry, OdometryEstimate, wrap_angle
 from hexapod_locomotion.core.odometry_tap import OdometryTap, odometry_dict
 from hexapod_model.contract import MSG_TYPES, ODOM
+from hexapod_model.imu import ImuReading
 
 PATH_SAMPLE_S = 0.5          # the distance walked: truth path length sampled this often (no body sway)
 

@@ -157,7 +157,7 @@ class ProbeBus(ServoBus):
         for s in imu:
             self.imu_t.append(s.t_s)
             self.imu_rpy.append(roll_pitch_yaw(s.quat_wxyz))
-            self.imu_acc_z.append(float(s.lin_acc_mps2[2]))
+            self.imu_acc_z.append(float(s.accel[2]))
         rec = self.recorder
         if rec is None:
             return
@@ -166,8 +166,8 @@ class ProbeBus(ServoBus):
             rec.write(IMU, MSG_TYPES[IMU], {
                 'header': {'stamp': stamp_dict(s.t_s), 'frame_id': 'trunk'},
                 'orientation': {'x': x, 'y': y, 'z': z, 'w': w},
-                'angular_velocity': dict(zip('xyz', (float(v) for v in s.ang_vel_rad_s))),
-                'linear_acceleration': dict(zip('xyz', (float(v) for v in s.lin_acc_mps2)))}, s.t_s)
+                'angular_velocity': dict(zip('xyz', (float(v) for v in s.gyro))),
+                'linear_acceleration': dict(zip('xyz', (float(v) for v in s.accel)))}, s.t_s)
         rec.write(POWER, MSG_TYPES[POWER], {'header': {'stamp': stamp_dict(t)}, 'voltage': bat.voltage_v,
                                             'current': -bat.current_a, 'present': True,
                                             'temperature': float('nan'), 'charge': float('nan'),

@@ -6,7 +6,7 @@ does the same against :class:`hexapod_sim.physics.plant.HexapodSim` and returns,
 outputs due by the new simulated time, each with its simulated stamp:
 
 * :class:`JointSample` per read (the ``/joint_states`` message; stamp = sample time),
-* :class:`~hexapod_sim.physics.plant.ImuSample` at the IMU rate,
+* :class:`~hexapod_model.imu.ImuReading` at the IMU rate,
 * :class:`PowerSample` (battery voltage, current and power averaged over the period),
 * :class:`~hexapod_sim.physics.plant.ServoTelemetry` (diagnostics), :class:`BusTimingSample`,
 * :class:`TruthSample` (evaluation-only foot contacts/forces and body pose),
@@ -24,7 +24,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from hexapod_model.description import ALL_JOINTS, LEGS
-from hexapod_sim.physics.plant import FootContacts, HexapodSim, ImuSample, PowerMeter, ServoTelemetry, SimError
+from hexapod_sim.physics.plant import FootContacts, HexapodSim, PowerMeter, ServoTelemetry, SimError
 from hexapod_sim.physics.truth_log import TruthLog
 
 
@@ -226,4 +226,4 @@ def truth_vector(contacts: FootContacts) -> list[float]:
 
 TRUTH_LAYOUT = (('contact', len(LEGS)), ('force_xyz', 3 * len(LEGS)))
 __all__ = ['SimBusLoop', 'JointSample', 'PowerSample', 'BusTimingSample', 'TruthSample', 'ClockTick',
-           'ImuSample', 'ServoTelemetry', 'truth_vector', 'TRUTH_LAYOUT']
+           'ServoTelemetry', 'truth_vector', 'TRUTH_LAYOUT']

@@ -48,6 +48,7 @@ from std_srvs.srv import Trigger
 from hexapod_model import contract, diagnostics
 from hexapod_model.contract import stamp_msg
 from hexapod_model.description import ALL_JOINTS, DescriptionError
+from hexapod_model.imu import ImuReading
 from hexapod_model.node_params import EXIT_BAD_PARAMETER, NodeParams, node_help, run_node, spin_until_shutdown
 from hexapod_model.param_schema import ReadTime, RobotSource
 from hexapod_model.urdf import urdf_xml
@@ -69,7 +70,7 @@ from hexapod_sim.node.bus_master_loop import (
 from hexapod_sim.node.live import LiveView, LiveViewError
 from hexapod_sim.node.local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from hexapod_sim.node.params import NODE, SimParams
-from hexapod_sim.physics.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ImuSample, ServoTelemetry, SimError
+from hexapod_sim.physics.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ServoTelemetry, SimError
 from hexapod_sim.physics.scene_params import SceneParams
 from hexapod_sim.physics.terrain import Ground
 from hexapod_sim.physics.truth_log import TruthLog
@@ -337,15 +338,15 @@ class SimNode(Node):
     def _publish_clock(self, ev: ClockTick) -> None:
         self._send(contract.CLOCK, Clock(clock=stamp_msg(ev.t_s)), ev.t_s)
 
-    def _publish_imu(self, ev: ImuSample) -> None:
+    def _publish_imu(self, ev: ImuReading) -> None:
         m = Imu()
         m.header.stamp = stamp_msg(ev.t_s)
         m.header.frame_id = 'trunk'
         w, x, y, z = (float(v) for v in ev.quat_wxyz)
         m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z = w, x, y, z
-        m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = (float(v) for v in ev.ang_vel_rad_s)
+        m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = (float(v) for v in ev.gyro)
         m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = (
-            float(v) for v in ev.lin_acc_mps2)
+            float(v) for v in ev.accel)
         self._send(contract.IMU, m, ev.t_s)
 
     def _publish_power(self, ev: PowerSample) -> None:
@@ -415,7 +416,7 @@ class SimNode(Node):
 
     # the sim's events by type (none derives from another): what publishes each
     _PUBLISHERS = {JointSample: _publish_joint, CommandSample: _publish_command, ScheduleSample: _publish_schedule,
-                   ClockTick: _publish_clock, ImuSample: _publish_imu, PowerSample: _publish_power,
+                   ClockTick: _publish_clock, ImuReading: _publish_imu, PowerSample: _publish_power,
                    ServoTelemetry: _publish_servos, BusTimingSample: _publish_bus_timing, TruthSample: _publish_truth}
 
     def _diagnostics(self, statuses, t_s: float) -> None:

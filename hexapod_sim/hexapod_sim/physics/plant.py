@@ -50,6 +50,7 @@ import numpy as np
 from hexapod_model.bus import ServoBus, SimulatedServos
 from hexapod_model.description import ALL_JOINTS, LEGS, Robot, load_robot
 from hexapod_model.dictionary import T_K, T_MU, T_PA, T_PP, T_PPH, T_REST, T_TS, joint_terms, supply_resistance_ohm
+from hexapod_model.imu import ImuReading
 from hexapod_model.servo import (
     ERR_ANGLE_LIMIT,
     ERR_OVERHEATING,
@@ -72,14 +73,6 @@ SENSOR_ROWS = 256             # physics steps of sensor data buffered by the com
 
 class SimError(ValueError):
     """Bad input to the simulator (the message names the offending value)."""
-
-
-@dataclass(frozen=True)
-class ImuSample:
-    t_s: float
-    quat_wxyz: np.ndarray        # body orientation in the world frame
-    lin_acc_mps2: np.ndarray     # specific force in the body frame (reads +g up at rest)
-    ang_vel_rad_s: np.ndarray    # body frame
 
 
 @dataclass(frozen=True)
@@ -430,7 +423,7 @@ class HexapodSim(ServoBus, SimulatedServos):
             norm = np.linalg.norm(v[:, :4], axis=1)
             v[:, :4] /= np.where(norm > 0, norm, 1.0)[:, None]
             for t, row in zip((x * self.dt).tolist(), v):   # rows of a fresh array: views are safe
-                self._imu.append(ImuSample(t, row[:4], row[4:7], row[7:10]))
+                self._imu.append(ImuReading(t, row[:4], row[4:7], row[7:10]))
             self._last_imu = self._imu[-1]
             self._imu_k = int(k_end)
         self._imu_carry = (last, rows[-1].copy())
@@ -579,12 +572,12 @@ class HexapodSim(ServoBus, SimulatedServos):
         return self._rows < len(ALL_JOINTS)
 
     # ------------------------------------------------------------------ sensors
-    def imu(self) -> ImuSample | None:
+    def imu(self) -> ImuReading | None:
         """The latest IMU sample (None before the first one)."""
         self._drain_sensors()
         return self._last_imu
 
-    def pop_imu_samples(self, min_batch: int = 1) -> list[ImuSample]:
+    def pop_imu_samples(self, min_batch: int = 1) -> list[ImuReading]:
         """All IMU samples complete so far and not yet returned (at most the last ``IMU_BUFFER``),
         oldest first. With ``min_batch`` > 1 nothing is returned until that many are complete (cheaper
         when called very often; the samples keep their exact stamps)."""
