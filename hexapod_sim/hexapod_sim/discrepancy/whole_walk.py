@@ -73,49 +73,93 @@ def _start_angles(rec: Recording, sim) -> dict[str, float] | None:
     return None if off <= 1.0 else first
 
 
+class WalkReplay:
+    """One open-loop replay of the recorded goals through the MuJoCo hexapod of ``robot`` (effects included)
+    on ``ground``, advanced on demand (:meth:`run_to`) so a caller can stop it once it has what it needs.
+
+    The compiled loop runs from one goal write to the next and keeps the output angle of every physics
+    step (:meth:`HexapodSim.keep_output_angles`); :attr:`pred` holds the predicted ticks at every recorded
+    read of ``joints`` up to ``t_end_s``, NaN for the reads not yet replayed."""
+
+    def __init__(self, rec: Recording, robot: Robot, ground: Ground, joints=None, t_end_s: float | None = None):
+        from hexapod_sim.physics.plant import HexapodSim, SimError
+        self.rec = rec
+        self.joints = [j for j in (joints or rec.states) if j in rec.states]
+        try:
+            sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, imu_rate_hz=0.0,
+                             start_xy_m=ground.start_xy_m)
+        except SimError as exc:
+            raise RecordingError(f'whole-walk replay: {exc}') from None
+        sim.reset()
+        start = _start_angles(rec, sim)
+        if start is not None:
+            sim.reset(joint_angles=start)
+        self.sim, self.dt, self.servo = sim, sim.dt, robot.servo
+        self.t_end = rec.duration_s if t_end_s is None else min(t_end_s, rec.duration_s)
+        self.n = n = int(math.ceil(self.t_end / self.dt)) + 2
+        self.grid = sim.keep_output_angles(n)
+        writes = _writes_by_tick(rec, self.dt)
+        self._writes = [(k, writes[k]) for k in sorted(writes) if k < n]
+        self._next_write = 0
+        self.steps = 0                          # physics steps run: grid rows 0 .. steps - 1 are filled
+        self._cols = {j: ALL_JOINTS.index(j) for j in self.joints}
+        self._i0, self._f, self.pred, self._done = {}, {}, {}, {}
+        for j in self.joints:
+            t = rec.states[j].t_s
+            t = t[t <= self.t_end]
+            delay = robot.joint_effects(j).readout_delay_s
+            x = np.clip((t - delay) / self.dt, 0.0, n - 1.0)
+            i0 = np.minimum(np.floor(x).astype(np.int64), n - 2)
+            self._i0[j], self._f[j] = i0, x - i0
+            self.pred[j] = np.full(len(t), np.nan)
+            self._done[j] = 0
+
+    def run_to(self, t_s: float) -> float:
+        """Replay until every read at or before ``t_s`` (and ``t_end_s``) is predicted; -> the time [s] up
+        to which every read is."""
+        target = min(self.n, int(math.ceil(min(t_s, self.t_end) / self.dt)) + 2)
+        sim, w = self.sim, self._writes
+        while self.steps < target:
+            if self._next_write < len(w) and w[self._next_write][0] <= self.steps:
+                sim.sync_write(w[self._next_write][1])
+                self._next_write += 1
+                continue
+            stop = w[self._next_write][0] if self._next_write < len(w) else target
+            sim.step((min(stop, target) - self.steps) * self.dt)
+            self.steps = min(stop, target)
+        for j in self.joints:                   # the reads whose two grid rows are filled
+            i0, k0 = self._i0[j], self._done[j]
+            k1 = int(np.searchsorted(i0, self.steps - 2, side='right'))
+            if k1 > k0:
+                g, f = self.grid[:, self._cols[j]], self._f[j][k0:k1]
+                self.pred[j][k0:k1] = theta_to_tick(g[i0[k0:k1]] * (1.0 - f) + g[i0[k0:k1] + 1] * f, self.servo)
+                self._done[j] = k1
+        return self.covered_s()
+
+    def covered_s(self) -> float:
+        """Every read before this time [s] is predicted (the end of the walk once the replay is done)."""
+        if self.steps >= self.n:
+            return math.inf
+        return min((float(self.rec.states[j].t_s[k]) for j, k in self._done.items() if k < len(self.pred[j])),
+                   default=math.inf)
+
+    @property
+    def finished(self) -> bool:
+        return self.steps >= self.n
+
+
 def replay_walk(rec: Recording, robot: Robot, ground: Ground, joints=None,
                 t_end_s: float | None = None) -> dict[str, np.ndarray]:
     """Predicted ticks at every recorded read of ``joints`` (default all recorded) up to ``t_end_s``:
     the recorded goals through the MuJoCo hexapod of ``robot`` (effects included) on ``ground``."""
-    from hexapod_sim.physics.plant import HexapodSim, SimError
-    joints = [j for j in (joints or rec.states) if j in rec.states]
-    try:
-        sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, imu_rate_hz=0.0,
-                         start_xy_m=ground.start_xy_m)
-    except SimError as exc:
-        raise RecordingError(f'whole-walk replay: {exc}') from None
-    sim.reset()
-    start = _start_angles(rec, sim)
-    if start is not None:
-        sim.reset(joint_angles=start)
-    dt = sim.dt
-    t_end = rec.duration_s if t_end_s is None else min(t_end_s, rec.duration_s)
-    n = int(math.ceil(t_end / dt)) + 2
-    writes = _writes_by_tick(rec, dt)
-    cols = np.array([ALL_JOINTS.index(j) for j in joints])
-    grid = np.empty((n, len(cols)))
-    for k in range(n):
-        grid[k] = sim.true_joint_angles()[cols]
-        goals = writes.get(k)
-        if goals:
-            sim.sync_write(goals)
-        sim.step(dt)
-    out = {}
-    for c, j in enumerate(joints):
-        s = rec.states[j]
-        keep = s.t_s <= t_end
-        delay = robot.joint_effects(j).readout_delay_s
-        x = np.clip((s.t_s[keep] - delay) / dt, 0.0, n - 1.0)
-        i0 = np.minimum(np.floor(x).astype(np.int64), n - 2)
-        f = x - i0
-        out[j] = theta_to_tick(grid[i0, c] * (1.0 - f) + grid[i0 + 1, c] * f, robot.servo)
-    return out
+    r = WalkReplay(rec, robot, ground, joints, t_end_s)
+    r.run_to(math.inf)
+    return r.pred
 
 
-def in_step_until(rec: Recording, res: dict[str, np.ndarray]) -> float:
-    """The end of the last window [s] before the replay first leaves the recording: the median joint's
-    RMS residual over a ``STEP_WINDOW_S`` window above ``OUT_OF_STEP_TICKS`` (physics left out of one
-    joint raises that joint; the trunk going elsewhere raises every joint). The recording's end if never."""
+def _window_rms(rec: Recording, res: dict[str, np.ndarray]) -> np.ndarray:
+    """The median joint's RMS residual [ticks] in every ``STEP_WINDOW_S`` window of the walk (NaN where no
+    joint has a read with a residual)."""
     end = rec.duration_s
     n_win = int(math.ceil(end / STEP_WINDOW_S))
     per = np.full((len(res), n_win), np.nan)
@@ -127,9 +171,15 @@ def in_step_until(rec: Recording, res: dict[str, np.ndarray]) -> float:
         with np.errstate(invalid='ignore', divide='ignore'):
             per[r] = np.sqrt(sq / cnt)
     with np.errstate(all='ignore'):
-        med = np.nanmedian(per, axis=0) if len(res) else np.zeros(n_win)
-    bad = np.flatnonzero(med > OUT_OF_STEP_TICKS)
-    return end if not len(bad) else float(bad[0] * STEP_WINDOW_S)
+        return np.nanmedian(per, axis=0) if len(res) else np.zeros(n_win)
+
+
+def in_step_until(rec: Recording, res: dict[str, np.ndarray]) -> float:
+    """The end of the last window [s] before the replay first leaves the recording: the median joint's
+    RMS residual over a ``STEP_WINDOW_S`` window above ``OUT_OF_STEP_TICKS`` (physics left out of one
+    joint raises that joint; the trunk going elsewhere raises every joint). The recording's end if never."""
+    bad = np.flatnonzero(_window_rms(rec, res) > OUT_OF_STEP_TICKS)
+    return rec.duration_s if not len(bad) else float(bad[0] * STEP_WINDOW_S)
 
 
 @dataclass(frozen=True)
