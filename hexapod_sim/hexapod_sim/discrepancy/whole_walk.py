@@ -18,6 +18,7 @@ the first ``LIFT_OFF_S`` of a swing-up (it gives the share up) told apart.
 """
 from __future__ import annotations
 
+import bisect
 import math
 import warnings
 from dataclasses import dataclass
@@ -63,6 +64,12 @@ def _writes_by_tick(rec: Recording, dt: float) -> dict[int, dict[str, float]]:
     return writes
 
 
+def _sorted_writes(rec: Recording, dt: float) -> list[tuple[int, dict[str, float]]]:
+    """:func:`_writes_by_tick` as (tick, goals) in tick order."""
+    writes = _writes_by_tick(rec, dt)
+    return [(k, writes[k]) for k in sorted(writes)]
+
+
 def _start_angles(rec: Recording, sim) -> dict[str, float] | None:
     """The recording's first read of every joint, unless they are the plant's home pose (then None:
     a recording of the sim from its start replays from exactly the state it was made from)."""
@@ -80,9 +87,12 @@ class WalkReplay:
 
     The compiled loop runs from one goal write to the next and keeps the output angle of every physics
     step (:meth:`HexapodSim.keep_output_angles`); :attr:`pred` holds the predicted ticks at every recorded
-    read of ``joints`` up to ``t_end_s``, NaN for the reads not yet replayed."""
+    read of ``joints`` up to ``t_end_s``, NaN for the reads not yet replayed. ``writes``: ``(rec, dt) ->`` the
+    recorded writes as (tick, goals) in tick order (default :func:`_sorted_writes`; :class:`Replays` makes
+    them once)."""
 
-    def __init__(self, rec: Recording, robot: Robot, ground: Ground, joints=None, t_end_s: float | None = None):
+    def __init__(self, rec: Recording, robot: Robot, ground: Ground, joints=None, t_end_s: float | None = None,
+                 writes=None):
         from hexapod_sim.physics.plant import HexapodSim, SimError
         self.rec = rec
         self.joints = [j for j in (joints or rec.states) if j in rec.states]
@@ -99,8 +109,8 @@ class WalkReplay:
         self.t_end = rec.duration_s if t_end_s is None else min(t_end_s, rec.duration_s)
         self.n = n = int(math.ceil(self.t_end / self.dt)) + 2
         self.grid = sim.keep_output_angles(n)
-        writes = _writes_by_tick(rec, self.dt)
-        self._writes = [(k, writes[k]) for k in sorted(writes) if k < n]
+        writes = (writes or _sorted_writes)(rec, self.dt)
+        self._writes = writes[:bisect.bisect_left(writes, n, key=lambda w: w[0])]
         self._next_write = 0
         self.steps = 0                          # physics steps run: grid rows 0 .. steps - 1 are filled
         self._cols = {j: ALL_JOINTS.index(j) for j in self.joints}
@@ -168,6 +178,12 @@ class Replays:
         self.rec, self.robot, self.ground = rec, robot, ground
         self._made: list[tuple[Robot, tuple, WalkReplay]] = []
         self._meas: dict[str, np.ndarray] = {}
+        self._writes: dict[float, list] = {}          # physics step -> the writes by tick (the same for every model)
+
+    def _sorted_writes(self, rec: Recording, dt: float) -> list:
+        if dt not in self._writes:
+            self._writes[dt] = _sorted_writes(rec, dt)
+        return self._writes[dt]
 
     def meas(self, joint: str) -> np.ndarray:
         """The recorded reads of ``joint`` in ticks."""
@@ -182,7 +198,7 @@ class Replays:
         for m, js, r in self._made:
             if set(joints) <= set(js) and r.t_end >= end and m == model:
                 return r
-        r = WalkReplay(self.rec, model, self.ground, joints, t_end_s)
+        r = WalkReplay(self.rec, model, self.ground, joints, t_end_s, self._sorted_writes)
         if keep:
             self._made.append((model, tuple(r.joints), r))
         return r
