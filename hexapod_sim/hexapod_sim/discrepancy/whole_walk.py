@@ -516,14 +516,15 @@ def _search_one(rec, robot, base: list, cand, scope, ground, until_s, fit, progr
     """(value, fit RMS, its replay) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole
     walk, over the candidate's range (or ``bracket``): a log-spaced grid, then golden-section steps between
     the best point's neighbours. Each comparison replays its candidates only as far as it needs
-    (:func:`_settle`), and a golden-section step reuses the interior point it keeps (the same value up to
-    the rounding of the logarithms)."""
+    (:func:`_settle`), and a golden-section step reuses the interior point it keeps where the logarithms give
+    it exactly again (about every other step; a value one rounding away is replayed, as the walk's replay
+    is that sensitive)."""
     replays = replays or Replays(rec, robot, ground)
     made: list[tuple[float, _Trial]] = []
 
     def trial(v):
         for x, t in made:
-            if abs(x - v) <= 1e-9 * abs(v):
+            if x == v:        # exactly: the open-loop replay of a walk moves by a tick for a 1e-16 change
                 return t
         progress(f'whole walk: {cand.effect} {v:.3g} on {len(scope)} joint(s)')
         t = _Trial(replays, robot.with_effects(base + [cand.make(scope, v)]), scope, until_s, fit)
