@@ -16,7 +16,7 @@ import yaml
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Footer, Message, Schema
-from mcap.stream_reader import breakup_chunk
+from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
 
 from hexapod_model import contract
 from hexapod_sim.bagio.cdr import decoder_for
@@ -181,10 +181,29 @@ def _scan_file(path: Path, file_idx: int) -> _FileScan:
     return scan
 
 
+_RECORD = struct.Struct('<BQ')           # opcode, length
+_MESSAGE = struct.Struct('<HIQQ')        # channel id, sequence, log time, publish time
+
+
 def _load_chunk(fh, ref: _ChunkRef) -> list[Message]:
+    """The Message records of a chunk, as ``mcap.stream_reader.breakup_chunk`` gives them (decompressed and
+    CRC-checked by it), split with one ``struct`` call per record."""
     fh.seek(ref.offset + 9)
     chunk = Chunk.read(ReadDataStream(io.BytesIO(fh.read(ref.length - 9))))
-    return [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, Message)]
+    stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+    data = stream.read(size)
+    out, pos = [], 0
+    while pos < size:
+        opcode, length = _RECORD.unpack_from(data, pos)
+        pos += 9
+        if pos + length > size:
+            raise ValueError(f'record of {length} bytes at byte {pos - 9} runs past the chunk\'s {size} bytes')
+        if opcode == Opcode.MESSAGE:
+            channel_id, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, pos)
+            out.append(Message(channel_id=channel_id, log_time=log_time, data=data[pos + 22:pos + length],
+                               publish_time=publish_time, sequence=sequence))
+        pos += length
+    return out
 
 
 class BagReader:
@@ -424,8 +443,9 @@ class BagReader:
                                    f'became unreadable ({exc}); its {ref.count} message(s) are skipped')
                         continue
                     for m in msgs:
-                        heapq.heappush(heap, (m.log_time, seq, ref.file_idx, m))
-                        seq += 1
+                        if accept(ref.file_idx, m) is not None:       # the others never leave the heap
+                            heapq.heappush(heap, (m.log_time, seq, ref.file_idx, m))
+                            seq += 1
                 if not heap:
                     continue
                 _, _, f_idx, m = heapq.heappop(heap)

@@ -18,7 +18,9 @@ the first ``LIFT_OFF_S`` of a swing-up (it gives the share up) told apart.
 """
 from __future__ import annotations
 
+import bisect
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,6 +64,12 @@ def _writes_by_tick(rec: Recording, dt: float) -> dict[int, dict[str, float]]:
     return writes
 
 
+def _sorted_writes(rec: Recording, dt: float) -> list[tuple[int, dict[str, float]]]:
+    """:func:`_writes_by_tick` as (tick, goals) in tick order."""
+    writes = _writes_by_tick(rec, dt)
+    return [(k, writes[k]) for k in sorted(writes)]
+
+
 def _start_angles(rec: Recording, sim) -> dict[str, float] | None:
     """The recording's first read of every joint, unless they are the plant's home pose (then None:
     a recording of the sim from its start replays from exactly the state it was made from)."""
@@ -73,49 +81,162 @@ def _start_angles(rec: Recording, sim) -> dict[str, float] | None:
     return None if off <= 1.0 else first
 
 
+class WalkReplay:
+    """One open-loop replay of the recorded goals through the MuJoCo hexapod of ``robot`` (effects included)
+    on ``ground``, advanced on demand (:meth:`run_to`) so a caller can stop it once it has what it needs.
+
+    The compiled loop runs from one goal write to the next and keeps the output angle of every physics
+    step (:meth:`HexapodSim.keep_output_angles`); :attr:`pred` holds the predicted ticks at every recorded
+    read of ``joints`` up to ``t_end_s``, NaN for the reads not yet replayed. ``writes``: ``(rec, dt) ->`` the
+    recorded writes as (tick, goals) in tick order (default :func:`_sorted_writes`; :class:`Replays` makes
+    them once)."""
+
+    def __init__(self, rec: Recording, robot: Robot, ground: Ground, joints=None, t_end_s: float | None = None,
+                 writes=None):
+        from hexapod_sim.physics.plant import HexapodSim, SimError
+        self.rec = rec
+        self.joints = [j for j in (joints or rec.states) if j in rec.states]
+        try:
+            sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, imu_rate_hz=0.0,
+                             start_xy_m=ground.start_xy_m)
+        except SimError as exc:
+            raise RecordingError(f'whole-walk replay: {exc}') from None
+        sim.reset()
+        start = _start_angles(rec, sim)
+        if start is not None:
+            sim.reset(joint_angles=start)
+        self.sim, self.dt, self.servo = sim, sim.dt, robot.servo
+        self.t_end = rec.duration_s if t_end_s is None else min(t_end_s, rec.duration_s)
+        self.n = n = int(math.ceil(self.t_end / self.dt)) + 2
+        self.grid = sim.keep_output_angles(n)
+        writes = (writes or _sorted_writes)(rec, self.dt)
+        self._writes = writes[:bisect.bisect_left(writes, n, key=lambda w: w[0])]
+        self._next_write = 0
+        self.steps = 0                          # physics steps run: grid rows 0 .. steps - 1 are filled
+        self._cols = {j: ALL_JOINTS.index(j) for j in self.joints}
+        self._i0, self._f, self.pred, self._done = {}, {}, {}, {}
+        for j in self.joints:
+            t = rec.states[j].t_s
+            t = t[t <= self.t_end]
+            delay = robot.joint_effects(j).readout_delay_s
+            x = np.clip((t - delay) / self.dt, 0.0, n - 1.0)
+            i0 = np.minimum(np.floor(x).astype(np.int64), n - 2)
+            self._i0[j], self._f[j] = i0, x - i0
+            self.pred[j] = np.full(len(t), np.nan)
+            self._done[j] = 0
+
+    def run_to(self, t_s: float) -> float:
+        """Replay until every read at or before ``t_s`` (and ``t_end_s``) is predicted; -> the time [s] up
+        to which every read is."""
+        target = min(self.n, int(math.ceil(min(t_s, self.t_end) / self.dt)) + 2)
+        sim, w = self.sim, self._writes
+        while self.steps < target:
+            if self._next_write < len(w) and w[self._next_write][0] <= self.steps:
+                sim.sync_write(w[self._next_write][1])
+                self._next_write += 1
+                continue
+            stop = w[self._next_write][0] if self._next_write < len(w) else target
+            sim.step((min(stop, target) - self.steps) * self.dt)
+            self.steps = min(stop, target)
+        for j in self.joints:                   # the reads whose two grid rows are filled
+            i0, k0 = self._i0[j], self._done[j]
+            k1 = int(np.searchsorted(i0, self.steps - 2, side='right'))
+            if k1 > k0:
+                g, f = self.grid[:, self._cols[j]], self._f[j][k0:k1]
+                self.pred[j][k0:k1] = theta_to_tick(g[i0[k0:k1]] * (1.0 - f) + g[i0[k0:k1] + 1] * f, self.servo)
+                self._done[j] = k1
+        return self.covered_s()
+
+    def covered_s(self) -> float:
+        """Every read before this time [s] is predicted (the end of the walk once the replay is done)."""
+        if self.steps >= self.n:
+            return math.inf
+        return min((float(self.rec.states[j].t_s[k]) for j, k in self._done.items() if k < len(self.pred[j])),
+                   default=math.inf)
+
+    @property
+    def finished(self) -> bool:
+        return self.steps >= self.n
+
+
 def replay_walk(rec: Recording, robot: Robot, ground: Ground, joints=None,
                 t_end_s: float | None = None) -> dict[str, np.ndarray]:
     """Predicted ticks at every recorded read of ``joints`` (default all recorded) up to ``t_end_s``:
     the recorded goals through the MuJoCo hexapod of ``robot`` (effects included) on ``ground``."""
-    from hexapod_sim.physics.plant import HexapodSim, SimError
-    joints = [j for j in (joints or rec.states) if j in rec.states]
-    try:
-        sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, imu_rate_hz=0.0,
-                         start_xy_m=ground.start_xy_m)
-    except SimError as exc:
-        raise RecordingError(f'whole-walk replay: {exc}') from None
-    sim.reset()
-    start = _start_angles(rec, sim)
-    if start is not None:
-        sim.reset(joint_angles=start)
-    dt = sim.dt
-    t_end = rec.duration_s if t_end_s is None else min(t_end_s, rec.duration_s)
-    n = int(math.ceil(t_end / dt)) + 2
-    writes = _writes_by_tick(rec, dt)
-    cols = np.array([ALL_JOINTS.index(j) for j in joints])
-    grid = np.empty((n, len(cols)))
-    for k in range(n):
-        grid[k] = sim.true_joint_angles()[cols]
-        goals = writes.get(k)
-        if goals:
-            sim.sync_write(goals)
-        sim.step(dt)
-    out = {}
-    for c, j in enumerate(joints):
-        s = rec.states[j]
-        keep = s.t_s <= t_end
-        delay = robot.joint_effects(j).readout_delay_s
-        x = np.clip((s.t_s[keep] - delay) / dt, 0.0, n - 1.0)
-        i0 = np.minimum(np.floor(x).astype(np.int64), n - 2)
-        f = x - i0
-        out[j] = theta_to_tick(grid[i0, c] * (1.0 - f) + grid[i0 + 1, c] * f, robot.servo)
-    return out
+    r = WalkReplay(rec, robot, ground, joints, t_end_s)
+    r.run_to(math.inf)
+    return r.pred
 
 
-def in_step_until(rec: Recording, res: dict[str, np.ndarray]) -> float:
-    """The end of the last window [s] before the replay first leaves the recording: the median joint's
-    RMS residual over a ``STEP_WINDOW_S`` window above ``OUT_OF_STEP_TICKS`` (physics left out of one
-    joint raises that joint; the trunk going elsewhere raises every joint). The recording's end if never."""
+class Replays:
+    """The whole-walk replays of one analysis (one recording, robot description and ground), each made once
+    and run only as far as a caller needs: the nominal replay is compared against every set of effects
+    tried, and the replay with the effects found is the search's starting point. A replay serves any span
+    up to its own (the first steps of a longer replay are the shorter one's, write for write)."""
+
+    def __init__(self, rec: Recording, robot: Robot, ground: Ground):
+        self.rec, self.robot, self.ground = rec, robot, ground
+        self._made: list[tuple[Robot, tuple, WalkReplay]] = []
+        self._meas: dict[str, np.ndarray] = {}
+        self._writes: dict[float, list] = {}          # physics step -> the writes by tick (the same for every model)
+
+    def _sorted_writes(self, rec: Recording, dt: float) -> list:
+        if dt not in self._writes:
+            self._writes[dt] = _sorted_writes(rec, dt)
+        return self._writes[dt]
+
+    def meas(self, joint: str) -> np.ndarray:
+        """The recorded reads of ``joint`` in ticks."""
+        if joint not in self._meas:
+            self._meas[joint] = rec_ticks(self.rec, self.robot, joint)
+        return self._meas[joint]
+
+    def get(self, model: Robot, joints, t_end_s: float | None = None, keep: bool = True) -> WalkReplay:
+        """A replay of ``model`` that predicts ``joints`` up to ``t_end_s`` (None: the whole walk), not yet
+        run further than before; ``keep``: hold it for later calls."""
+        end = self.rec.duration_s if t_end_s is None else min(t_end_s, self.rec.duration_s)
+        for m, js, r in self._made:
+            if set(joints) <= set(js) and r.t_end >= end and m == model:
+                return r
+        r = WalkReplay(self.rec, model, self.ground, joints, t_end_s, self._sorted_writes)
+        if keep:
+            self._made.append((model, tuple(r.joints), r))
+        return r
+
+    def residuals(self, r: WalkReplay, joints=None, t_end_s: float | None = None) -> dict[str, np.ndarray]:
+        """Recorded minus predicted ticks of ``joints`` (default the replay's) at the reads up to ``t_end_s``
+        (default the replay's end); NaN where the replay has not yet come."""
+        out = {}
+        for j in (joints or r.joints):
+            p = r.pred[j]
+            if t_end_s is not None and t_end_s < r.t_end:
+                p = p[:int(np.searchsorted(self.rec.states[j].t_s, t_end_s, side='right'))]
+            out[j] = self.meas(j)[:len(p)] - p
+        return out
+
+    def in_step(self, model: Robot, joints, need_s: float = 0.0) -> tuple[dict[str, np.ndarray], float]:
+        """(residuals, :func:`in_step_until`) of the whole-walk replay of ``model``, replayed until it leaves
+        the recording (the first window whose median joint is above ``OUT_OF_STEP_TICKS``, as soon as every
+        read of that window is replayed) but at least up to ``need_s``: the same verdict as the whole replay,
+        and the same residuals before it."""
+        r = self.get(model, joints)
+        t = STEP_WINDOW_S
+        while True:
+            covered = r.run_to(t)
+            res = self.residuals(r, joints)
+            if r.finished:
+                return res, in_step_until(self.rec, res)
+            win = _window_rms(self.rec, res)
+            done = int(np.count_nonzero((np.arange(len(win)) + 1) * STEP_WINDOW_S < covered))
+            bad = np.flatnonzero(win[:done] > OUT_OF_STEP_TICKS)
+            if len(bad) and covered >= need_s:
+                return res, float(bad[0] * STEP_WINDOW_S)
+            t = max(t, covered) + STEP_WINDOW_S
+
+
+def _window_rms(rec: Recording, res: dict[str, np.ndarray]) -> np.ndarray:
+    """The median joint's RMS residual [ticks] in every ``STEP_WINDOW_S`` window of the walk (NaN where no
+    joint has a read with a residual)."""
     end = rec.duration_s
     n_win = int(math.ceil(end / STEP_WINDOW_S))
     per = np.full((len(res), n_win), np.nan)
@@ -126,10 +247,17 @@ def in_step_until(rec: Recording, res: dict[str, np.ndarray]) -> float:
         cnt = np.bincount(w, minlength=n_win)
         with np.errstate(invalid='ignore', divide='ignore'):
             per[r] = np.sqrt(sq / cnt)
-    with np.errstate(all='ignore'):
-        med = np.nanmedian(per, axis=0) if len(res) else np.zeros(n_win)
-    bad = np.flatnonzero(med > OUT_OF_STEP_TICKS)
-    return end if not len(bad) else float(bad[0] * STEP_WINDOW_S)
+    with np.errstate(all='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)          # a window no joint has a read in yet
+        return np.nanmedian(per, axis=0) if len(res) else np.zeros(n_win)
+
+
+def in_step_until(rec: Recording, res: dict[str, np.ndarray]) -> float:
+    """The end of the last window [s] before the replay first leaves the recording: the median joint's
+    RMS residual over a ``STEP_WINDOW_S`` window above ``OUT_OF_STEP_TICKS`` (physics left out of one
+    joint raises that joint; the trunk going elsewhere raises every joint). The recording's end if never."""
+    bad = np.flatnonzero(_window_rms(rec, res) > OUT_OF_STEP_TICKS)
+    return rec.duration_s if not len(bad) else float(bad[0] * STEP_WINDOW_S)
 
 
 @dataclass(frozen=True)
@@ -164,21 +292,21 @@ class WholeWalk:
 
 
 def compare(rec: Recording, robot: Robot, fitted: Robot | None, ground: Ground, phases: dict,
-            joints=None) -> WholeWalk:
+            joints=None, replays: Replays | None = None) -> WholeWalk:
     """Replay the whole walk nominally and with the effects found (``fitted``; None: none found) and
-    tabulate the error per joint and phase over the reads in step (``phases``: leg -> LegPhases)."""
+    tabulate the error per joint and phase over the reads in step (``phases``: leg -> LegPhases).
+    Each replay runs until it leaves the recording (:meth:`Replays.in_step`), the nominal one at least as
+    far as the one with the effects is judged. ``replays``: the analysis's replays, reused."""
     import time
     t0 = time.perf_counter()
     joints = [j for j in (joints or rec.states) if j in rec.states]
-    nominal = replay_walk(rec, robot, ground, joints)
-    res0 = {j: rec_ticks(rec, robot, j)[:len(p)] - p for j, p in nominal.items()}
-    until0 = in_step_until(rec, res0)
+    replays = replays or Replays(rec, robot, ground)
     if fitted is None:
+        res0, until0 = replays.in_step(robot, joints)
         res1, until1 = res0, until0
     else:
-        pred1 = replay_walk(rec, fitted, ground, joints)
-        res1 = {j: rec_ticks(rec, robot, j)[:len(p)] - p for j, p in pred1.items()}
-        until1 = in_step_until(rec, res1)
+        res1, until1 = replays.in_step(fitted, joints)
+        res0, until0 = replays.in_step(robot, joints, need_s=until1)
     table = {}
     for j in joints:
         t = rec.states[j].t_s
@@ -199,7 +327,7 @@ WIDEN_MIN_GAIN_S = 2.0        # [s] longer in step for an effect found on some j
 
 
 def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, joints, ww: WholeWalk,
-          progress=lambda msg: None) -> tuple[list, dict, WholeWalk]:
+          progress=lambda msg: None, replays: Replays | None = None) -> tuple[list, dict, WholeWalk]:
     """Effects the swings found on some joints that the whole walk wants on every joint: where the replay
     with the effects leaves the recording, each kind found on part of the robot (not the servo law, not a
     payload) is tried on every analysed joint at the mean of its fitted values; kept when the replay then
@@ -208,6 +336,7 @@ def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: d
     wide: dict = {}
     if ww.in_step_until_s >= rec.duration_s:
         return list(effects), wide, ww
+    replays = replays or Replays(rec, robot, ground)
     out = list(effects)
     for kind in dict.fromkeys(e.effect for e in effects):
         same = [e for e in out if e.effect == kind]
@@ -218,16 +347,17 @@ def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: d
         mean = float(np.mean([e.params[key] for e in same]))
         rest = [e for e in out if e.effect != kind]
         progress(f'whole walk: {kind} on every joint')
-        ww2 = compare(rec, robot, robot.with_effects(rest + [BY_NAME[kind].make(joints, mean)]), ground, phases, joints)
+        ww2 = compare(rec, robot, robot.with_effects(rest + [BY_NAME[kind].make(joints, mean)]), ground, phases, joints,
+                      replays)
         if ww2.in_step_until_s < ww.in_step_until_s + WIDEN_MIN_GAIN_S:
             continue
         until = min(ww2.in_step_until_s, START_S + SEARCH_HORIZON_S)       # the value, refitted on the whole walk
         fit, _ = _masks(rec, joints, until)
-        v, _ = _search_one(rec, robot, rest, BY_NAME[kind], tuple(joints), ground, until, fit, progress,
-                           bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)))
+        v, _, _ = _search_one(rec, robot, rest, BY_NAME[kind], tuple(joints), ground, until, fit, progress,
+                              bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)), replays=replays)
         trial_e = BY_NAME[kind].make(joints, v)
         out, wide[kind] = rest + [trial_e], trial_e
-        ww = compare(rec, robot, robot.with_effects(out), ground, phases, joints)
+        ww = compare(rec, robot, robot.with_effects(out), ground, phases, joints, replays)
     return out, wide, ww
 
 
@@ -245,11 +375,13 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     else:
         ground, origin = Ground(), 'assumed: a flat floor, as for a calibration walk; --terrain sets it'
     fitted = robot.with_effects(effects) if effects else None
-    ww = compare(rec, robot, fitted, ground, phases, joints)
-    effects, wide, ww = widen(rec, robot, list(effects), ground, phases, joints, ww, progress)
-    finds = search_loaded(rec, robot, list(effects), ground, phases, ww, progress) if search else []
+    replays = Replays(rec, robot, ground)
+    ww = compare(rec, robot, fitted, ground, phases, joints, replays)
+    effects, wide, ww = widen(rec, robot, list(effects), ground, phases, joints, ww, progress, replays)
+    finds = search_loaded(rec, robot, list(effects), ground, phases, ww, progress, replays) if search else []
     if finds:
-        ww = compare(rec, robot, robot.with_effects(list(effects) + [f.effect for f in finds]), ground, phases, joints)
+        ww = compare(rec, robot, robot.with_effects(list(effects) + [f.effect for f in finds]), ground, phases, joints,
+                     replays)
     notes = [f'whole walk: the recorded goals replayed through the MuJoCo hexapod on {ground.describe()} '
              f'({origin}), {ww.runtime_s:.1f} s']
     if ww.in_step_until_s < rec.duration_s:
@@ -280,6 +412,7 @@ SEARCH_MIN_EXPLAINED = 0.75   # and the share of their excess over rounding it m
 ROUNDING_RMS = 0.29           # uniform tick rounding: 1/sqrt(12)
 EDGE_FACTOR = 1.1             # a fit within this factor of its range's low end is no measurement: not named
 WIDEN_BRACKET = 0.2           # a widened effect's value is refitted within +-20 % of the parts' mean
+SEARCH_CHECK_S = 0.5          # [s] of replay between two looks at a candidate's error so far
 SEARCH_HORIZON_S = 20.0       # [s] of the walk (in step) the search replays: its cost does not grow with the walk
 SEARCH_MIN_IN_STEP_S = 5.0    # [s] in step the search needs (fewer: the ground is likely not the walk's)
 MAX_JOINT_SCOPES = 3          # single-joint scopes tried: the joints with the largest loaded-phase error
@@ -328,34 +461,99 @@ def _rms(rec, robot, pred: dict, joints, masks) -> float:
     return math.sqrt(sq / n) if n else math.nan
 
 
+class _Trial:
+    """The fit reads' RMS error [ticks] of the whole walk replayed with one candidate value, replayed only
+    as far as a comparison needs: the squared error summed over the reads replayed so far, over the count of
+    all the fit reads, bounds the whole from below."""
+
+    def __init__(self, replays: Replays, model: Robot, scope, until_s: float, fit: dict):
+        self.replays, self.scope = replays, tuple(scope)
+        self.replay = replays.get(model, scope, until_s, keep=False)
+        self.fit = fit
+        self.masks = {j: fit[j][:len(self.replay.pred[j])] for j in scope}
+        self.n = sum(int(np.count_nonzero(m)) for m in self.masks.values())
+        self.t, self.sq, self.value = 0.0, 0.0, None
+
+    @property
+    def finished(self) -> bool:
+        return self.value is not None
+
+    def advance(self) -> None:
+        """Replay ``SEARCH_CHECK_S`` further (the exact RMS once the replay is done)."""
+        self.t += SEARCH_CHECK_S
+        self.replay.run_to(self.t)
+        if self.replay.finished:
+            self.value = _rms(self.replays.rec, self.replays.robot, self.replay.pred, self.scope, self.fit)
+            return
+        res = self.replays.residuals(self.replay, self.scope)
+        self.sq = sum(float(np.nansum(res[j][self.masks[j]] ** 2)) for j in self.scope)
+
+    def bound(self) -> float:
+        return self.sq / self.n if self.n else 0.0
+
+    def exceeds(self, c: float) -> bool:
+        """Its RMS is certainly above ``c`` (the margin covers the sums' rounding)."""
+        return self.n > 0 and self.sq > c * c * self.n * (1.0 + 1e-9)
+
+
+def _settle(trials: list[_Trial]) -> list[float]:
+    """The trials' RMS errors, each trial replayed only until it is known to be above the smallest of them
+    (then inf: above it). Always the one with the smallest lower bound runs next, so the smallest is
+    replayed whole and the others stop once their error so far passes it; the minimum and its position
+    are those of the whole replays."""
+    while True:
+        done = [t.value for t in trials if t.finished and not math.isnan(t.value)]
+        least = min(done) if done else None
+        open_ = [t for t in trials if not t.finished and not (least is not None and t.exceeds(least))]
+        if not open_:
+            return [t.value if t.finished else math.inf for t in trials]
+        min(open_, key=_Trial.bound).advance()
+
+
 def _search_one(rec, robot, base: list, cand, scope, ground, until_s, fit, progress,
-                bracket: tuple[float, float] | None = None) -> tuple[float, float]:
-    """(value, fit RMS) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole walk, over
-    the candidate's range (or ``bracket``)."""
-    def cost(v):
+                bracket: tuple[float, float] | None = None, replays: Replays | None = None
+                ) -> tuple[float, float, WalkReplay]:
+    """(value, fit RMS, its replay) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole
+    walk, over the candidate's range (or ``bracket``): a log-spaced grid, then golden-section steps between
+    the best point's neighbours. Each comparison replays its candidates only as far as it needs
+    (:func:`_settle`), and a golden-section step reuses the interior point it keeps where the logarithms give
+    it exactly again (about every other step; a value one rounding away is replayed, as the walk's replay
+    is that sensitive)."""
+    replays = replays or Replays(rec, robot, ground)
+    made: list[tuple[float, _Trial]] = []
+
+    def trial(v):
+        for x, t in made:
+            if x == v:        # exactly: the open-loop replay of a walk moves by a tick for a 1e-16 change
+                return t
         progress(f'whole walk: {cand.effect} {v:.3g} on {len(scope)} joint(s)')
-        pred = replay_walk(rec, robot.with_effects(base + [cand.make(scope, v)]), ground, scope, t_end_s=until_s)
-        return _rms(rec, robot, pred, scope, fit)
+        t = _Trial(replays, robot.with_effects(base + [cand.make(scope, v)]), scope, until_s, fit)
+        made.append((v, t))
+        return t
+
     lo, hi = bracket or (cand.lo, cand.hi)
     grid = np.geomspace(max(lo, 1e-6), hi, SEARCH_GRID)
-    costs = [cost(float(v)) for v in grid]
+    trials = [trial(float(v)) for v in grid]
+    costs = _settle(trials)
     k = int(np.nanargmin(costs))
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-    best = (float(grid[k]), costs[k])
+    best = (float(grid[k]), costs[k], trials[k])
     g = (math.sqrt(5) - 1) / 2
     for _ in range(SEARCH_REFINE):               # golden section in log space between the neighbours
         la, lb = math.log(a), math.log(b)
         x1, x2 = math.exp(lb - g * (lb - la)), math.exp(la + g * (lb - la))
-        c1, c2 = cost(x1), cost(x2)
-        for x, c in ((x1, c1), (x2, c2)):
+        t1, t2 = trial(x1), trial(x2)
+        c1, c2 = _settle([t1, t2])
+        for x, c, t in ((x1, c1, t1), (x2, c2, t2)):
             if c < best[1]:
-                best = (x, c)
+                best = (x, c, t)
         a, b = (a, x2) if c1 < c2 else (x1, b)
-    return best
+        made[:] = [(x, t) for x, t in made if t in (t1, t2)]      # the next step can only reuse these
+    return best[0], best[1], best[2].replay
 
 
 def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, ww: WholeWalk,
-                  progress=lambda msg: None) -> list[LoadedFind]:
+                  progress=lambda msg: None, replays: Replays | None = None) -> list[LoadedFind]:
     """Effects of :data:`LOADED_CANDIDATES` that explain what the whole walk's loaded phases leave, on the
     joints that leave more than tick rounding (each alone; and the whole robot when many do), fitted on
     alternate 2 s blocks of the whole walk and judged on the others. At most one effect per joint."""
@@ -369,7 +567,10 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
     scopes = [(j,) for j, _ in excess[:MAX_JOINT_SCOPES]]
     scopes += [tuple(joints)] if len(excess) >= ROBOT_WIDE_MIN_JOINTS else []
     base = list(effects)
-    base_pred = replay_walk(rec, robot.with_effects(base), ground, joints, t_end_s=until)
+    replays = replays or Replays(rec, robot, ground)
+    r0 = replays.get(robot.with_effects(base), joints, until)
+    r0.run_to(until)
+    base_pred = {j: r0.pred[j][:int(np.searchsorted(rec.states[j].t_s, until, side='right'))] for j in joints}
     found: list[LoadedFind] = []
     for scope in sorted(scopes, key=len, reverse=True):
         if any(j in f.effect.joints for f in found for j in scope):
@@ -378,9 +579,8 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
         trials = []
         for name in LOADED_CANDIDATES:
             cand = BY_NAME[name]
-            v, _ = _search_one(rec, robot, base, cand, scope, ground, until, fit, progress)
-            pred = replay_walk(rec, robot.with_effects(base + [cand.make(scope, v)]), ground, scope, t_end_s=until)
-            trials.append((_rms(rec, robot, pred, scope, hold), cand.make(scope, v)))
+            v, _, r = _search_one(rec, robot, base, cand, scope, ground, until, fit, progress, replays=replays)
+            trials.append((_rms(rec, robot, r.pred, scope, hold), cand.make(scope, v)))
         after, eff = min(trials, key=lambda x: x[0])
         explained = (before ** 2 - after ** 2) / max(before ** 2 - ROUNDING_RMS ** 2, 1e-9)
         c = BY_NAME[eff.effect]

@@ -614,6 +614,21 @@ class HexapodSim(ServoBus, SimulatedServos):
         return self._tau.copy()
 
     # ------------------------------------------------------------------ evaluation-only truth
+    def keep_output_angles(self, n_steps: int) -> np.ndarray:
+        """Keep the output angle of every joint at the start of each of the first ``n_steps`` physics steps
+        (call it right after :meth:`reset`): row ``k`` of the returned (n_steps, 18) array is what
+        :meth:`true_joint_angles` gives at step ``k``, filled in by the compiled loop as the sim runs (the
+        readout-delay history made that long, so one :meth:`step` over many physics steps records them all).
+        Reads and the physics are unchanged."""
+        if self._step != 0:
+            raise SimError('keep_output_angles: call it right after reset()')
+        k = next(i for i, a in enumerate(self._loop_args) if a is self._hist)
+        hist = np.empty((max(int(n_steps), self._hist.shape[0]), len(ALL_JOINTS)))
+        hist[:] = self._output_q()
+        self._hist = hist
+        self._loop_args = self._loop_args[:k] + (hist,) + self._loop_args[k + 1:]
+        return hist[:int(n_steps)]
+
     def true_joint_angles(self) -> np.ndarray:
         """Continuous output angles of all joints (truth; the bus reports quantised ticks)."""
         return self._output_q()
