@@ -175,8 +175,10 @@ def calibration_walk() -> dict:
     return values
 
 
-def record_walk(case: Case, out_dir: Path, robot=None) -> tuple[Path, float]:
-    """Walk the MuJoCo hexapod with the case's effects (the gait controller, as ``./hexapod demo``); -> (bag, duration)."""
+def record_walk(case: Case, out_dir: Path, robot=None, duration_s: float = WALK_S,
+                seed: int = 0) -> tuple[Path, float]:
+    """Walk the MuJoCo hexapod with the case's effects (the gait controller, as ``./hexapod demo``) for
+    ``duration_s`` on the terrain of ``seed``; -> (bag, duration)."""
     from hexapod_locomotion.trials.trial_runner import TrialConfig, run_trial
     gait, terrain = case.walk
     bag = bag_path(case, out_dir)
@@ -187,7 +189,7 @@ def record_walk(case: Case, out_dir: Path, robot=None) -> tuple[Path, float]:
         ov = out_dir / (bag.name + '.truth.yaml')
         ov.write_text(yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
         overlays = (str(ov),)
-    cfg = TrialConfig(gait=gait, terrain=terrain, duration_s=WALK_S, course_end_m=3.0, record=str(bag),
+    cfg = TrialConfig(gait=gait, terrain=terrain, seed=seed, duration_s=duration_s, course_end_m=3.0, record=str(bag),
                       start_x_m=WALK_START_X[terrain], overlays=overlays,
                       **(calibration_walk() if case.cycle == 'calibration' else {}))
     with contextlib.redirect_stdout(io.StringIO()):
