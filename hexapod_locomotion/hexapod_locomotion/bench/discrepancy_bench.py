@@ -47,6 +47,7 @@ import numpy as np
 import yaml
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Effect, effects_to_overlay, joint_name, load_robot, parse_joint_name
+from hexapod_sim.calibration.plan import PHASES as CALIBRATION_PHASES
 from hexapod_sim.calibration.plan import calibration_plan, run_calibration
 from hexapod_sim.discrepancy.effects import BY_NAME
 
@@ -200,12 +201,14 @@ def record_walk(case: Case, out_dir: Path, robot=None, duration_s: float = WALK_
     return bag, load_recording(bag, robot or load_robot()).duration_s
 
 
-def record_case(case: Case, out_dir: Path, legs=LEGS, robot=None, progress: bool = False) -> tuple[Path, float]:
-    """Run the calibration routine on the MuJoCo sim with the case's effects; write the bag. -> (bag, duration)."""
+def record_case(case: Case, out_dir: Path, legs=LEGS, robot=None, progress: bool = False,
+                phases=CALIBRATION_PHASES) -> tuple[Path, float]:
+    """Run the calibration routine (its ``phases``) on the MuJoCo sim with the case's effects; write the bag.
+    -> (bag, duration)."""
     from hexapod_sim.physics.plant import HexapodSim
     base = robot or load_robot()
     truth = base.with_effects(case.effects)
-    plan = calibration_plan(base, legs=legs, speed_scale=case.speed_scale)
+    plan = calibration_plan(base, legs=legs, phases=phases, speed_scale=case.speed_scale)
     sim = HexapodSim(truth, fixed_base=True)
     sim.reset(joint_angles={joint_name(leg, r): float(plan.goals_rad[0, i])
                             for leg in plan.legs for i, r in enumerate(JOINT_ROLES)})

@@ -56,6 +56,7 @@ from hexapod_locomotion.bench import dictionary_bench
 from hexapod_locomotion.bench import discrepancy_bench as fixed
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Effect, joint_name, load_robot, parse_joint_name
 from hexapod_model.dictionary import BY_TERM
+from hexapod_sim.calibration.plan import PHASES as CALIBRATION_PHASES
 from hexapod_sim.discrepancy.effects import BY_NAME
 
 IN_LIST = tuple(n for n in BY_NAME if not BY_NAME[n].servo_law)
@@ -95,6 +96,7 @@ class RandomCase:
     cycle: str = 'calibration'               # a walk's gait cycle (discrepancy_bench.WALK_CYCLES)
     terrain_seed: int = 0
     tolerance: tuple = field(default=())     # per effect: {param: (relative or absolute tolerance, 'rel'|'abs')}
+    phases: tuple[str, ...] = CALIBRATION_PHASES   # stand: the routine's phases (all of them in a drawn case)
 
     @property
     def setting(self) -> str:
@@ -104,7 +106,7 @@ class RandomCase:
     def twin_key(self) -> str:
         if self.walk:
             return f'twin_{self.walk[0]}_{self.walk[1]}{self.terrain_seed}_{self.cycle}'
-        return f'twin_stand_leg{self.leg}'
+        return f'twin_stand_leg{self.leg}' + ('' if self.phases == CALIBRATION_PHASES else '_' + '_'.join(self.phases))
 
     @property
     def label(self) -> str:
@@ -117,6 +119,10 @@ class RandomCase:
         """The fixed bench's case (what its recording functions take) of this one, with ``effects``."""
         return fixed.Case(name, tuple(self.effects if effects is None else effects), walk=self.walk,
                           cycle=self.cycle)
+
+    def without(self, k: int) -> tuple[Effect, ...]:
+        """The case's effects but its ``k``-th."""
+        return tuple(e for i, e in enumerate(self.effects) if i != k)
 
 
 def _scope(joints) -> str:
@@ -275,10 +281,10 @@ def visible_joints(case_rms: dict, base_rms: dict | None, margin: float = VISIBL
     return out
 
 
-def _stand_labels(rec, legs) -> tuple[dict, tuple[str, ...]]:
+def _stand_labels(rec, legs, phases=CALIBRATION_PHASES) -> tuple[dict, tuple[str, ...]]:
     """Phase index of every read of a stand recording (the routine's phases; the settling excluded)."""
     from hexapod_sim.calibration.plan import calibration_plan
-    plan = calibration_plan(load_robot(), legs=legs)
+    plan = calibration_plan(load_robot(), legs=legs, phases=phases)
     names = tuple(p.name for p in plan.phases)
     out = {}
     for j, s in rec.states.items():
@@ -451,7 +457,7 @@ def _record(case: RandomCase, name: str, effects, work: Path, walk_s: float):
     if case.walk:
         bag, _ = fixed.record_walk(bc, work, duration_s=walk_s, seed=case.terrain_seed)
     else:
-        bag, _ = fixed.record_case(bc, work, legs=(case.leg,))
+        bag, _ = fixed.record_case(bc, work, legs=(case.leg,), phases=case.phases)
     return bag, load_recording(bag, load_robot())
 
 
@@ -498,8 +504,20 @@ class _Reads:
 
 def run_case(job: tuple) -> dict:
     """Record one case, run the tool on its bag, judge what it shows and score it (a job of :func:`run`).
-    ``job`` = (case, its twin's :func:`run_twin` result, keep dir or None, walk seconds)."""
-    case, twin, keep, walk_s = job
+    ``job`` = (case, its twin's :func:`run_twin` result, keep dir or None, walk seconds). A case that
+    fails (the tool exits non-zero or raises) is scored wrong with the error as its failure, so the
+    other cases still run."""
+    case = job[0]
+    try:
+        return _run_case(*job)
+    except Exception as exc:      # noqa: BLE001 - reported as the case's failure
+        return {'rows': [], 'misnamed': [], 'false': [], 'visible': True, 'right': False, 'index': case.index,
+                'label': case.label, 'twin': case.twin_key, 'categories': categories(case), 'visibility': [],
+                'cannot_show_contradicted': {}, 'failures': [f'error: {type(exc).__name__}: {str(exc)[:200]}'],
+                'record_s': 0.0, 'tool_s': 0.0, 'visibility_s': 0.0, 'duration_s': 0.0, 'result': {}}
+
+
+def _run_case(case: RandomCase, twin: dict, keep: str | None, walk_s: float) -> dict:
     work = _workdir(keep, 'random_bench_case_')
     name = f'case{case.index:03d}'
     try:
@@ -511,14 +529,14 @@ def run_case(job: tuple) -> dict:
         robot = load_robot()
         visible, detail = [], []
         for k, e in enumerate(case.effects):
-            others = [x for i, x in enumerate(case.effects) if i != k]
+            others = case.without(k)
             if case.walk:
                 rms = walk_phase_rms(rec, robot.with_effects(others) if others else robot)
                 vis = visible_joints(rms, twin['base'])
             else:
                 other = (_Reads(twin['base']) if not others else
                          _record(case, f'{name}_without_{k}', others, work, walk_s)[1])
-                labels, names = _stand_labels(rec, (case.leg,))
+                labels, names = _stand_labels(rec, (case.leg,), case.phases)
                 vis = visible_joints(phase_rms(stand_residual(rec, other), labels, names), None)
             visible.append(sorted(vis))
             detail.append(vis)
@@ -587,7 +605,7 @@ def case_table(results: list[dict]) -> str:
             vis = ','.join(row['visible']) if row['visible'] else 'nowhere'
             lines.append(f'        {row["effect"]} ({truth}) visible on {vis}: {row["verdict"]}{fitted}')
         for f in r['failures']:
-            if f.startswith(('misnamed', 'false')):
+            if f.startswith(('misnamed', 'false', 'error')):
                 lines.append(f'        {f}')
     return '\n'.join(lines)
 
@@ -600,6 +618,7 @@ def summary(results: list[dict], twins: dict, seconds: float) -> str:
     false_twins = sum(len(t['score']['false']) for t in twins.values())
     ool = [row for r in results for row in r['rows'] if row['class'] == 'out-of-list' and row['visible']]
     misnamed = sum(1 for r in results if r['misnamed'])
+    by_term = sum(r['how'] == 'term' and r['verdict'] == 'right' for r in ool)
     pct = 100 * right_vis / max(len(vis), 1)
     kinds: dict[str, int] = {}
     for r in results:
@@ -613,8 +632,8 @@ def summary(results: list[dict], twins: dict, seconds: float) -> str:
         f'all cases right: {sum(r["right"] for r in results)} of {len(results)}',
         f'clean twins with nothing claimed: {clean_right} of {len(twins)} ({false_twins} false claims, goal 0): '
         f'{"MET" if false_twins == 0 else "MISSED"}',
-        f'visible out-of-list effects: {len(ool)}, explained by the right term {sum(r["how"] == "term" and r["verdict"] == "right" for r in ool)}, '
-        f'unexplained at the right joint {sum(r["how"] == "unexplained" for r in ool)}; cases with a list candidate misnamed: {misnamed}',
+        f'visible out-of-list effects: {len(ool)}, explained by the right term {by_term}, unexplained at the '
+        f'right joint {sum(r["how"] == "unexplained" for r in ool)}; cases with a list candidate misnamed: {misnamed}',
         f'wall time {seconds / 60:.1f} min',
         'failures by kind:' + ('' if kinds else ' none'),
     ]
