@@ -643,28 +643,19 @@ def summary(results: list[dict], twins: dict, seconds: float) -> str:
 
 def main(argv=None) -> int:
     from hexapod_locomotion.trials.executor import ExecutorError, JobsInterrupted, add_executor_options
-    from hexapod_model.cli_common import (
-        add_no_progress_option,
-        interrupted,
-        make_parser,
-        nonnegative_int,
-        output_directory,
-        output_file,
-        positive_float,
-        positive_int,
-    )
-    ap = make_parser('random_bench', __doc__.splitlines()[0])
-    ap.add_argument('--seed', type=nonnegative_int, default=0, help='draws the cases')
-    ap.add_argument('--cases', type=positive_int, default=100, help='number of cases drawn')
-    ap.add_argument('--only', type=nonnegative_int, nargs='+', metavar='INDEX',
+    from hexapod_model import cli_common as cc
+    ap = cc.make_parser('random_bench', __doc__.splitlines()[0])
+    ap.add_argument('--seed', type=cc.nonnegative_int, default=0, help='draws the cases')
+    ap.add_argument('--cases', type=cc.positive_int, default=100, help='number of cases drawn')
+    ap.add_argument('--only', type=cc.nonnegative_int, nargs='+', metavar='INDEX',
                     help='run only these cases of the draw (indices as in the report)')
-    ap.add_argument('--walk-seconds', type=positive_float, default=WALK_S, help='simulated time of a walk case')
-    ap.add_argument('--keep', metavar='DIR', type=output_directory, help='keep the bags and the tool\'s results here')
-    ap.add_argument('--json', metavar='OUT.json', type=output_file(('.json',)), help='write the scored results here')
+    ap.add_argument('--walk-seconds', type=cc.positive_float, default=WALK_S, help='simulated time of a walk case')
+    ap.add_argument('--keep', metavar='DIR', type=cc.output_directory, help='keep the bags and the tool\'s results here')
+    ap.add_argument('--json', metavar='OUT.json', type=cc.output_file(('.json',)), help='write the scored results here')
     ap.add_argument('--list', action='store_true', help='print the drawn cases with their truth and exit')
     add_executor_options(ap, 'cases')
     ap.set_defaults(jobs=1)
-    add_no_progress_option(ap)
+    cc.add_no_progress_option(ap)
     args = ap.parse_args(argv)
     cases = make_cases(args.seed, args.cases)
     if args.only:
@@ -684,7 +675,7 @@ def main(argv=None) -> int:
         print(f'{ap.prog}: error: {exc}', file=sys.stderr)
         return 1
     except (KeyboardInterrupt, JobsInterrupted):
-        return interrupted(ap.prog, f'the finished cases\' bags are in {args.keep}' if args.keep else 'nothing written')
+        return cc.interrupted(ap.prog, f'the finished cases\' bags are in {args.keep}' if args.keep else 'nothing written')
     seconds = time.perf_counter() - t0
     print(case_table(results))
     print()
