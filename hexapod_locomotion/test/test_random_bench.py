@@ -114,6 +114,9 @@ def test_wrong_or_missing_joints_and_nothing_found():
     res = {'joints': LEG2, 'effects': [_found('backlash', ['leg2_coxa'], 'width_rad', 0.021)]}
     assert not rb.score(case, res, [['leg2_coxa', 'leg2_femur']])['right']          # femur shows it: missing
     assert rb.score(case, res, [['leg2_coxa']])['right']                            # only the coxa shows it
+    # where the effect moves other joints too (the trunk on a walk), only its own joints are asked for
+    assert rb.score(case, {'joints': {**LEG2, 'leg3_femur': {}}, 'effects': res['effects']},
+                    [['leg2_coxa', 'leg3_femur']])['right']
     s = rb.score(case, {'joints': LEG2, 'effects': []}, [['leg2_coxa']])
     assert not s['right'] and s['rows'][0]['verdict'] == 'not found'
 

@@ -359,7 +359,7 @@ def score(case: RandomCase, result: dict, visible: list) -> dict:
     used_f, used_t, used_u = set(), set(), set()
     rows = []
     for k, (t, cls) in enumerate(zip(case.effects, case.classes)):
-        vis = sorted(set(visible[k]) & analysed) if k < len(visible) else []
+        vis = sorted(set(visible[k]) & analysed & set(t.joints)) if k < len(visible) else []
         tol = case.tolerance[k] if k < len(case.tolerance) else {}
         row = {'effect': t.effect, 'class': cls, 'scope': _scope(t.joints), 'truth': dict(t.params),
                'visible': vis, 'found': False, 'how': None, 'fitted': None, 'param_error': None, 'verdict': None}
@@ -491,7 +491,7 @@ def run_twin(job: tuple) -> dict:
 
 def _brief(result: dict) -> dict:
     """What a scored case keeps of the tool's JSON."""
-    return {k: result.get(k) for k in ('effects', 'physics_terms', 'unexplained', 'cannot_show')}
+    return {k: result.get(k) for k in ('joints', 'effects', 'physics_terms', 'unexplained', 'cannot_show')}
 
 
 class _Reads:
@@ -541,17 +541,45 @@ def _run_case(case: RandomCase, twin: dict, keep: str | None, walk_s: float) -> 
             visible.append(sorted(vis))
             detail.append(vis)
         t_vis = time.perf_counter() - t0
-        s = score(case, result, visible)
-        contradicted = {r['effect']: sorted(set(result.get('cannot_show', {}).get(r['effect'], ())) & set(r['visible']))
-                        for r in s['rows'] if r['verdict'] != 'right'}
-        s.update(index=case.index, label=case.label, twin=case.twin_key, categories=categories(case),
-                 visibility=detail, cannot_show_contradicted={k: v for k, v in contradicted.items() if v},
-                 failures=failure_kinds(s), record_s=t_rec, tool_s=t_tool, visibility_s=t_vis,
-                 duration_s=rec.duration_s, result=_brief(result))
-        return s
+        return scored(case, result, detail, record_s=t_rec, tool_s=t_tool, visibility_s=t_vis,
+                      duration_s=rec.duration_s)
     finally:
         if not keep:
             shutil.rmtree(work, ignore_errors=True)
+
+
+def scored(case: RandomCase, result: dict, visibility: list, **timing) -> dict:
+    """A case's result: :func:`score` of the tool's JSON against the visibility found (per effect: joint ->
+    [(phase, excess RMS)]), what else the report shows, and ``timing`` [s]."""
+    s = score(case, result, [sorted(v) for v in visibility])
+    contradicted = {r['effect']: sorted(set(result.get('cannot_show', {}).get(r['effect'], ())) & set(r['visible']))
+                    for r in s['rows'] if r['verdict'] != 'right'}
+    s.update(index=case.index, label=case.label, twin=case.twin_key, categories=categories(case),
+             visibility=visibility, cannot_show_contradicted={k: v for k, v in contradicted.items() if v},
+             failures=failure_kinds(s), result=_brief(result), **timing)
+    return s
+
+
+def rescore(run_json: dict, keep: Path) -> tuple[list[dict], dict]:
+    """Score a kept run again (its ``--json`` output and the tool's results kept in ``keep``) with the
+    scorer of this version: no recording, no analysis. -> as :func:`run`."""
+    results = []
+    for r in run_json['cases']:
+        case = draw_case(run_json['seed'], r['index'])
+        timing = {k: r[k] for k in ('record_s', 'tool_s', 'visibility_s', 'duration_s')}
+        bag = fixed.bag_path(case.bench_case(f'case{case.index:03d}'), keep)
+        js = keep / (bag.name + '.json')
+        if not r['visibility'] or not js.exists():
+            results.append(r)          # a case that failed: its error stands
+            continue
+        results.append(scored(case, json.loads(js.read_text()), r['visibility'], **timing))
+    twins = {}
+    for t in run_json['twins']:
+        case = next(draw_case(run_json['seed'], r['index']) for r in run_json['cases']
+                    if r['twin'] == t['key'])
+        bag = fixed.bag_path(case.bench_case(t['key']), keep)
+        twins[t['key']] = {**t, 'score': score_clean(json.loads((keep / (bag.name + '.json')).read_text()))}
+    return results, twins
 
 
 def run(cases: list[RandomCase], keep: Path | None, jobs: int = 1, ray_address: str | None = None,
@@ -610,7 +638,7 @@ def case_table(results: list[dict]) -> str:
     return '\n'.join(lines)
 
 
-def summary(results: list[dict], twins: dict, seconds: float) -> str:
+def summary(results: list[dict], twins: dict, seconds: float | None) -> str:
     vis = [r for r in results if r['visible']]
     invis = [r for r in results if not r['visible']]
     right_vis = sum(r['right'] for r in vis)
@@ -634,7 +662,7 @@ def summary(results: list[dict], twins: dict, seconds: float) -> str:
         f'{"MET" if false_twins == 0 else "MISSED"}',
         f'visible out-of-list effects: {len(ool)}, explained by the right term {by_term}, unexplained at the '
         f'right joint {sum(r["how"] == "unexplained" for r in ool)}; cases with a list candidate misnamed: {misnamed}',
-        f'wall time {seconds / 60:.1f} min',
+        f'wall time {seconds / 60:.1f} min' if seconds is not None else 'wall time: not recorded',
         'failures by kind:' + ('' if kinds else ' none'),
     ]
     lines += [f'  {n:3d}  {k}' for k, n in sorted(kinds.items(), key=lambda kv: (-kv[1], kv[0]))]
@@ -653,6 +681,8 @@ def main(argv=None) -> int:
     ap.add_argument('--keep', metavar='DIR', type=cc.output_directory, help='keep the bags and the tool\'s results here')
     ap.add_argument('--json', metavar='OUT.json', type=cc.output_file(('.json',)), help='write the scored results here')
     ap.add_argument('--list', action='store_true', help='print the drawn cases with their truth and exit')
+    ap.add_argument('--rescore', metavar='RUN.json', type=cc.existing_file,
+                    help='with --keep DIR: score a kept run (its --json output) again, nothing recorded or analysed')
     add_executor_options(ap, 'cases')
     ap.set_defaults(jobs=1)
     cc.add_no_progress_option(ap)
@@ -667,16 +697,28 @@ def main(argv=None) -> int:
         for c in cases:
             print(c.label + '  ' + '; '.join(f'{e.effect} {e.params}' for e in c.effects))
         return 0
-    t0 = time.perf_counter()
-    try:
-        results, twins = run(cases, Path(args.keep) if args.keep else None, jobs=args.jobs, ray_address=args.ray,
-                             progress=args.progress, walk_s=args.walk_seconds)
-    except ExecutorError as exc:
-        print(f'{ap.prog}: error: {exc}', file=sys.stderr)
-        return 1
-    except (KeyboardInterrupt, JobsInterrupted):
-        return cc.interrupted(ap.prog, f'the finished cases\' bags are in {args.keep}' if args.keep else 'nothing written')
-    seconds = time.perf_counter() - t0
+    if args.rescore:
+        if not args.keep:
+            ap.error('--rescore needs --keep DIR (the folder holding the run\'s kept results)')
+        try:
+            run_json = json.loads(Path(args.rescore).read_text())
+            results, twins = rescore(run_json, Path(args.keep))
+        except (OSError, ValueError, KeyError, TypeError, StopIteration) as exc:
+            ap.error(f'--rescore {args.rescore}: not a kept run of this bench in {args.keep} '
+                     f'({type(exc).__name__}: {str(exc)[:80]})')
+        args.seed, seconds = run_json['seed'], run_json.get('wall_s')
+    else:
+        t0 = time.perf_counter()
+        try:
+            results, twins = run(cases, Path(args.keep) if args.keep else None, jobs=args.jobs, ray_address=args.ray,
+                                 progress=args.progress, walk_s=args.walk_seconds)
+        except ExecutorError as exc:
+            print(f'{ap.prog}: error: {exc}', file=sys.stderr)
+            return 1
+        except (KeyboardInterrupt, JobsInterrupted):
+            return cc.interrupted(ap.prog, f'the finished cases\' bags are in {args.keep}' if args.keep
+                                  else 'nothing written')
+        seconds = time.perf_counter() - t0
     print(case_table(results))
     print()
     for t in twins.values():
@@ -687,7 +729,7 @@ def main(argv=None) -> int:
     print()
     print(summary(results, twins, seconds))
     if args.json:
-        out = {'seed': args.seed, 'cases': results,
+        out = {'seed': args.seed, 'wall_s': seconds, 'cases': results,
                'twins': [{k: v for k, v in t.items() if k != 'base'} for t in twins.values()]}
         Path(args.json).write_text(json.dumps(out, indent=1, default=_jsonable) + '\n')
     return 0
