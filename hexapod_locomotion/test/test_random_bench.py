@@ -174,7 +174,7 @@ def test_a_clean_twin_is_right_only_when_nothing_is_claimed():
 
 # ----------------------------------------------------------------------------- command line
 @pytest.mark.parametrize('argv', [['--cases', '0'], ['--seed', '-1'], ['--only', '7', '--cases', '5'],
-                                  ['--bogus'], ['--jobs', 'two'], ['--walk-seconds', '0']])
+                                  ['--bogus'], ['--jobs', 'two'], ['--walk-seconds', '0'], ['--reuse']])
 def test_bad_flags_are_one_line_and_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as e:
         rb.main(argv)
@@ -189,9 +189,9 @@ def test_a_short_stand_case_through_the_real_tool(tmp_path):
     the limit is visible on the tibia only, and the tool finds it."""
     case = rb.RandomCase(0, (Effect('torque_saturation', ('leg2_tibia',), {'tau_max_nm': 0.5}),), ('in-list',),
                          leg=2, tolerance=({},), phases=('settle', 'tibia'))
-    twin = rb.run_twin((case, str(tmp_path / 'twin'), rb.WALK_S))
+    twin = rb.run_twin((case, str(tmp_path / 'twin'), rb.WALK_S, False))
     assert twin['score']['right'], twin['score']
-    r = rb.run_case((case, twin, str(tmp_path / 'case'), rb.WALK_S))
+    r = rb.run_case((case, twin, str(tmp_path / 'case'), rb.WALK_S, False))
     assert r['visibility'] and set(r['visibility'][0]) == {'leg2_tibia'}, r
     assert r['right'], r['failures']
     assert r['rows'][0]['how'] == 'effect' and abs(r['rows'][0]['fitted'] - 0.5) < 0.05

@@ -437,10 +437,17 @@ def failure_kinds(s: dict) -> list[str]:
 
 
 # ----------------------------------------------------------------------------- running
-def _tool(bag: Path, work: Path) -> tuple[dict, float]:
-    """Run the discrepancy tool's command line on ``bag`` in process; its JSON result and wall time."""
+def _tool(bag: Path, work: Path, reuse: bool = False) -> tuple[dict, float]:
+    """Run the discrepancy tool's command line on ``bag`` in process; its JSON result and wall time
+    (``reuse``: the result kept from an earlier run, and the analysis time its report states)."""
+    import re
+
     from hexapod_sim.discrepancy.cli import main as tool
     js = work / (bag.name + '.json')
+    txt = work / (bag.name + '.txt')
+    if reuse and js.exists() and txt.exists():
+        took = re.search(r'analysis took ([0-9.]+) s', txt.read_text())
+        return json.loads(js.read_text()), float(took.group(1)) if took else math.nan
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()) as text:
         rc = tool([str(bag), '--json', str(js), '--no-progress'])
@@ -450,10 +457,14 @@ def _tool(bag: Path, work: Path) -> tuple[dict, float]:
     return json.loads(js.read_text()), time.perf_counter() - t0
 
 
-def _record(case: RandomCase, name: str, effects, work: Path, walk_s: float):
-    """Record ``case``'s routine or walk with ``effects``; -> (bag, Recording)."""
+def _record(case: RandomCase, name: str, effects, work: Path, walk_s: float, reuse: bool = False):
+    """Record ``case``'s routine or walk with ``effects``; -> (bag, Recording). ``reuse``: the bag kept
+    from an earlier run of the same seed, if there is one."""
     from hexapod_sim.discrepancy.recording import load_recording
     bc = case.bench_case(name, effects)
+    kept = fixed.bag_path(bc, work)
+    if reuse and (kept / 'metadata.yaml').exists():
+        return kept, load_recording(kept, load_robot())
     if case.walk:
         bag, _ = fixed.record_walk(bc, work, duration_s=walk_s, seed=case.terrain_seed)
     else:
@@ -469,17 +480,19 @@ def _workdir(keep: str | None, prefix: str) -> Path:
 
 def run_twin(job: tuple) -> dict:
     """Record and analyse one clean twin; its score and its visibility baseline (a job of :func:`run`).
-    ``job`` = (a case of this twin, keep dir or None, walk seconds)."""
-    case, keep, walk_s = job
+    ``job`` = (a case of this twin, keep dir or None, walk seconds, reuse kept bags and results)."""
+    case, keep, walk_s, reuse = job
     work = _workdir(keep, 'random_bench_twin_')
     try:
         t0 = time.perf_counter()
-        bag, rec = _record(case, case.twin_key, (), work, walk_s)
+        bag, rec = _record(case, case.twin_key, (), work, walk_s, reuse)
         t_rec = time.perf_counter() - t0
-        result, t_tool = _tool(bag, work)
+        result, t_tool = _tool(bag, work, reuse)
         t0 = time.perf_counter()
-        base = (walk_phase_rms(rec, load_robot()) if case.walk
-                else {j: (s.t_s, s.theta_rad) for j, s in rec.states.items()})
+        if case.walk:
+            base = _cached(work / f'{case.twin_key}.base.json', keep, reuse, lambda: walk_phase_rms(rec, load_robot()))
+        else:
+            base = {j: (s.t_s, s.theta_rad) for j, s in rec.states.items()}
         t_vis = time.perf_counter() - t0
         return {'key': case.twin_key, 'setting': case.setting, 'score': score_clean(result), 'base': base,
                 'record_s': t_rec, 'tool_s': t_tool, 'visibility_s': t_vis, 'duration_s': rec.duration_s,
@@ -504,7 +517,7 @@ class _Reads:
 
 def run_case(job: tuple) -> dict:
     """Record one case, run the tool on its bag, judge what it shows and score it (a job of :func:`run`).
-    ``job`` = (case, its twin's :func:`run_twin` result, keep dir or None, walk seconds). A case that
+    ``job`` = (case, its twin's :func:`run_twin` result, keep dir or None, walk seconds, reuse). A case that
     fails (the tool exits non-zero or raises) is scored wrong with the error as its failure, so the
     other cases still run."""
     case = job[0]
@@ -517,35 +530,51 @@ def run_case(job: tuple) -> dict:
                 'record_s': 0.0, 'tool_s': 0.0, 'visibility_s': 0.0, 'duration_s': 0.0, 'result': {}}
 
 
-def _run_case(case: RandomCase, twin: dict, keep: str | None, walk_s: float) -> dict:
+def _run_case(case: RandomCase, twin: dict, keep: str | None, walk_s: float, reuse: bool = False) -> dict:
     work = _workdir(keep, 'random_bench_case_')
     name = f'case{case.index:03d}'
     try:
         t0 = time.perf_counter()
-        bag, rec = _record(case, name, case.effects, work, walk_s)
+        bag, rec = _record(case, name, case.effects, work, walk_s, reuse)
         t_rec = time.perf_counter() - t0
-        result, t_tool = _tool(bag, work)
+        result, t_tool = _tool(bag, work, reuse)
         t0 = time.perf_counter()
-        robot = load_robot()
-        visible, detail = [], []
-        for k, e in enumerate(case.effects):
-            others = case.without(k)
-            if case.walk:
-                rms = walk_phase_rms(rec, robot.with_effects(others) if others else robot)
-                vis = visible_joints(rms, twin['base'])
-            else:
-                other = (_Reads(twin['base']) if not others else
-                         _record(case, f'{name}_without_{k}', others, work, walk_s)[1])
-                labels, names = _stand_labels(rec, (case.leg,), case.phases)
-                vis = visible_joints(phase_rms(stand_residual(rec, other), labels, names), None)
-            visible.append(sorted(vis))
-            detail.append(vis)
+        detail = _cached(work / f'{name}.visibility.json', keep, reuse,
+                         lambda: _visibility(case, rec, twin, work, walk_s, reuse))
         t_vis = time.perf_counter() - t0
         return scored(case, result, detail, record_s=t_rec, tool_s=t_tool, visibility_s=t_vis,
                       duration_s=rec.duration_s)
     finally:
         if not keep:
             shutil.rmtree(work, ignore_errors=True)
+
+
+def _cached(path: Path, keep, reuse: bool, compute):
+    """``compute()``, kept as JSON in ``path`` when there is a keep dir; read back from there with ``reuse``."""
+    if reuse and path.exists():
+        return json.loads(path.read_text())
+    value = compute()
+    if keep:
+        path.write_text(json.dumps(value, default=_jsonable))
+    return value
+
+
+def _visibility(case: RandomCase, rec, twin: dict, work: Path, walk_s: float, reuse: bool) -> list:
+    """Per effect of ``case``: the joints its recording ``rec`` shows it on, joint -> [(phase, excess RMS)]."""
+    name = f'case{case.index:03d}'
+    robot = load_robot()
+    detail = []
+    for k, e in enumerate(case.effects):
+        others = case.without(k)
+        if case.walk:
+            rms = walk_phase_rms(rec, robot.with_effects(others) if others else robot)
+            detail.append(visible_joints(rms, twin['base']))
+        else:
+            other = (_Reads(twin['base']) if not others else
+                     _record(case, f'{name}_without_{k}', others, work, walk_s, reuse)[1])
+            labels, names = _stand_labels(rec, (case.leg,), case.phases)
+            detail.append(visible_joints(phase_rms(stand_residual(rec, other), labels, names), None))
+    return detail
 
 
 def scored(case: RandomCase, result: dict, visibility: list, **timing) -> dict:
@@ -583,17 +612,17 @@ def rescore(run_json: dict, keep: Path) -> tuple[list[dict], dict]:
 
 
 def run(cases: list[RandomCase], keep: Path | None, jobs: int = 1, ray_address: str | None = None,
-        progress: bool = True, walk_s: float = WALK_S) -> tuple[list[dict], dict]:
+        progress: bool = True, walk_s: float = WALK_S, reuse: bool = False) -> tuple[list[dict], dict]:
     """The twins, then the cases, on the chosen executor; -> (case results in order, twins by key)."""
     from hexapod_locomotion.trials.executor import map_jobs
     firsts = {}
     for c in cases:
         firsts.setdefault(c.twin_key, c)
     k = str(keep) if keep else None
-    twins = map_jobs(run_twin, [(c, k, walk_s) for c in firsts.values()], jobs=jobs, ray_address=ray_address,
+    twins = map_jobs(run_twin, [(c, k, walk_s, reuse) for c in firsts.values()], jobs=jobs, ray_address=ray_address,
                      desc='clean twins', unit='twin', progress=progress)
     by_key = {t['key']: t for t in twins}
-    results = map_jobs(run_case, [(c, by_key[c.twin_key], k, walk_s) for c in cases], jobs=jobs,
+    results = map_jobs(run_case, [(c, by_key[c.twin_key], k, walk_s, reuse) for c in cases], jobs=jobs,
                        ray_address=ray_address, desc='random cases', unit='case', progress=progress)
     return results, by_key
 
@@ -681,6 +710,9 @@ def main(argv=None) -> int:
     ap.add_argument('--keep', metavar='DIR', type=cc.output_directory, help='keep the bags and the tool\'s results here')
     ap.add_argument('--json', metavar='OUT.json', type=cc.output_file(('.json',)), help='write the scored results here')
     ap.add_argument('--list', action='store_true', help='print the drawn cases with their truth and exit')
+    ap.add_argument('--reuse', action='store_true',
+                    help='with --keep DIR: take the bags and results an earlier run of the same seed kept there '
+                         '(visibility is judged again); record and analyse only what is missing')
     ap.add_argument('--rescore', metavar='RUN.json', type=cc.existing_file,
                     help='with --keep DIR: score a kept run (its --json output) again, nothing recorded or analysed')
     add_executor_options(ap, 'cases')
@@ -697,6 +729,8 @@ def main(argv=None) -> int:
         for c in cases:
             print(c.label + '  ' + '; '.join(f'{e.effect} {e.params}' for e in c.effects))
         return 0
+    if args.reuse and not args.keep:
+        ap.error('--reuse needs --keep DIR (the folder holding the kept bags)')
     if args.rescore:
         if not args.keep:
             ap.error('--rescore needs --keep DIR (the folder holding the run\'s kept results)')
@@ -711,7 +745,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         try:
             results, twins = run(cases, Path(args.keep) if args.keep else None, jobs=args.jobs, ray_address=args.ray,
-                                 progress=args.progress, walk_s=args.walk_seconds)
+                                 progress=args.progress, walk_s=args.walk_seconds, reuse=args.reuse)
         except ExecutorError as exc:
             print(f'{ap.prog}: error: {exc}', file=sys.stderr)
             return 1
