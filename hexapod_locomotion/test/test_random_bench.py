@@ -119,6 +119,11 @@ def test_wrong_or_missing_joints_and_nothing_found():
                     [['leg2_coxa', 'leg3_femur']])['right']
     s = rb.score(case, {'joints': LEG2, 'effects': []}, [['leg2_coxa']])
     assert not s['right'] and s['rows'][0]['verdict'] == 'not found'
+    # found on more joints than the truth's: wrong joints, not a second (false) effect
+    one = _case([Effect('compliance_deadband', ('leg2_femur',), {'margin_ticks': 2.0})], ['in-list'])
+    wide = {'joints': LEG2, 'effects': [_found('compliance_deadband', list(LEG2), 'margin_ticks', 2.01)]}
+    s = rb.score(one, wide, [['leg2_femur']])
+    assert not s['right'] and s['rows'][0]['verdict'] == 'wrong joints' and not s['false']
 
 
 def test_a_false_effect_makes_a_case_wrong():

@@ -379,21 +379,24 @@ def score(case: RandomCase, result: dict, visible: list) -> dict:
                 row.update(found=True, how='unexplained', verdict='right')
         else:
             key = BY_NAME[t.effect].key
+            # the same effect on joints that overlap the truth's; right where they lie within the truth's
+            # and cover every joint it is visible on (a payload: legs)
             if t.effect == 'mass_error':
                 cand = [i for i, f in enumerate(found) if f['effect'] == t.effect and i not in used_f
-                        and _legs_of(f['joints']) <= _legs_of(t.joints)]
-                covers = [i for i in cand if _legs_of(vis) <= _legs_of(found[i]['joints'])]
+                        and _legs_of(f['joints']) & _legs_of(t.joints)]
+                covers = [i for i in cand if _legs_of(vis) <= _legs_of(found[i]['joints']) <= _legs_of(t.joints)]
             else:
                 cand = [i for i, f in enumerate(found) if f['effect'] == t.effect and i not in used_f
-                        and set(f['joints']) <= set(t.joints)]
-                covers = [i for i in cand if set(vis) <= set(found[i]['joints'])]
+                        and set(f['joints']) & set(t.joints)]
+                covers = [i for i in cand if set(vis) <= set(found[i]['joints']) <= set(t.joints)]
             pick = (covers or cand or [None])[0]
             if pick is not None:
                 used_f.add(pick)
                 f = found[pick]
                 ok, err = _rel_ok(f['params'][key], t.params[key], fixed.TOLERANCE[t.effect])
                 row.update(found=True, how='effect', fitted=f['params'][key], param_error=err)
-                row['verdict'] = ('right' if ok and pick in covers else 'wrong joints' if ok else 'parameter off')
+                row['verdict'] = ('right' if ok and pick in covers else 'wrong joints' if pick not in covers
+                                  else 'parameter off')
         if not vis and row['verdict'] != 'right':
             row['verdict'] = 'not shown' if not row['found'] else 'not shown (' + row['verdict'] + ')'
         elif row['verdict'] is None:
