@@ -171,6 +171,14 @@ def test_a_robot_wide_delay_found_as_goal_latency_on_a_one_leg_stand():
     assert rb.score(case, res, [list(LEG2)])['right']
 
 
+def test_a_servo_law_term_found_as_its_joint_twin_on_some_joints_is_wrong_joints():
+    case = _case([Effect('motor_damping', ALL_JOINTS, {'ratio': 1.28})], ['servo-law'])
+    res = {'joints': LEG2, 'effects': [_found('viscous_damping', ['leg2_femur'], 'b_nms_per_rad', 0.056)]}
+    s = rb.score(case, res, [list(LEG2)])
+    assert not s['right'] and s['rows'][0]['verdict'] == 'wrong joints' and not s['false']
+    assert abs(s['rows'][0]['fitted'] - 1.28) < 0.01
+
+
 def test_a_clean_twin_is_right_only_when_nothing_is_claimed():
     assert rb.score_clean({'joints': LEG2, 'effects': [], 'physics_terms': [], 'unexplained': []})['right']
     assert not rb.score_clean({'effects': [_found('backlash', ['leg2_coxa'], 'width_rad', 0.02)]})['right']

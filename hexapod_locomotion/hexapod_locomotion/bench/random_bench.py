@@ -346,6 +346,20 @@ def _term_ok(params: dict, truth: Effect, tol: dict) -> tuple[bool, float]:
     return worst <= 1.0, worst
 
 
+def _as_servo_law(found: dict, case: RandomCase) -> dict:
+    """A joint effect found where the truth holds its servo-law twin and not the joint effect, in the
+    servo law's words (a readout delay is a goal latency to a free leg's replay; viscous damping is motor
+    damping of ratio ``1 + b / b_motor``), so that on too few joints it is scored as wrong joints."""
+    twin = {'readout_delay': 'goal_latency', 'viscous_damping': 'motor_damping'}.get(found['effect'])
+    names = {e.effect for e in case.effects}
+    if twin is None or twin not in names or found['effect'] in names:
+        return found
+    v = next(iter(found['params'].values()))
+    if twin == 'motor_damping':
+        v = 1.0 + v / load_robot().servo.reflected_damping_nms_per_rad
+    return {**found, 'effect': twin, 'params': {BY_NAME[twin].key: float(v)}}
+
+
 def score(case: RandomCase, result: dict, visible: list) -> dict:
     """Score the tool's JSON ``result`` against ``case``'s truth; ``visible`` per effect: the joints
     it is visible on (``{}``/``[]``: not shown). See the module docstring for the rules."""
@@ -353,7 +367,8 @@ def score(case: RandomCase, result: dict, visible: list) -> dict:
     # a robot-wide truth in the tool's words: every analysed joint
     seen = [Effect(e.effect, tuple(j for j in e.joints if j in analysed) or e.joints, dict(e.params))
             if len(e.joints) == len(ALL_JOINTS) else e for e in case.effects]
-    found = [fixed._as_truth_names(f, case.bench_case('score', seen)) for f in result.get('effects', [])]
+    found = [_as_servo_law(fixed._as_truth_names(f, case.bench_case('score', seen)), case)
+             for f in result.get('effects', [])]
     terms = list(result.get('physics_terms', []))
     unexplained = list(result.get('unexplained', []))
     used_f, used_t, used_u = set(), set(), set()
