@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'discrepancy_bench = hexapod_locomotion.bench.discrepancy_bench:main',
+            'random_bench = hexapod_locomotion.bench.random_bench:main',
             'locomotion_node = hexapod_locomotion.nodes.locomotion_node:main',
             'robot = hexapod_locomotion.nodes.robot:main',
             'bench_graph = hexapod_locomotion.bench.bench_graph:main',

@@ -75,6 +75,9 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_locomotion', 'discrepancy_bench', ['--seed', '-1']),
     ('hexapod_locomotion', 'discrepancy_bench', ['--legs', '9']),
     ('hexapod_locomotion', 'discrepancy_bench', ['--json', 'no_such_dir/x.json']),   # not after the whole run
+    ('hexapod_locomotion', 'random_bench', ['--cases', '0']),
+    ('hexapod_locomotion', 'random_bench', ['--only', '5', '--cases', '3']),
+    ('hexapod_locomotion', 'random_bench', ['--json', 'no_such_dir/x.json']),
     ('hexapod_sim', 'replay', ['BAG', '--delay', 'nan']),
     ('hexapod_locomotion', 'cmd_vel_pub', ['--vx', 'nan']),
     ('hexapod_locomotion', 'cmd_vel_pub', ['--duration', '-1']),

@@ -50,6 +50,7 @@ import numpy as np
 import yaml
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Effect, effects_to_overlay, joint_name, load_robot, parse_joint_name
+from hexapod_sim.calibration.plan import PHASES as CALIBRATION_PHASES
 from hexapod_sim.calibration.plan import calibration_plan, run_calibration
 from hexapod_sim.discrepancy.effects import BY_NAME
 
@@ -185,8 +186,10 @@ def calibration_walk() -> dict:
     return values
 
 
-def record_walk(case: Case, out_dir: Path, robot=None) -> tuple[Path, float]:
-    """Walk the MuJoCo hexapod with the case's effects (the gait controller, as ``./hexapod demo``); -> (bag, duration)."""
+def record_walk(case: Case, out_dir: Path, robot=None, duration_s: float = WALK_S,
+                seed: int = 0) -> tuple[Path, float]:
+    """Walk the MuJoCo hexapod with the case's effects (the gait controller, as ``./hexapod demo``) for
+    the case's ``walk_s`` (else ``duration_s``) on the terrain of ``seed``; -> (bag, duration)."""
     from hexapod_locomotion.trials.trial_runner import TrialConfig, run_trial
     gait, terrain = case.walk
     bag = bag_path(case, out_dir)
@@ -197,7 +200,7 @@ def record_walk(case: Case, out_dir: Path, robot=None) -> tuple[Path, float]:
         ov = out_dir / (bag.name + '.truth.yaml')
         ov.write_text(yaml.safe_dump(effects_to_overlay(case.effects), sort_keys=False))
         overlays = (str(ov),)
-    cfg = TrialConfig(gait=gait, terrain=terrain, duration_s=case.walk_s or WALK_S, course_end_m=3.0, record=str(bag),
+    cfg = TrialConfig(gait=gait, terrain=terrain, seed=seed, duration_s=case.walk_s or duration_s, course_end_m=3.0, record=str(bag),
                       start_x_m=WALK_START_X[terrain], overlays=overlays,
                       **(calibration_walk() if case.cycle == 'calibration' else {}))
     with contextlib.redirect_stdout(io.StringIO()):
@@ -208,12 +211,14 @@ def record_walk(case: Case, out_dir: Path, robot=None) -> tuple[Path, float]:
     return bag, load_recording(bag, robot or load_robot()).duration_s
 
 
-def record_case(case: Case, out_dir: Path, legs=LEGS, robot=None, progress: bool = False) -> tuple[Path, float]:
-    """Run the calibration routine on the MuJoCo sim with the case's effects; write the bag. -> (bag, duration)."""
+def record_case(case: Case, out_dir: Path, legs=LEGS, robot=None, progress: bool = False,
+                phases=CALIBRATION_PHASES) -> tuple[Path, float]:
+    """Run the calibration routine (its ``phases``) on the MuJoCo sim with the case's effects; write the bag.
+    -> (bag, duration)."""
     from hexapod_sim.physics.plant import HexapodSim
     base = robot or load_robot()
     truth = base.with_effects(case.effects)
-    plan = calibration_plan(base, legs=legs, speed_scale=case.speed_scale)
+    plan = calibration_plan(base, legs=legs, phases=phases, speed_scale=case.speed_scale)
     sim = HexapodSim(truth, fixed_base=True)
     sim.reset(joint_angles={joint_name(leg, r): float(plan.goals_rad[0, i])
                             for leg in plan.legs for i, r in enumerate(JOINT_ROLES)})

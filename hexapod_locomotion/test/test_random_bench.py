@@ -1,0 +1,210 @@
+"""The random benchmark of the discrepancy tool: generator, visibility rule, scorer, command line, one real case."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hexapod_locomotion.bench import random_bench as rb
+from hexapod_model.description import ALL_JOINTS, Effect
+
+
+def _case(effects, classes, tolerance=None, walk=None, leg=2):
+    return rb.RandomCase(0, tuple(effects), tuple(classes), leg=leg, walk=walk,
+                         tolerance=tuple(tolerance or [{} for _ in effects]))
+
+
+def _found(effect, joints, key, value, before=2.0, after=0.3, servo_law=False):
+    return {'effect': effect, 'joints': list(joints), 'params': {key: value}, 'heldout_rmse_ticks_before': before,
+            'heldout_rmse_ticks_after': after, 'servo_law': servo_law}
+
+
+LEG2 = {j: {} for j in ('leg2_coxa', 'leg2_femur', 'leg2_tibia')}
+
+
+# ----------------------------------------------------------------------------- generator
+def test_the_draw_is_determined_by_the_seed_and_each_case_by_its_index():
+    a, b = rb.make_cases(5, 30), rb.make_cases(5, 30)
+    assert [c.label for c in a] == [c.label for c in b]
+    assert [[e.params for e in c.effects] for c in a] == [[e.params for e in c.effects] for c in b]
+    assert rb.draw_case(5, 17) == a[17]
+    assert [c.label for c in rb.make_cases(6, 30)] != [c.label for c in a]
+
+
+def test_a_hundred_cases_cover_every_category():
+    cases = rb.make_cases(0, 100)
+    cats: dict[str, set] = {}
+    for c in cases:
+        for group, values in rb.categories(c).items():
+            cats.setdefault(group, set()).update(values)
+    assert cats['setting'] == {'stand', 'walk'}
+    assert {'tripod', 'tetrapod', 'pentapod'} <= cats['gait']
+    assert {'flat', 'blocks'} <= cats['terrain']
+    assert {'calibration', 'default'} <= cats['cycle']
+    assert cats['class'] == set(rb.CLASSES)
+    assert cats['size'] == {'single', 'pair'}
+    kinds = {(e.effect, cls) for c in cases for e, cls in zip(c.effects, c.classes)}
+    assert {k for k, cls in kinds if cls == 'out-of-list'} == set(rb.OUT_OF_LIST)
+    assert {k for k, cls in kinds if cls == 'servo-law'} == set(rb.SERVO_LAW)
+    scopes = {rb._scope(e.joints)[:3] for c in cases for e, cls in zip(c.effects, c.classes) if cls == 'in-list'}
+    assert {'rob', 'leg'} <= scopes and any(s.startswith('leg') and '_' in s for c in cases for s in
+                                            [rb._scope(e.joints) for e in c.effects])
+    assert len({c.twin_key for c in cases}) < len(cases)      # twins shared by cases of the same routine or walk
+    for c in cases:
+        local = [e for e in c.effects if len(e.joints) < len(ALL_JOINTS)]
+        assert sum(len(e.joints) == len(ALL_JOINTS) for e in c.effects) <= 1
+        assert len({j for e in local for j in e.joints}) == sum(len(e.joints) for e in local)   # disjoint
+        if not c.walk:
+            assert all({int(j[3])} == {c.leg} for e in local for j in e.joints)
+            assert 'supply_sag' not in [e.effect for e in c.effects]
+
+
+def test_out_of_list_magnitudes_are_drawn_around_the_dictionary_bench_cases():
+    for c in rb.make_cases(0, 100):
+        for e, cls, tol in zip(c.effects, c.classes, c.tolerance):
+            if cls != 'out-of-list':
+                continue
+            assert tol, e
+            for key, v in e.params.items():
+                assert np.isfinite(v)
+                if key not in rb.ANGLES:
+                    assert v > 0
+
+
+# ----------------------------------------------------------------------------- visibility
+def test_the_visibility_rule_on_synthetic_residuals():
+    rng = np.random.default_rng(1)
+    n = 400
+    labels = {'a': np.repeat([0, 1], n // 2), 'b': np.repeat([0, 1], n // 2), 'c': np.r_[np.zeros(390), np.ones(10)]}
+    rounding = {j: rng.uniform(-0.5, 0.5, n) for j in labels}
+    base = rb.phase_rms(rounding, labels, ('stance', 'swing'))
+    shown = dict(rounding)
+    shown['a'] = rounding['a'] + np.where(labels['a'] == 1, 1.0, 0.0)    # a tick off in one phase
+    shown['b'] = rounding['b'] + np.where(labels['b'] == 1, 0.3, 0.0)    # less than the margin
+    shown['c'] = rounding['c'] + np.where(labels['c'] == 1, 3.0, 0.0)    # in too few reads
+    vis = rb.visible_joints(rb.phase_rms(shown, labels, ('stance', 'swing')), base)
+    assert set(vis) == {'a'} and [p for p, _ in vis['a']] == ['swing']
+    # the twin's own mismatch there raises the bar
+    twin = rb.phase_rms({**rounding, 'a': rounding['a'] + np.where(labels['a'] == 1, 0.9, 0.0)}, labels,
+                        ('stance', 'swing'))
+    assert rb.visible_joints(rb.phase_rms(shown, labels, ('stance', 'swing')), twin) == {}
+    # stand: against the other recording directly (baseline 0); unjudged reads (label -1) never count
+    off = {'a': np.where(labels['a'] == 1, 1.0, 0.0)}
+    assert set(rb.visible_joints(rb.phase_rms(off, {'a': labels['a']}, ('stance', 'swing')), None)) == {'a'}
+    assert rb.visible_joints(rb.phase_rms(off, {'a': np.where(labels['a'] == 1, -1, 0)}, ('stance', 'swing')),
+                             None) == {}
+
+
+# ----------------------------------------------------------------------------- scorer
+def test_right_effect_joint_and_parameter():
+    case = _case([Effect('coulomb_friction', ('leg2_femur',), {'tau_c_nm': 0.08})], ['in-list'])
+    res = {'joints': LEG2, 'effects': [_found('coulomb_friction', ['leg2_femur'], 'tau_c_nm', 0.085)]}
+    s = rb.score(case, res, [['leg2_femur']])
+    assert s['right'] and s['visible'] and rb.failure_kinds(s) == []
+
+
+def test_wrong_parameter_is_wrong():
+    case = _case([Effect('coulomb_friction', ('leg2_femur',), {'tau_c_nm': 0.08})], ['in-list'])
+    res = {'joints': LEG2, 'effects': [_found('coulomb_friction', ['leg2_femur'], 'tau_c_nm', 0.12)]}
+    s = rb.score(case, res, [['leg2_femur']])
+    assert not s['right'] and s['rows'][0]['verdict'] == 'parameter off'
+
+
+def test_wrong_or_missing_joints_and_nothing_found():
+    case = _case([Effect('backlash', ('leg2_coxa', 'leg2_femur', 'leg2_tibia'), {'width_rad': 0.02})], ['in-list'])
+    res = {'joints': LEG2, 'effects': [_found('backlash', ['leg2_coxa'], 'width_rad', 0.021)]}
+    assert not rb.score(case, res, [['leg2_coxa', 'leg2_femur']])['right']          # femur shows it: missing
+    assert rb.score(case, res, [['leg2_coxa']])['right']                            # only the coxa shows it
+    # where the effect moves other joints too (the trunk on a walk), only its own joints are asked for
+    assert rb.score(case, {'joints': {**LEG2, 'leg3_femur': {}}, 'effects': res['effects']},
+                    [['leg2_coxa', 'leg3_femur']])['right']
+    s = rb.score(case, {'joints': LEG2, 'effects': []}, [['leg2_coxa']])
+    assert not s['right'] and s['rows'][0]['verdict'] == 'not found'
+    # found on more joints than the truth's: wrong joints, not a second (false) effect
+    one = _case([Effect('compliance_deadband', ('leg2_femur',), {'margin_ticks': 2.0})], ['in-list'])
+    wide = {'joints': LEG2, 'effects': [_found('compliance_deadband', list(LEG2), 'margin_ticks', 2.01)]}
+    s = rb.score(one, wide, [['leg2_femur']])
+    assert not s['right'] and s['rows'][0]['verdict'] == 'wrong joints' and not s['false']
+
+
+def test_a_false_effect_makes_a_case_wrong():
+    case = _case([Effect('coulomb_friction', ('leg2_femur',), {'tau_c_nm': 0.08})], ['in-list'])
+    res = {'joints': LEG2, 'effects': [_found('coulomb_friction', ['leg2_femur'], 'tau_c_nm', 0.08),
+                                       _found('backlash', ['leg2_coxa'], 'width_rad', 0.02)]}
+    s = rb.score(case, res, [['leg2_femur']])
+    assert not s['right'] and [f['effect'] for f in s['false']] == ['backlash']
+    # an invisible case: right without the false effect, wrong with it
+    assert rb.score(case, {'joints': LEG2, 'effects': []}, [[]])['right']
+    assert not rb.score(case, res, [[]])['right']
+
+
+def test_a_list_candidate_for_out_of_list_physics_is_misnamed():
+    truth = Effect('cable_spring', ('leg2_tibia',), {'stiffness_nm_per_rad': 0.3, 'rest_angle_rad': 0.3})
+    tol = {'stiffness_nm_per_rad': (0.2, 'rel'), 'rest_angle_rad': (0.1, 'abs')}
+    case = _case([truth], ['out-of-list'], [tol])
+    res = {'joints': LEG2, 'effects': [_found('torque_saturation', ['leg2_tibia'], 'tau_max_nm', 1.1)]}
+    s = rb.score(case, res, [['leg2_tibia']])
+    assert not s['right'] and len(s['misnamed']) == 1 and not s['false']
+    term = {'term': 'cable_spring', 'joints': ['leg2_tibia'], 'params': {'stiffness_nm_per_rad': 0.31,
+                                                                         'rest_angle_rad': 0.35}}
+    assert rb.score(case, {'joints': LEG2, 'physics_terms': [term]}, [['leg2_tibia']])['right']
+    off = {**term, 'params': {'stiffness_nm_per_rad': 0.31, 'rest_angle_rad': 0.6}}
+    s = rb.score(case, {'joints': LEG2, 'physics_terms': [off]}, [['leg2_tibia']])
+    assert not s['right'] and s['rows'][0]['verdict'] == 'parameter off'
+
+
+def test_out_of_list_physics_reported_unexplained_at_its_joint_is_right():
+    case = _case([Effect('weak_motor', ('leg2_femur',), {'torque_scale': 0.6, 'speed_scale': 0.6})], ['out-of-list'],
+                 [{'torque_scale': (0.17, 'rel')}])
+    at = {'joints': LEG2, 'unexplained': [{'joints': ['leg2_femur'], 'condition': 'high_speed',
+                                           'heldout_rmse_ticks': 3.9}]}
+    s = rb.score(case, at, [['leg2_femur']])
+    assert s['right'] and s['rows'][0]['how'] == 'unexplained'
+    elsewhere = {'joints': LEG2, 'unexplained': [{'joints': ['leg2_coxa'], 'condition': 'moving',
+                                                  'heldout_rmse_ticks': 1.0}]}
+    s = rb.score(case, elsewhere, [['leg2_femur']])
+    assert not s['right'] and s['false']
+
+
+def test_a_robot_wide_delay_found_as_goal_latency_on_a_one_leg_stand():
+    case = _case([Effect('readout_delay', ALL_JOINTS, {'delay_s': 0.004})], ['in-list'])
+    res = {'joints': LEG2, 'effects': [_found('goal_latency', list(LEG2), 'delay_s', 0.0041, servo_law=True)]}
+    assert rb.score(case, res, [list(LEG2)])['right']
+
+
+def test_a_servo_law_term_found_as_its_joint_twin_on_some_joints_is_wrong_joints():
+    case = _case([Effect('motor_damping', ALL_JOINTS, {'ratio': 1.28})], ['servo-law'])
+    res = {'joints': LEG2, 'effects': [_found('viscous_damping', ['leg2_femur'], 'b_nms_per_rad', 0.056)]}
+    s = rb.score(case, res, [list(LEG2)])
+    assert not s['right'] and s['rows'][0]['verdict'] == 'wrong joints' and not s['false']
+    assert abs(s['rows'][0]['fitted'] - 1.28) < 0.01
+
+
+def test_a_clean_twin_is_right_only_when_nothing_is_claimed():
+    assert rb.score_clean({'joints': LEG2, 'effects': [], 'physics_terms': [], 'unexplained': []})['right']
+    assert not rb.score_clean({'effects': [_found('backlash', ['leg2_coxa'], 'width_rad', 0.02)]})['right']
+    assert not rb.score_clean({'unexplained': [{'joints': ['leg2_coxa']}]})['right']
+
+
+# ----------------------------------------------------------------------------- command line
+@pytest.mark.parametrize('argv', [['--cases', '0'], ['--seed', '-1'], ['--only', '7', '--cases', '5'],
+                                  ['--bogus'], ['--jobs', 'two'], ['--walk-seconds', '0'], ['--reuse']])
+def test_bad_flags_are_one_line_and_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as e:
+        rb.main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and 'error' in err
+
+
+# ----------------------------------------------------------------------------- one real case
+def test_a_short_stand_case_through_the_real_tool(tmp_path):
+    """The tibia part of the routine on leg 2 with a torque limit on the tibia: the twin is clean,
+    the limit is visible on the tibia only, and the tool finds it."""
+    case = rb.RandomCase(0, (Effect('torque_saturation', ('leg2_tibia',), {'tau_max_nm': 0.5}),), ('in-list',),
+                         leg=2, tolerance=({},), phases=('settle', 'tibia'))
+    twin = rb.run_twin((case, str(tmp_path / 'twin'), rb.WALK_S, False))
+    assert twin['score']['right'], twin['score']
+    r = rb.run_case((case, twin, str(tmp_path / 'case'), rb.WALK_S, False))
+    assert r['visibility'] and set(r['visibility'][0]) == {'leg2_tibia'}, r
+    assert r['right'], r['failures']
+    assert r['rows'][0]['how'] == 'effect' and abs(r['rows'][0]['fitted'] - 0.5) < 0.05
