@@ -295,11 +295,11 @@ def unshown_check(bag: Path, robot=None):
     that a recording cannot show ``effect`` (its true magnitude) on ``joints``: added to the nominal
     model over the tool's analysed reads, it changes the prediction of the fitting and of the held-out
     reads too little for the held-out drop the tool demands of any effect on top of tick rounding, or on
-    too few held-out reads for its gain (:func:`hexapod_sim.discrepancy.fit.can_confirm` with
+    too few held-out reads for its gain (:func:`hexapod_sim.discrepancy.predict.can_confirm` with
     ``either``: both changes too small): no fit judged on those reads could confirm it. The tool never
     runs this; it sees only the bag."""
     from hexapod_sim.discrepancy.analysis import analyse
-    from hexapod_sim.discrepancy.fit import Predictor, can_confirm, prediction_change
+    from hexapod_sim.discrepancy.predict import Predictor, can_confirm, prediction_change
     from hexapod_sim.discrepancy.recording import load_recording
     state = {}
 

@@ -16,8 +16,9 @@ from hexapod_model.description import Effect, Robot, load_robot, parse_joint_nam
 from hexapod_sim.discrepancy import structure
 from hexapod_sim.discrepancy.body_motion import body_motion_correction
 from hexapod_sim.discrepancy.effects import scope_name
-from hexapod_sim.discrepancy.fit import ROUNDING_VAR, FitSettings, Hypothesis, Namer, Predictor, make_split, unobservable
+from hexapod_sim.discrepancy.fit import FitSettings, Hypothesis, Namer
 from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
+from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, make_split, unobservable
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
 from hexapod_sim.discrepancy.segments import (
     PHASES,
@@ -142,10 +143,10 @@ class Analysis:
     glitches: tuple = ()             # samples left out as physically impossible (recording.glitches)
     # walks: per joint and gait phase (segments.PHASES) -> PhaseFit over the analysed reads
     phase_fit: dict = field(default_factory=dict)
-    # candidate effect -> analysed joints on which the recording cannot show it (fit.unobservable)
+    # candidate effect -> analysed joints on which the recording cannot show it (predict.unobservable)
     blind: dict = field(default_factory=dict)
     min_drop_ticks: float = 0.0      # held-out RMS drop an effect had to reach (the "cannot show" bound)
-    min_gain_ticks2: float = 0.0     # and held-out squared-error gain (fit.can_confirm)
+    min_gain_ticks2: float = 0.0     # and held-out squared-error gain (predict.can_confirm)
     unexplained: list = field(default_factory=list)   # Unexplained: what no candidate explains
     # walks: the whole walk replayed on the MuJoCo hexapod, nominal and with the effects (whole_walk.WholeWalk)
     whole_walk: object | None = None
@@ -284,7 +285,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
     ``joints``: restrict to these joints. ``windows``: list of (t_start, t_end) [s] to analyse
     (all legs), overriding the stand/walk choice. ``mode``: 'auto', 'stand' or 'walk'.
     ``block_s``: length of the alternating fit / held-out time blocks; default: 2 s on a stand or
-    given windows, alternate swings of each leg on a walk (:func:`~.fit.make_split`).
+    given windows, alternate swings of each leg on a walk (:func:`~.predict.make_split`).
     ``whole_walk``: on a walk, also replay the whole walk on the MuJoCo hexapod (:mod:`.whole_walk`) on
     ``ground`` (a :class:`~hexapod_sim.physics.terrain.Ground`; None: the recording's, else a flat floor).
     """
