@@ -30,7 +30,7 @@ from hexapod_sim.discrepancy.segments import (
     swing_segments,
 )
 from hexapod_sim.discrepancy.simulate import Replay
-from hexapod_sim.discrepancy.whole_walk import whole_walk_check
+from hexapod_sim.discrepancy.whole_walk_search import whole_walk_check
 
 MODES = ('auto', 'stand', 'walk')
 # A walk's swing starts in motion from the reads around lift-off; reads in the first 0.1 s are left
@@ -239,7 +239,7 @@ def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: d
 
 
 def _widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple[list, list]:
-    """Found effects of a kind the whole walk put on every joint (whole_walk.widen) become one effect of the
+    """Found effects of a kind the whole walk put on every joint (whole_walk_search.widen) become one effect of the
     whole robot, judged on the whole walk (all joints and phases, nominal -> fitted); what was left
     unexplained on joints the whole walk now fits leaves the list."""
     if not wide:
@@ -262,7 +262,7 @@ def _widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple
 
 
 def _add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
-    """The effects the whole walk's loaded phases show (whole_walk.search_loaded) join the found ones and
+    """The effects the whole walk's loaded phases show (whole_walk_search.search_loaded) join the found ones and
     leave the "cannot show" list on their joints."""
     found = list(found)
     for f in finds:
