@@ -495,11 +495,11 @@ def _record_named_walk(case: Case, out_dir: Path, name: str) -> tuple[Path, floa
     return final, duration
 
 
-def main(argv=None) -> int:
-    from hexapod_locomotion.trials.executor import ExecutorError, add_executor_options
+def _parser():
+    """The command line of ``discrepancy_bench``."""
+    from hexapod_locomotion.trials.executor import add_executor_options
     from hexapod_model.cli_common import (
         add_no_progress_option,
-        interrupted,
         make_parser,
         nonnegative_int,
         output_directory,
@@ -536,6 +536,13 @@ def main(argv=None) -> int:
                     help='write a calibration walk of a plant whose servo law differs from the model\'s (more '
                          'punch and motor damping, later goals) and its truth into DIR')
     add_no_progress_option(ap)
+    return ap
+
+
+def main(argv=None) -> int:
+    from hexapod_locomotion.trials.executor import ExecutorError
+    from hexapod_model.cli_common import interrupted
+    ap = _parser()
     args = ap.parse_args(argv)
     if args.reuse and not args.keep:
         ap.error('--reuse needs --keep DIR (the folder holding the kept bags)')
