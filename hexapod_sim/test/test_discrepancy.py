@@ -170,7 +170,7 @@ def test_least_confirmable_change_is_where_an_exact_fit_reaches_the_drop(min_dro
     an effect changes the prediction by RMS ``c``. Even a fit that removes the effect exactly leaves
     the rounding, so the held-out RMS falls by min_drop only from ``least_confirmable_change`` on (on a
     walk 0.33 tick, not the 0.15 the drop alone suggests); and too few reads cannot give the gain."""
-    from hexapod_sim.discrepancy.fit import can_confirm, least_confirmable_change
+    from hexapod_sim.discrepancy.predict import can_confirm, least_confirmable_change
     least = least_confirmable_change(min_drop)
     rng = np.random.default_rng(0)
     angle = np.cumsum(rng.normal(0, 0.3, 200_000)) + rng.uniform(0, 1)     # a motion in ticks

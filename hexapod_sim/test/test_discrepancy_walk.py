@@ -81,7 +81,7 @@ def test_walk_is_judged_on_alternate_swings_and_cannot_show_is_computed(rec, rob
     of its fitting or held-out reads by too little for the drop an accepted effect needs over tick
     rounding, or on too few held-out reads (and vice versa)."""
     from hexapod_sim.discrepancy.effects import BY_NAME
-    from hexapod_sim.discrepancy.fit import Predictor, can_confirm, prediction_change
+    from hexapod_sim.discrepancy.predict import Predictor, can_confirm, prediction_change
     a = analyse(rec, robot, workers=1)
     for j in a.replay.joints:
         seg = a.replay.reads[j].segment

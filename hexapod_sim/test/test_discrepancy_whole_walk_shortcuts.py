@@ -13,6 +13,7 @@ import pytest
 from hexapod_model.description import ALL_JOINTS, load_robot
 from hexapod_model.servo import theta_to_tick
 from hexapod_sim.discrepancy import whole_walk as ww
+from hexapod_sim.discrepancy import whole_walk_search as wws
 from hexapod_sim.discrepancy.effects import BY_NAME
 from hexapod_sim.discrepancy.recording import load_recording
 
@@ -96,16 +97,16 @@ def test_a_replay_stopped_once_out_of_step_gives_the_whole_replays_verdict(rec, 
 
 def test_candidates_compared_lazily_give_the_minimum_of_the_whole_comparisons(rec, robot):
     until = 2.0
-    fit, _ = ww._masks(rec, SCOPE, until)
+    fit, _ = wws._masks(rec, SCOPE, until)
     cand = BY_NAME['viscous_damping']
     values = [0.01, 0.1, 0.3, 1.5]
     full = []
     for v in values:
         pred = ww.replay_walk(rec, robot.with_effects([cand.make(SCOPE, v)]), rec.ground, SCOPE, t_end_s=until)
-        full.append(ww._rms(rec, robot, pred, SCOPE, fit))
+        full.append(wws._rms(rec, robot, pred, SCOPE, fit))
     replays = ww.Replays(rec, robot, rec.ground)
-    trials = [ww._Trial(replays, robot.with_effects([cand.make(SCOPE, v)]), SCOPE, until, fit) for v in values]
-    lazy = ww._settle(trials)
+    trials = [wws._Trial(replays, robot.with_effects([cand.make(SCOPE, v)]), SCOPE, until, fit) for v in values]
+    lazy = wws._settle(trials)
     k = int(np.argmin(full))
     assert int(np.argmin(lazy)) == k and lazy[k] == full[k]
     for c_lazy, c_full in zip(lazy, full):
@@ -118,14 +119,14 @@ def _search_whole(rec, robot, cand, scope, until_s, fit):
     evaluate both interior points afresh."""
     def cost(v):
         pred = ww.replay_walk(rec, robot.with_effects([cand.make(scope, v)]), rec.ground, scope, t_end_s=until_s)
-        return ww._rms(rec, robot, pred, scope, fit)
-    grid = np.geomspace(cand.lo, cand.hi, ww.SEARCH_GRID)
+        return wws._rms(rec, robot, pred, scope, fit)
+    grid = np.geomspace(cand.lo, cand.hi, wws.SEARCH_GRID)
     costs = [cost(float(v)) for v in grid]
     k = int(np.nanargmin(costs))
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
     best = (float(grid[k]), costs[k])
     g = (math.sqrt(5) - 1) / 2
-    for _ in range(ww.SEARCH_REFINE):
+    for _ in range(wws.SEARCH_REFINE):
         la, lb = math.log(a), math.log(b)
         x1, x2 = math.exp(lb - g * (lb - la)), math.exp(la + g * (lb - la))
         c1, c2 = cost(x1), cost(x2)
@@ -138,10 +139,10 @@ def _search_whole(rec, robot, cand, scope, until_s, fit):
 
 def test_the_search_with_its_shortcuts_finds_the_value_of_the_whole_search(rec, robot):
     until = 1.5
-    fit, hold = ww._masks(rec, SCOPE, until)
+    fit, hold = wws._masks(rec, SCOPE, until)
     cand = BY_NAME['viscous_damping']
     want_v, want_c = _search_whole(rec, robot, cand, SCOPE, until, fit)
-    v, c, r = ww._search_one(rec, robot, [], cand, SCOPE, rec.ground, until, fit, lambda msg: None)
+    v, c, r = wws._search_one(rec, robot, [], cand, SCOPE, rec.ground, until, fit, lambda msg: None)
     assert (v, c) == (want_v, want_c)
     pred = ww.replay_walk(rec, robot.with_effects([cand.make(SCOPE, v)]), rec.ground, SCOPE, t_end_s=until)
     assert np.array_equal(r.pred['leg6_femur'], pred['leg6_femur'])      # its replay is the best value's

@@ -300,11 +300,11 @@ def unshown_check(bag: Path, robot=None):
     that a recording cannot show ``effect`` (its true magnitude) on ``joints``: added to the nominal
     model over the tool's analysed reads, it changes the prediction of the fitting and of the held-out
     reads too little for the held-out drop the tool demands of any effect on top of tick rounding, or on
-    too few held-out reads for its gain (:func:`hexapod_sim.discrepancy.fit.can_confirm` with
+    too few held-out reads for its gain (:func:`hexapod_sim.discrepancy.predict.can_confirm` with
     ``either``: both changes too small): no fit judged on those reads could confirm it. The tool never
     runs this; it sees only the bag."""
     from hexapod_sim.discrepancy.analysis import analyse
-    from hexapod_sim.discrepancy.fit import Predictor, can_confirm, prediction_change
+    from hexapod_sim.discrepancy.predict import Predictor, can_confirm, prediction_change
     from hexapod_sim.discrepancy.recording import load_recording
     state = {}
 
@@ -500,11 +500,11 @@ def _record_named_walk(case: Case, out_dir: Path, name: str) -> tuple[Path, floa
     return final, duration
 
 
-def main(argv=None) -> int:
-    from hexapod_locomotion.trials.executor import ExecutorError, add_executor_options
+def _parser():
+    """The command line of ``discrepancy_bench``."""
+    from hexapod_locomotion.trials.executor import add_executor_options
     from hexapod_model.cli_common import (
         add_no_progress_option,
-        interrupted,
         make_parser,
         nonnegative_int,
         output_directory,
@@ -541,6 +541,13 @@ def main(argv=None) -> int:
                     help='write a calibration walk of a plant whose servo law differs from the model\'s (more '
                          'punch and motor damping, later goals) and its truth into DIR')
     add_no_progress_option(ap)
+    return ap
+
+
+def main(argv=None) -> int:
+    from hexapod_locomotion.trials.executor import ExecutorError
+    from hexapod_model.cli_common import interrupted
+    ap = _parser()
     args = ap.parse_args(argv)
     if args.reuse and not args.keep:
         ap.error('--reuse needs --keep DIR (the folder holding the kept bags)')

@@ -246,7 +246,7 @@ def dominant_condition(joints, conditions, before, after) -> str:
 
 
 # The motion a candidate effect needs to show itself, in words for the report's "cannot show" lines
-# (which joints cannot show it is computed: :func:`.fit.unobservable`).
+# (which joints cannot show it is computed: :func:`.predict.unobservable`).
 REVEALED_BY = {
     'coulomb_friction': 'motion',
     'static_friction': 'a start from rest or a hold',

@@ -10,9 +10,9 @@ from hexapod_model.dictionary import BY_TERM
 from hexapod_sim.discrepancy.analysis import UNEXPLAINED_TICKS as CLOSE_FIT_TICKS
 from hexapod_sim.discrepancy.analysis import Analysis
 from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
-from hexapod_sim.discrepancy.fit import least_confirmable_change
 from hexapod_sim.discrepancy.glitches import summary_line
 from hexapod_sim.discrepancy.locate import CONDITION_WORDS, REVEALED_BY, WINDOW_S
+from hexapod_sim.discrepancy.predict import least_confirmable_change
 from hexapod_sim.discrepancy.segments import PHASES
 from hexapod_sim.discrepancy.whole_walk import LIFT_OFF_S, ROUNDING_TICKS, TOUCHDOWN_S, WHOLE_PHASES
 

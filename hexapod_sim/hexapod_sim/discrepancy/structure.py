@@ -25,7 +25,7 @@ from scipy.optimize import minimize, minimize_scalar
 
 from hexapod_model.description import Effect, Robot, parse_joint_name
 from hexapod_model.dictionary import BY_TERM, TERMS, Term
-from hexapod_sim.discrepancy.fit import ROUNDING_VAR, Predictor, Split, _affected
+from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, Split, affected_joints
 from hexapod_sim.discrepancy.simulate import Replay
 
 
@@ -220,7 +220,7 @@ def _round(pred, split, meas, base, j, todo, s: SearchSettings):
     results = []
     for term, on in ((BY_TERM[t.name], (j,)) for t in TERMS if not t.robot_wide):
         own = [j]
-        aff = sorted(_affected(term.name, on) & set(replay.joints))
+        aff = sorted(affected_joints(term.name, on) & set(replay.joints))
         obj = _Objective(pred, split, meas, base, term, on, aff)
         p0 = pred.predict(base, aff)
         before_aff = {a: float(((meas[a] - p0[a])[split.hold[a]]) @ ((meas[a] - p0[a])[split.hold[a]])) for a in aff}
@@ -248,7 +248,7 @@ def _pair(pred, split, meas, base, first, j, s: SearchSettings):
     for t in TERMS:
         if t.robot_wide or t.name == e1.effect:
             continue
-        aff = sorted(_affected(t.name, (j,)) & set(pred.rep.joints))
+        aff = sorted(affected_joints(t.name, (j,)) & set(pred.rep.joints))
         obj2 = _Objective(pred, split, meas, base + (e1,), t, (j,), aff)
         x2 = fit_term(obj2, s.max_evals)
         n_own = sum(int(np.count_nonzero(split.hold[a])) for a in own)

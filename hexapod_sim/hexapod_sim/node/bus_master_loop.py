@@ -8,7 +8,7 @@ outputs due by the new simulated time, each with its simulated stamp:
 * :class:`JointSample` per read (the ``/joint_states`` message; stamp = sample time),
 * :class:`~hexapod_model.imu.ImuReading` at the IMU rate,
 * :class:`PowerSample` (battery voltage, current and power averaged over the period),
-* :class:`~hexapod_sim.physics.plant.ServoTelemetry` (diagnostics), :class:`BusTimingSample`,
+* :class:`~hexapod_sim.physics.readings.ServoTelemetry` (diagnostics), :class:`BusTimingSample`,
 * :class:`TruthSample` (evaluation-only foot contacts/forces and body pose),
 * :class:`ClockTick` (``/clock``).
 
@@ -24,7 +24,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from hexapod_model.description import ALL_JOINTS, LEGS
-from hexapod_sim.physics.plant import FootContacts, HexapodSim, PowerMeter, ServoTelemetry, SimError
+from hexapod_sim.physics.plant import HexapodSim, PowerMeter, SimError
+from hexapod_sim.physics.readings import FootContacts, ServoTelemetry
 from hexapod_sim.physics.truth_log import TruthLog
 
 

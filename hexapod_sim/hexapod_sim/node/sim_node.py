@@ -70,7 +70,8 @@ from hexapod_sim.node.bus_master_loop import (
 from hexapod_sim.node.live import LiveView, LiveViewError
 from hexapod_sim.node.local_bus import CommandSample, LocalSimBus, Pacer, ScheduleSample
 from hexapod_sim.node.params import NODE, SimParams
-from hexapod_sim.physics.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, ServoTelemetry, SimError
+from hexapod_sim.physics.plant import ERR_ANGLE_LIMIT, ERR_OVERHEATING, HexapodSim, SimError
+from hexapod_sim.physics.readings import ServoTelemetry
 from hexapod_sim.physics.scene_params import SceneParams
 from hexapod_sim.physics.terrain import Ground
 from hexapod_sim.physics.truth_log import TruthLog

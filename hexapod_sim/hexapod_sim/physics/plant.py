@@ -19,15 +19,9 @@ Timing (the project convention, all times in seconds of simulated time):
   for ``t_com_s``; reads are sequential. The value is the integer tick the servo reports,
   converted back to the DH angle with the joint's bus direction/offset.
 
-Effects of the robot description are emulated here or in the MJCF (:mod:`hexapod_sim.physics.mjcf`):
-static friction (per-tick switch of the joint's friction loss between break-away and Coulomb
-level; a velocity reversal between two ticks counts as rest, :mod:`hexapod_sim.physics.firmware`),
-torque saturation (per-servo torque limit), compliance dead-band (margin), punch, goal latency
-(a written goal acts from the first step at or after its write plus the latency), readout delay
-(positions come from a history buffer), plus the MJCF-level coulomb friction, viscous damping,
-payload and backlash; the dictionary's terms (:mod:`hexapod_model.dictionary`: a cable spring, periodic and
-load friction, a supply sag, a weak motor) per firmware tick (:func:`firmware.dictionary_pass`) and in the
-torque table and MJCF. Their values never leave this class except as physics.
+Effects of the robot description are emulated in the tables the plant is built with
+(:mod:`hexapod_sim.physics.plant_tables`, which lists them) and in the MJCF (:mod:`hexapod_sim.physics.mjcf`);
+their values never leave this class except as physics.
 
 Sensors: body IMU (orientation, linear acceleration, angular rate) at ``imu_rate_hz`` with exact
 stamps (a sample between two physics steps is interpolated linearly between them, the quaternion
@@ -41,7 +35,6 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
 from typing import Callable, Iterable, Mapping
 
 import mujoco
@@ -49,63 +42,30 @@ import numpy as np
 
 from hexapod_model.bus import ServoBus, SimulatedServos
 from hexapod_model.description import ALL_JOINTS, LEGS, Robot, load_robot
-from hexapod_model.dictionary import T_K, T_MU, T_PA, T_PP, T_PPH, T_REST, T_TS, joint_terms, supply_resistance_ohm
 from hexapod_model.imu import ImuReading
 from hexapod_model.servo import (
     ERR_ANGLE_LIMIT,
     ERR_OVERHEATING,
     electrical_power_w,
-    firmware_torque_nm,
     winding_loss_w,
 )
 from hexapod_sim.physics import firmware
 from hexapod_sim.physics.mjcf import TIMESTEP_S, Scene
 from hexapod_sim.physics.mjcf import scene as build_scene
+from hexapod_sim.physics.plant_tables import POWER_WINDOW, PlantTables
+from hexapod_sim.physics.readings import BatteryReading, FootContacts, ServoTelemetry, rotate_to_body
 from hexapod_sim.physics.terrain import Terrain
 
-POWER_WINDOW = 50             # firmware ticks per battery/thermal evaluation block (50 ms)
-V_STICK_RAD_S = 1e-3          # static friction: a joint slower than this (or reversing) counts as at rest
 DEFAULT_AMBIENT_C = 22.0      # [P] Sec. 8.4 room temperature
 DEFAULT_START_TEMPERATURE_C = 37.0   # [P] Sec. 8.4 servo temperature of the standing robot
 IMU_BUFFER = 4096             # IMU samples kept for pop_imu_samples()
-SENSOR_ROWS = 256             # physics steps of sensor data buffered by the compiled loop
 
 
 class SimError(ValueError):
     """Bad input to the simulator (the message names the offending value)."""
 
 
-@dataclass(frozen=True)
-class BatteryReading:
-    t_s: float
-    voltage_v: float
-    current_a: float             # instantaneous (last firmware tick)
-    power_w: float               # instantaneous (last firmware tick)
-    energy_j: float              # drawn since reset
-
-
-@dataclass(frozen=True)
-class ServoTelemetry:
-    """What each servo's control table would report (arrays in ``ALL_JOINTS`` order)."""
-
-    t_s: float
-    temperature_c: np.ndarray
-    voltage_v: np.ndarray
-    load_fraction: np.ndarray    # signed output torque / stall torque, in the servo's own direction
-    error_bits: np.ndarray       # Protocol 1.0 error byte
-    torque_enabled: np.ndarray
-
-
-@dataclass(frozen=True)
-class FootContacts:
-    """Evaluation-only truth: per leg 1..6, whether the foot touches the terrain and the force on it."""
-
-    t_s: float
-    in_contact: np.ndarray       # (6,) bool
-    force_world_n: np.ndarray    # (6, 3) total contact force on the foot geom, world frame
-
-
-class HexapodSim(ServoBus, SimulatedServos):
+class HexapodSim(ServoBus, SimulatedServos, PlantTables):
     """MuJoCo hexapod + AX-12A firmware + bus timing. See the module docstring for the conventions.
 
     ``robot``: the description (default :func:`load_robot`); ``terrain``: a name of
@@ -148,110 +108,7 @@ class HexapodSim(ServoBus, SimulatedServos):
                 raise SimError(f'{name} must be a temperature in -40..120 C, got {v!r}')
         self.ambient_c = float(ambient_c)
         self.initial_temperature_c = float(initial_temperature_c)
-
-        m = self.model
-        n = len(ALL_JOINTS)
-        self.joint_names = ALL_JOINTS
-        self._index = {name: i for i, name in enumerate(ALL_JOINTS)}
-        self._qadr = np.array([m.joint(j).qposadr[0] for j in ALL_JOINTS])
-        self._dadr = np.array([m.joint(j).dofadr[0] for j in ALL_JOINTS])
-        self._act = np.array([m.actuator(j).id for j in ALL_JOINTS])
-        play = {j: m.joint(j + '_backlash').qposadr[0] for j in self.scene.backlash_joints}
-        self._play_qadr = np.array([play.get(j, -1) for j in ALL_JOINTS], dtype=np.int64)
-
-        bus = {bj.joint: bj for bj in self.robot.bus.joints}
-        self._dir = np.array([float(bus[j].direction) for j in ALL_JOINTS])
-        self._offset = np.array([float(bus[j].offset_ticks) for j in ALL_JOINTS])
-        self._servo_ids = np.array([bus[j].servo_id for j in ALL_JOINTS])
-        # raw servo tick = center + dir * theta / rad_per_tick + offset
-        self._tick_scale = self._dir / s.rad_per_tick
-        self._tick_base = s.center_tick + self._offset
-        lims = np.array([self.robot.joint_limits(j) for j in ALL_JOINTS])
-        self._lim_lo, self._lim_hi = lims[:, 0], lims[:, 1]
-
-        eff = [self.robot.joint_effects(j) for j in ALL_JOINTS]
-        self._tmax = np.array([s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
-                               for e in eff])
-        self._margin = np.array([s.compliance_margin_ticks + e.deadband_margin_ticks for e in eff], dtype=float)
-        self._punch = np.array([s.punch_nm + e.extra_punch_nm for e in eff])
-        # The firmware law depends on the integer error goal - present only (-max..max ticks), so the
-        # torque of every possible error is computed once, through firmware_torque_nm itself, per servo
-        # (joint direction folded in); row n (the last) is all zeros for a servo with torque off.
-        self._err_off = s.max_tick
-        err = np.arange(-s.max_tick, s.max_tick + 1, dtype=float)
-        table = np.zeros((n + 1, err.size))
-        terms = np.array([joint_terms(self.robot, j) for j in ALL_JOINTS])
-        for i in range(n):
-            table[i] = self._dir[i] * firmware_torque_nm(err, 0.0, s.gain_nm_per_tick, self._tmax[i], self._margin[i],
-                                                         self._punch[i]) * terms[i, T_TS]   # a weak motor's drive
-        self._torque_table = table.ravel()             # flat: index = row * width + error + max_tick
-        self._table_width = err.size
-        fc = np.array([m.dof_frictionloss[self._dadr[i]] for i in range(n)])
-        fs = np.array([max(f, e.static_friction_nm) for f, e in zip(fc, eff)])
-        self._stick_idx = np.flatnonzero(fs > fc)
-        self._stick_dadr = self._dadr[self._stick_idx]
-        self._fric_coulomb = fc[self._stick_idx]
-        self._fric_static = fs[self._stick_idx]
-        # goal latency (servo-law effect): a goal written at step k acts from step k + lag on
-        self._goal_lag = np.array([int(math.ceil(e.goal_latency_s / self.dt - 1e-9)) for e in eff], dtype=np.int64)
-        delay = np.array([e.readout_delay_s for e in eff])
-        self._delay_steps = np.rint(delay / self.dt).astype(np.int64)
-        # history ring of output angles per physics step (only with a readout delay)
-        n_hist = int(self._delay_steps.max()) + 2 if np.any(self._delay_steps > 0) else 0
-        self._hist = np.zeros((n_hist, n))
-
-        # battery and thermal bookkeeping: torque and speed of every firmware tick are buffered and
-        # evaluated in blocks of POWER_WINDOW ticks (exact per tick, one vectorised call per block)
-        self._win_tau = np.zeros((POWER_WINDOW, n))
-        self._win_omega = np.zeros((POWER_WINDOW, n))
-        decay = math.exp(-s.control_period_s / s.thermal_time_constant_s)
-        # T after k ticks of constant input: T_inf + (T0 - T_inf) decay^k; weights of each tick's T_inf
-        self._therm_w = {k: (decay ** k, (1 - decay) * decay ** np.arange(k - 1, -1, -1))
-                         for k in range(1, POWER_WINDOW + 1)}
-        # IMU at the trunk origin from the free joint: orientation qpos[3:7], angular velocity (body
-        # frame) qvel[3:6], linear acceleration (world) qacc[0:3]; equal to MuJoCo's framequat/gyro/
-        # accelerometer sensors (a test checks it) without their cost (mj_rnePostConstraint each step)
-        if self.scene.fixed_base:
-            self._imu_adr = np.array([-1, -1, -1], dtype=np.int64)
-        else:
-            root = m.joint('root')
-            self._imu_adr = np.array([root.qposadr[0] + 3, root.dofadr[0] + 3, root.dofadr[0]], dtype=np.int64)
-        self._sens_buf = np.zeros((SENSOR_ROWS if self._imu_period_steps else 0, 10))
-        self._sens_step = np.zeros(SENSOR_ROWS, dtype=np.int64)
-        self._st = np.zeros(4, dtype=np.int64)             # compiled-loop state (firmware.ST_*)
-        self._tau = np.zeros(n)
-        self._stick_j = self._stick_idx.astype(np.int64)
-        self._stick_dadr = self._stick_dadr.astype(np.int64)
-        self._qadr = self._qadr.astype(np.int64)
-        self._dadr = self._dadr.astype(np.int64)
-        self._act = self._act.astype(np.int64)
-        # packed per-joint tables of the compiled loop (updated in place: the loop holds references)
-        self._jint = np.zeros((6, n), dtype=np.int64)
-        self._jint[firmware.J_QPOS] = self._qadr
-        self._jint[firmware.J_PLAY] = self._play_qadr
-        self._jint[firmware.J_DOF] = self._dadr
-        self._jint[firmware.J_ACT] = self._act
-        self._jflt = np.array([self._tick_scale, self._tick_base])
-        self._stick_int = np.array([self._stick_j, self._stick_dadr], dtype=np.int64).reshape(2, -1)
-        self._stick_flt = np.array([self._fric_static, self._fric_coulomb, np.zeros_like(self._fric_static),
-                                    np.ones_like(self._fric_static)], dtype=float).reshape(4, -1)
-        self._dint, self._dflt, self._supply = _dictionary_tables(self.robot, terms, self._dadr, fc, fs > fc)
-        m_, d_ = self.model, self.data
-        self._loop_args = (m_._address, d_._address, self._st, self._spm, float(s.max_tick), V_STICK_RAD_S,
-                           self._imu_adr, d_.qpos, d_.qvel, d_.qacc, d_.ctrl, m_.dof_frictionloss,
-                           self._jint, self._jflt, self._torque_table, self._stick_int, self._stick_flt,
-                           self._win_tau, self._win_omega, self._tau, self._sens_buf, self._sens_step, self._hist,
-                           d_.qfrc_applied, self._dint, self._dflt, self._supply)
-        # per-joint constants of a read as Python numbers (no numpy-scalar overhead per read)
-        self._qpos = d_.qpos                               # a view on MjData: stable for its lifetime
-        self._max_tick = int(s.max_tick)
-        self._read_consts = [(float(self._tick_scale[i]), float(self._tick_base[i]), int(self._qadr[i]),
-                              int(self._play_qadr[i]), int(self._delay_steps[i])) for i in range(n)]
-        self._trunk = m.body('trunk').id
-        self._free_qadr = None if self.scene.fixed_base else m.joint('root').qposadr[0]
-        self._foot_geom = {m.geom(f'leg{leg}_foot').id: k for k, leg in enumerate(LEGS)}
-        self._leg_of_geom = np.full(m.ngeom, -1)          # geom id -> leg index of a foot, -1 otherwise
-        self._leg_of_geom[list(self._foot_geom)] = list(self._foot_geom.values())
+        self._build_tables()
         self.reset()
 
     # ------------------------------------------------------------------ set-up helpers
@@ -386,7 +243,7 @@ class HexapodSim(ServoBus, SimulatedServos):
             out[:, :4] = self.data.xquat[self._trunk]
             out[:, 7:10] = 0.0
             out[:, 4:7] = 0.0
-        out[:, 4:7] = _rotate_to_body(out[:, :4], out[:, 4:7] - self.model.opt.gravity)
+        out[:, 4:7] = rotate_to_body(out[:, :4], out[:, 4:7] - self.model.opt.gravity)
         return out
 
     def _drain_sensors(self, min_samples: int = 1) -> None:
@@ -710,32 +567,6 @@ class PowerMeter:
         p = (b.energy_j - e0) / (b.t_s - t0) if b.t_s > t0 else b.power_w
         self._last = (b.t_s, b.energy_j)
         return BatteryReading(b.t_s, b.voltage_v, p / b.voltage_v, p, b.energy_j)
-
-
-def _dictionary_tables(robot: Robot, terms: np.ndarray, dadr: np.ndarray, fc: np.ndarray, stick: np.ndarray):
-    """The compiled loop's tables of the dictionary's terms (:func:`firmware.dictionary_pass`): joints with a
-    spring, periodic or load friction, their parameters and friction loss, and the supply sag."""
-    on = np.flatnonzero(np.any(terms[:, [T_K, T_PA, T_MU]] != 0, axis=1))
-    dint = np.array([on, dadr[on], stick[on].astype(np.int64)], dtype=np.int64).reshape(3, -1)
-    dflt = np.array([terms[on, T_K], terms[on, T_REST], terms[on, T_PA], terms[on, T_PP], terms[on, T_PPH],
-                     terms[on, T_MU], fc[on]], dtype=float).reshape(7, -1)
-    s = robot.servo
-    supply = np.array([supply_resistance_ohm(robot) / s.supply_voltage_v,
-                       1.0 / (s.torque_constant_nm_per_a * s.gear_ratio)])
-    return dint, dflt, supply
-
-
-def _rotate_to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """R(q)^T v for rows of unit quaternions q (w, x, y, z) and vectors v (world -> body).
-
-    v' = v + w t + u x t with t = 2 u x v and u = -(x, y, z) (the conjugate rotates world -> body).
-    """
-    w, ux, uy, uz = q[:, 0], -q[:, 1], -q[:, 2], -q[:, 3]
-    vx, vy, vz = v[:, 0], v[:, 1], v[:, 2]
-    tx, ty, tz = 2.0 * (uy * vz - uz * vy), 2.0 * (uz * vx - ux * vz), 2.0 * (ux * vy - uy * vx)
-    return np.column_stack([vx + w * tx + uy * tz - uz * ty,
-                            vy + w * ty + uz * tx - ux * tz,
-                            vz + w * tz + ux * ty - uy * tx])
 
 
 def run_trajectory(sim: HexapodSim, goals_at: Callable[[float], Mapping[str, float]], duration_s: float,

@@ -1,0 +1,299 @@
+"""What the whole walk adds to the swings' findings, and the check :func:`~.analysis.analyse` runs on a walk.
+
+Effects the swings found on part of the robot that the whole walk wants on every joint (:func:`widen`), and
+effects the loaded phases show (:func:`search_loaded`: backlash, break-away friction and the dead-band fitted
+on the whole walk's replay, :mod:`.whole_walk`); :func:`whole_walk_check` runs the comparison and both and
+writes the report's notes.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hexapod_model.description import Robot
+from hexapod_sim.discrepancy.recording import Recording
+from hexapod_sim.discrepancy.whole_walk import (
+    LOADED_PHASES,
+    ROUNDING_TICKS,
+    START_S,
+    Replays,
+    WalkReplay,
+    WholeWalk,
+    compare,
+    rec_ticks,
+)
+from hexapod_sim.physics.terrain import Ground
+
+WIDEN_MIN_GAIN_S = 2.0        # [s] longer in step for an effect found on some joints to be put on all
+
+
+def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, joints, ww: WholeWalk,
+          progress=lambda msg: None, replays: Replays | None = None) -> tuple[list, dict, WholeWalk]:
+    """Effects the swings found on some joints that the whole walk wants on every joint: where the replay
+    with the effects leaves the recording, each kind found on part of the robot (not the servo law, not a
+    payload) is tried on every analysed joint at the mean of its fitted values; kept when the replay then
+    stays in step ``WIDEN_MIN_GAIN_S`` longer. -> (effects, {kind: the robot-wide effect}, comparison)."""
+    from hexapod_sim.discrepancy.effects import BY_NAME
+    wide: dict = {}
+    if ww.in_step_until_s >= rec.duration_s:
+        return list(effects), wide, ww
+    replays = replays or Replays(rec, robot, ground)
+    out = list(effects)
+    for kind in dict.fromkeys(e.effect for e in effects):
+        same = [e for e in out if e.effect == kind]
+        if (kind not in BY_NAME or BY_NAME[kind].servo_law or kind == 'mass_error'      # (a dictionary term: as found)
+                or set().union(*(e.joints for e in same)) >= set(joints)):
+            continue
+        key = BY_NAME[kind].key
+        mean = float(np.mean([e.params[key] for e in same]))
+        rest = [e for e in out if e.effect != kind]
+        progress(f'whole walk: {kind} on every joint')
+        ww2 = compare(rec, robot, robot.with_effects(rest + [BY_NAME[kind].make(joints, mean)]), ground, phases, joints,
+                      replays)
+        if ww2.in_step_until_s < ww.in_step_until_s + WIDEN_MIN_GAIN_S:
+            continue
+        until = min(ww2.in_step_until_s, START_S + SEARCH_HORIZON_S)       # the value, refitted on the whole walk
+        fit, _ = _masks(rec, joints, until)
+        v, _, _ = _search_one(rec, robot, rest, BY_NAME[kind], tuple(joints), ground, until, fit, progress,
+                              bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)), replays=replays)
+        trial_e = BY_NAME[kind].make(joints, v)
+        out, wide[kind] = rest + [trial_e], trial_e
+        ww = compare(rec, robot, robot.with_effects(out), ground, phases, joints, replays)
+    return out, wide, ww
+
+
+def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
+                     joints, search: bool = True, progress=lambda msg: None
+                     ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict]:
+    """The whole-walk comparison of :func:`analyse`'s walk path, the effects found on part of the robot
+    that it puts on every joint (:func:`widen`), what :func:`search_loaded` finds in its loaded phases
+    (with ``search``), and the notes for the report. ``ground``: None takes the recording's
+    (``/sim/scene``), else a flat floor."""
+    if ground is not None:
+        origin = 'as given'
+    elif rec.ground is not None:
+        ground, origin = rec.ground, "from the bag's /sim/scene"
+    else:
+        ground, origin = Ground(), 'assumed: a flat floor, as for a calibration walk; --terrain sets it'
+    fitted = robot.with_effects(effects) if effects else None
+    replays = Replays(rec, robot, ground)
+    ww = compare(rec, robot, fitted, ground, phases, joints, replays)
+    effects, wide, ww = widen(rec, robot, list(effects), ground, phases, joints, ww, progress, replays)
+    finds = search_loaded(rec, robot, list(effects), ground, phases, ww, progress, replays) if search else []
+    if finds:
+        ww = compare(rec, robot, robot.with_effects(list(effects) + [f.effect for f in finds]), ground, phases, joints,
+                     replays)
+    notes = [f'whole walk: the recorded goals replayed through the MuJoCo hexapod on {ground.describe()} '
+             f'({origin}), {ww.runtime_s:.1f} s']
+    if ww.in_step_until_s < rec.duration_s:
+        notes.append(f'whole walk: the replay left the recording at {ww.in_step_until_s:.1f} s of '
+                     f'{rec.duration_s:.1f} s (every joint departs at once: the trunk went elsewhere); only reads '
+                     'before it are judged' + ('' if ww.in_step_until_s >= START_S + SEARCH_MIN_IN_STEP_S else
+                                               f'; under {SEARCH_MIN_IN_STEP_S:g} s in step, nothing is fitted on '
+                                               'it (is the ground right? --terrain)'))
+    j, ph, v = ww.worst(LOADED_PHASES)
+    if j:
+        notes.append(f'whole walk: largest RMS error where the legs carry the body: {j} in {ph.replace("_", "-")}, '
+                     f'{v:.2f} ticks' + (' (tick rounding)' if v <= ROUNDING_TICKS else ''))
+    for kind in wide:
+        notes.append(f'whole walk: {kind.replace("_", " ")} found on part of the robot keeps the replay in step only '
+                     'when it acts on every joint: put on the whole robot')
+    return ww, notes, finds, wide
+
+
+# Effects that show where a leg carries the body (a load reversal, a hold under load) more than in a free
+# swing, searched for on the whole walk when its loaded phases leave more than tick rounding.
+LOADED_CANDIDATES = ('backlash', 'static_friction', 'compliance_deadband')
+ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope is tried too
+SEARCH_BLOCK_S = 2.0          # alternating fit / held-out blocks of the search [s]
+SEARCH_GRID = 5               # log-spaced values over the candidate's range, then golden-section steps
+SEARCH_REFINE = 4
+SEARCH_MIN_RATIO = 1.5        # held-out RMS improvement an effect must reach on its joints
+SEARCH_MIN_EXPLAINED = 0.75   # and the share of their excess over rounding it must explain
+ROUNDING_RMS = 0.29           # uniform tick rounding: 1/sqrt(12)
+EDGE_FACTOR = 1.1             # a fit within this factor of its range's low end is no measurement: not named
+WIDEN_BRACKET = 0.2           # a widened effect's value is refitted within +-20 % of the parts' mean
+SEARCH_CHECK_S = 0.5          # [s] of replay between two looks at a candidate's error so far
+SEARCH_HORIZON_S = 20.0       # [s] of the walk (in step) the search replays: its cost does not grow with the walk
+SEARCH_MIN_IN_STEP_S = 5.0    # [s] in step the search needs (fewer: the ground is likely not the walk's)
+MAX_JOINT_SCOPES = 3          # single-joint scopes tried: the joints with the largest loaded-phase error
+
+
+@dataclass(frozen=True)
+class LoadedFind:
+    """An effect the whole walk shows: held-out RMS error on its joints [ticks] without and with it."""
+
+    effect: object                  # hexapod_model.description.Effect
+    phase: str                      # the loaded phase where its joints' error was largest
+    heldout_rmse_ticks_before: float
+    heldout_rmse_ticks_after: float
+
+
+def _loaded_excess(ww: WholeWalk) -> list[tuple[str, float]]:
+    """(joint, RMS) of the joints whose error over the loaded phases, with the effects found, is above tick
+    rounding, the largest first."""
+    out = []
+    for j, row in ww.phases.items():
+        rows = [row[ph] for ph in LOADED_PHASES if ph in row]
+        n = sum(r.n_reads for r in rows)
+        rms = math.sqrt(sum(r.n_reads * r.rmse_ticks_fitted ** 2 for r in rows) / n) if n else 0.0
+        if rms > ROUNDING_TICKS:
+            out.append((j, rms))
+    return sorted(out, key=lambda x: -x[1])
+
+
+def _masks(rec: Recording, joints, until_s: float):
+    """(fit, held-out) read masks per joint: alternating ``SEARCH_BLOCK_S`` blocks after ``START_S``."""
+    fit, hold = {}, {}
+    for j in joints:
+        t = rec.states[j].t_s
+        ok = (t >= START_S) & (t < until_s)
+        even = (np.floor(t / SEARCH_BLOCK_S).astype(np.int64) % 2) == 0
+        fit[j], hold[j] = ok & even, ok & ~even
+    return fit, hold
+
+
+def _rms(rec, robot, pred: dict, joints, masks) -> float:
+    sq, n = 0.0, 0
+    for j in joints:
+        r = (rec_ticks(rec, robot, j)[:len(pred[j])] - pred[j])[masks[j][:len(pred[j])]]
+        sq += float(np.sum(r ** 2))
+        n += len(r)
+    return math.sqrt(sq / n) if n else math.nan
+
+
+class _Trial:
+    """The fit reads' RMS error [ticks] of the whole walk replayed with one candidate value, replayed only
+    as far as a comparison needs: the squared error summed over the reads replayed so far, over the count of
+    all the fit reads, bounds the whole from below."""
+
+    def __init__(self, replays: Replays, model: Robot, scope, until_s: float, fit: dict):
+        self.replays, self.scope = replays, tuple(scope)
+        self.replay = replays.get(model, scope, until_s, keep=False)
+        self.fit = fit
+        self.masks = {j: fit[j][:len(self.replay.pred[j])] for j in scope}
+        self.n = sum(int(np.count_nonzero(m)) for m in self.masks.values())
+        self.t, self.sq, self.value = 0.0, 0.0, None
+
+    @property
+    def finished(self) -> bool:
+        return self.value is not None
+
+    def advance(self) -> None:
+        """Replay ``SEARCH_CHECK_S`` further (the exact RMS once the replay is done)."""
+        self.t += SEARCH_CHECK_S
+        self.replay.run_to(self.t)
+        if self.replay.finished:
+            self.value = _rms(self.replays.rec, self.replays.robot, self.replay.pred, self.scope, self.fit)
+            return
+        res = self.replays.residuals(self.replay, self.scope)
+        self.sq = sum(float(np.nansum(res[j][self.masks[j]] ** 2)) for j in self.scope)
+
+    def bound(self) -> float:
+        return self.sq / self.n if self.n else 0.0
+
+    def exceeds(self, c: float) -> bool:
+        """Its RMS is certainly above ``c`` (the margin covers the sums' rounding)."""
+        return self.n > 0 and self.sq > c * c * self.n * (1.0 + 1e-9)
+
+
+def _settle(trials: list[_Trial]) -> list[float]:
+    """The trials' RMS errors, each trial replayed only until it is known to be above the smallest of them
+    (then inf: above it). Always the one with the smallest lower bound runs next, so the smallest is
+    replayed whole and the others stop once their error so far passes it; the minimum and its position
+    are those of the whole replays."""
+    while True:
+        done = [t.value for t in trials if t.finished and not math.isnan(t.value)]
+        least = min(done) if done else None
+        open_ = [t for t in trials if not t.finished and not (least is not None and t.exceeds(least))]
+        if not open_:
+            return [t.value if t.finished else math.inf for t in trials]
+        min(open_, key=_Trial.bound).advance()
+
+
+def _search_one(rec, robot, base: list, cand, scope, ground, until_s, fit, progress,
+                bracket: tuple[float, float] | None = None, replays: Replays | None = None
+                ) -> tuple[float, float, WalkReplay]:
+    """(value, fit RMS, its replay) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole
+    walk, over the candidate's range (or ``bracket``): a log-spaced grid, then golden-section steps between
+    the best point's neighbours. Each comparison replays its candidates only as far as it needs
+    (:func:`_settle`), and a golden-section step reuses the interior point it keeps where the logarithms give
+    it exactly again (about every other step; a value one rounding away is replayed, as the walk's replay
+    is that sensitive)."""
+    replays = replays or Replays(rec, robot, ground)
+    made: list[tuple[float, _Trial]] = []
+
+    def trial(v):
+        for x, t in made:
+            if x == v:        # exactly: the open-loop replay of a walk moves by a tick for a 1e-16 change
+                return t
+        progress(f'whole walk: {cand.effect} {v:.3g} on {len(scope)} joint(s)')
+        t = _Trial(replays, robot.with_effects(base + [cand.make(scope, v)]), scope, until_s, fit)
+        made.append((v, t))
+        return t
+
+    lo, hi = bracket or (cand.lo, cand.hi)
+    grid = np.geomspace(max(lo, 1e-6), hi, SEARCH_GRID)
+    trials = [trial(float(v)) for v in grid]
+    costs = _settle(trials)
+    k = int(np.nanargmin(costs))
+    a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    best = (float(grid[k]), costs[k], trials[k])
+    g = (math.sqrt(5) - 1) / 2
+    for _ in range(SEARCH_REFINE):               # golden section in log space between the neighbours
+        la, lb = math.log(a), math.log(b)
+        x1, x2 = math.exp(lb - g * (lb - la)), math.exp(la + g * (lb - la))
+        t1, t2 = trial(x1), trial(x2)
+        c1, c2 = _settle([t1, t2])
+        for x, c, t in ((x1, c1, t1), (x2, c2, t2)):
+            if c < best[1]:
+                best = (x, c, t)
+        a, b = (a, x2) if c1 < c2 else (x1, b)
+        made[:] = [(x, t) for x, t in made if t in (t1, t2)]      # the next step can only reuse these
+    return best[0], best[1], best[2].replay
+
+
+def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, ww: WholeWalk,
+                  progress=lambda msg: None, replays: Replays | None = None) -> list[LoadedFind]:
+    """Effects of :data:`LOADED_CANDIDATES` that explain what the whole walk's loaded phases leave, on the
+    joints that leave more than tick rounding (each alone; and the whole robot when many do), fitted on
+    alternate 2 s blocks of the whole walk and judged on the others. At most one effect per joint."""
+    from hexapod_sim.discrepancy.effects import BY_NAME
+    excess = _loaded_excess(ww)
+    if not excess or ww.in_step_until_s < START_S + SEARCH_MIN_IN_STEP_S:
+        return []
+    joints = list(ww.phases)
+    until = min(ww.in_step_until_s, START_S + SEARCH_HORIZON_S)
+    fit, hold = _masks(rec, joints, until)
+    scopes = [(j,) for j, _ in excess[:MAX_JOINT_SCOPES]]
+    scopes += [tuple(joints)] if len(excess) >= ROBOT_WIDE_MIN_JOINTS else []
+    base = list(effects)
+    replays = replays or Replays(rec, robot, ground)
+    r0 = replays.get(robot.with_effects(base), joints, until)
+    r0.run_to(until)
+    base_pred = {j: r0.pred[j][:int(np.searchsorted(rec.states[j].t_s, until, side='right'))] for j in joints}
+    found: list[LoadedFind] = []
+    for scope in sorted(scopes, key=len, reverse=True):
+        if any(j in f.effect.joints for f in found for j in scope):
+            continue
+        before = _rms(rec, robot, base_pred, scope, hold)
+        trials = []
+        for name in LOADED_CANDIDATES:
+            cand = BY_NAME[name]
+            v, _, r = _search_one(rec, robot, base, cand, scope, ground, until, fit, progress, replays=replays)
+            trials.append((_rms(rec, robot, r.pred, scope, hold), cand.make(scope, v)))
+        after, eff = min(trials, key=lambda x: x[0])
+        explained = (before ** 2 - after ** 2) / max(before ** 2 - ROUNDING_RMS ** 2, 1e-9)
+        c = BY_NAME[eff.effect]
+        at_edge = eff.params[c.key] <= c.lo * EDGE_FACTOR      # the fit ran to the smallest plausible value
+        if before / max(after, 1e-9) >= SEARCH_MIN_RATIO and explained >= SEARCH_MIN_EXPLAINED and not at_edge:
+            worst = max(LOADED_PHASES, key=lambda ph: max((ww.phases[j][ph].rmse_ticks_fitted for j in scope
+                                                           if ph in ww.phases[j]), default=0.0))
+            found.append(LoadedFind(eff, worst, before, after))
+            base.append(eff)
+    return found
+
+
+__all__ = ['LoadedFind', 'search_loaded', 'whole_walk_check', 'widen']
