@@ -5,11 +5,12 @@ import numpy as np
 import pytest
 
 from hexapod_locomotion.bench import random_bench as rb
+from hexapod_locomotion.bench import random_cases as rc
 from hexapod_model.description import ALL_JOINTS, Effect
 
 
 def _case(effects, classes, tolerance=None, walk=None, leg=2):
-    return rb.RandomCase(0, tuple(effects), tuple(classes), leg=leg, walk=walk,
+    return rc.RandomCase(0, tuple(effects), tuple(classes), leg=leg, walk=walk,
                          tolerance=tuple(tolerance or [{} for _ in effects]))
 
 
@@ -23,31 +24,31 @@ LEG2 = {j: {} for j in ('leg2_coxa', 'leg2_femur', 'leg2_tibia')}
 
 # ----------------------------------------------------------------------------- generator
 def test_the_draw_is_determined_by_the_seed_and_each_case_by_its_index():
-    a, b = rb.make_cases(5, 30), rb.make_cases(5, 30)
+    a, b = rc.make_cases(5, 30), rc.make_cases(5, 30)
     assert [c.label for c in a] == [c.label for c in b]
     assert [[e.params for e in c.effects] for c in a] == [[e.params for e in c.effects] for c in b]
-    assert rb.draw_case(5, 17) == a[17]
-    assert [c.label for c in rb.make_cases(6, 30)] != [c.label for c in a]
+    assert rc.draw_case(5, 17) == a[17]
+    assert [c.label for c in rc.make_cases(6, 30)] != [c.label for c in a]
 
 
 def test_a_hundred_cases_cover_every_category():
-    cases = rb.make_cases(0, 100)
+    cases = rc.make_cases(0, 100)
     cats: dict[str, set] = {}
     for c in cases:
-        for group, values in rb.categories(c).items():
+        for group, values in rc.categories(c).items():
             cats.setdefault(group, set()).update(values)
     assert cats['setting'] == {'stand', 'walk'}
     assert {'tripod', 'tetrapod', 'pentapod'} <= cats['gait']
     assert {'flat', 'blocks'} <= cats['terrain']
     assert {'calibration', 'default'} <= cats['cycle']
-    assert cats['class'] == set(rb.CLASSES)
+    assert cats['class'] == set(rc.CLASSES)
     assert cats['size'] == {'single', 'pair'}
     kinds = {(e.effect, cls) for c in cases for e, cls in zip(c.effects, c.classes)}
-    assert {k for k, cls in kinds if cls == 'out-of-list'} == set(rb.OUT_OF_LIST)
-    assert {k for k, cls in kinds if cls == 'servo-law'} == set(rb.SERVO_LAW)
-    scopes = {rb._scope(e.joints)[:3] for c in cases for e, cls in zip(c.effects, c.classes) if cls == 'in-list'}
+    assert {k for k, cls in kinds if cls == 'out-of-list'} == set(rc.OUT_OF_LIST)
+    assert {k for k, cls in kinds if cls == 'servo-law'} == set(rc.SERVO_LAW)
+    scopes = {rc.scope_label(e.joints)[:3] for c in cases for e, cls in zip(c.effects, c.classes) if cls == 'in-list'}
     assert {'rob', 'leg'} <= scopes and any(s.startswith('leg') and '_' in s for c in cases for s in
-                                            [rb._scope(e.joints) for e in c.effects])
+                                            [rc.scope_label(e.joints) for e in c.effects])
     assert len({c.twin_key for c in cases}) < len(cases)      # twins shared by cases of the same routine or walk
     for c in cases:
         local = [e for e in c.effects if len(e.joints) < len(ALL_JOINTS)]
@@ -59,14 +60,14 @@ def test_a_hundred_cases_cover_every_category():
 
 
 def test_out_of_list_magnitudes_are_drawn_around_the_dictionary_bench_cases():
-    for c in rb.make_cases(0, 100):
+    for c in rc.make_cases(0, 100):
         for e, cls, tol in zip(c.effects, c.classes, c.tolerance):
             if cls != 'out-of-list':
                 continue
             assert tol, e
             for key, v in e.params.items():
                 assert np.isfinite(v)
-                if key not in rb.ANGLES:
+                if key not in rc.ANGLES:
                     assert v > 0
 
 
@@ -76,21 +77,21 @@ def test_the_visibility_rule_on_synthetic_residuals():
     n = 400
     labels = {'a': np.repeat([0, 1], n // 2), 'b': np.repeat([0, 1], n // 2), 'c': np.r_[np.zeros(390), np.ones(10)]}
     rounding = {j: rng.uniform(-0.5, 0.5, n) for j in labels}
-    base = rb.phase_rms(rounding, labels, ('stance', 'swing'))
+    base = rc.phase_rms(rounding, labels, ('stance', 'swing'))
     shown = dict(rounding)
     shown['a'] = rounding['a'] + np.where(labels['a'] == 1, 1.0, 0.0)    # a tick off in one phase
     shown['b'] = rounding['b'] + np.where(labels['b'] == 1, 0.3, 0.0)    # less than the margin
     shown['c'] = rounding['c'] + np.where(labels['c'] == 1, 3.0, 0.0)    # in too few reads
-    vis = rb.visible_joints(rb.phase_rms(shown, labels, ('stance', 'swing')), base)
+    vis = rc.visible_joints(rc.phase_rms(shown, labels, ('stance', 'swing')), base)
     assert set(vis) == {'a'} and [p for p, _ in vis['a']] == ['swing']
     # the twin's own mismatch there raises the bar
-    twin = rb.phase_rms({**rounding, 'a': rounding['a'] + np.where(labels['a'] == 1, 0.9, 0.0)}, labels,
+    twin = rc.phase_rms({**rounding, 'a': rounding['a'] + np.where(labels['a'] == 1, 0.9, 0.0)}, labels,
                         ('stance', 'swing'))
-    assert rb.visible_joints(rb.phase_rms(shown, labels, ('stance', 'swing')), twin) == {}
+    assert rc.visible_joints(rc.phase_rms(shown, labels, ('stance', 'swing')), twin) == {}
     # stand: against the other recording directly (baseline 0); unjudged reads (label -1) never count
     off = {'a': np.where(labels['a'] == 1, 1.0, 0.0)}
-    assert set(rb.visible_joints(rb.phase_rms(off, {'a': labels['a']}, ('stance', 'swing')), None)) == {'a'}
-    assert rb.visible_joints(rb.phase_rms(off, {'a': np.where(labels['a'] == 1, -1, 0)}, ('stance', 'swing')),
+    assert set(rc.visible_joints(rc.phase_rms(off, {'a': labels['a']}, ('stance', 'swing')), None)) == {'a'}
+    assert rc.visible_joints(rc.phase_rms(off, {'a': np.where(labels['a'] == 1, -1, 0)}, ('stance', 'swing')),
                              None) == {}
 
 
@@ -200,7 +201,7 @@ def test_bad_flags_are_one_line_and_exit_2(argv, capsys):
 def test_a_short_stand_case_through_the_real_tool(tmp_path):
     """The tibia part of the routine on leg 2 with a torque limit on the tibia: the twin is clean,
     the limit is visible on the tibia only, and the tool finds it."""
-    case = rb.RandomCase(0, (Effect('torque_saturation', ('leg2_tibia',), {'tau_max_nm': 0.5}),), ('in-list',),
+    case = rc.RandomCase(0, (Effect('torque_saturation', ('leg2_tibia',), {'tau_max_nm': 0.5}),), ('in-list',),
                          leg=2, tolerance=({},), phases=('settle', 'tibia'))
     twin = rb.run_twin((case, str(tmp_path / 'twin'), rb.WALK_S, False))
     assert twin['score']['right'], twin['score']
