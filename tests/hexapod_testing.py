@@ -101,3 +101,17 @@ class ProcessOutput:
 
     def text(self) -> str:
         return ''.join(self.lines)
+
+    def finish(self, proc: subprocess.Popen, sig=signal.SIGINT, timeout: float = 30.0) -> tuple[int, str]:
+        """Stop the process with ``sig`` (if it still runs), killing it after ``timeout`` (a line says so);
+        -> (exit code, everything it printed)."""
+        if proc.poll() is None:
+            proc.send_signal(sig)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            self.lines.append(f'<<killed: no exit within {timeout} s of {sig!r}>>\n')
+        self._t.join(timeout=5.0)
+        return proc.returncode, self.text()

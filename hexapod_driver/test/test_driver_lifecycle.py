@@ -5,7 +5,6 @@ injected through the bus the node is built from (``main(bus_factory=...)``).
 DDS stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on a domain of its own.
 """
 import os
-import signal
 import subprocess
 import sys
 
@@ -69,18 +68,6 @@ def start(program, port, extra=()):
     proc = subprocess.Popen(args, env=testing.node_env(DOMAIN_ID), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     return proc, testing.ProcessOutput(proc)
-
-
-def finish(proc, out, timeout=15.0):
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-    out._t.join(timeout=5.0)
-    return proc.returncode, out.text()
 
 
 def spin_until(ex, cond, timeout, proc, what):
@@ -192,7 +179,7 @@ def test_lifecycle_transitions_through_the_running_node(robot, ros):
         finally:
             if life is not None:
                 life.close()
-            rc, text = finish(proc, out)
+            rc, text = out.finish(proc, timeout=15.0)
             for s in subs:
                 node.destroy_subscription(s)
             node.destroy_publisher(cmd_pub)
@@ -212,7 +199,7 @@ def test_autostart_false_then_exit_leaves_the_port_untouched(robot, ros):
         finally:
             if life is not None:
                 life.close()
-            rc, text = finish(proc, out)
+            rc, text = out.finish(proc, timeout=15.0)
     assert rc == 0 and emu.packets == 0, text
     assert 'Traceback' not in text, text
 
@@ -234,7 +221,7 @@ def test_exception_in_the_bus_loop_turns_torque_off_and_exits_non_zero(robot, ro
                 'bus loop crashed' in s.message for d in diags for s in d.servos), 60.0,
                 'exit after the forced exception')
         finally:
-            rc, text = finish(proc, out)
+            rc, text = out.finish(proc, timeout=15.0)
             for s in subs:
                 node.destroy_subscription(s)
         log = list(emu.log)

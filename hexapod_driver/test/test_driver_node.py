@@ -227,28 +227,13 @@ from hexapod_driver import protocol as p  # noqa: E402
 from hexapod_model.servo import servo_tick  # noqa: E402
 
 
-class Output(testing.ProcessOutput):
-    """The node's output (testing.ProcessOutput) and what these tests ask of it."""
-
-    def finish(self, proc, timeout=15.0):
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        self._t.join(timeout=5.0)
-        return proc.returncode, self.text()
-
-
 def start_node_env(port, extra=(), env_extra=None):
     args = [sys.executable, '-m', 'hexapod_driver.driver_node', '--ros-args', '-p', f'device:={port}']
     for prm in [*PARAMS, *extra]:
         args += ['-p', prm]
     proc = subprocess.Popen(args, env={**node_env(), **(env_extra or {})}, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
-    return proc, Output(proc)
+    return proc, testing.ProcessOutput(proc)
 
 
 def wait_for(ex, cond, timeout, proc, what):
@@ -281,7 +266,7 @@ def test_noisy_bus_keeps_reading_and_never_invents_a_position(robot, ros):
             wait_for(ex, lambda: len(inbox.states) >= 600 and len(inbox.diag) >= 3, 90.0, proc,
                      'reads on the noisy bus')
         finally:
-            rc, text = out.finish(proc)
+            rc, text = out.finish(proc, timeout=15.0)
             inbox.close(node)
         log = list(emu.log)
     assert rc == 0, text
@@ -343,7 +328,7 @@ def test_overheating_servo_is_limp_others_commandable_and_recover_restores(robot
                        and e.replied for e in emu.log)
             assert emu.servo(6).torque_on
         finally:
-            rc, text = out.finish(proc)
+            rc, text = out.finish(proc, timeout=15.0)
             inbox.close(node)
             node.destroy_publisher(cmd_pub)
     assert rc == 0, text
@@ -382,7 +367,7 @@ def test_diagnostics_topic_reports_every_servo_and_the_bus(robot, ros):
             assert 'overheating error' in tibia().message and tibia().hardware_id == 'dynamixel id 6'
             assert [s.level for s in got[-1].status[1:] if 'leg2_tibia' not in s.name] == [b'\x00'] * 17
         finally:
-            rc, text = out.finish(proc)
+            rc, text = out.finish(proc, timeout=15.0)
             node.destroy_subscription(sub)
     assert rc == 0, text
 
@@ -402,7 +387,7 @@ def test_emergency_stop_twice_with_different_outcomes(robot, ros):
             assert not second.success and 'torque state unknown' in second.message
             assert proc.poll() is None                              # the node lives on
         finally:
-            rc, text = out.finish(proc)
+            rc, text = out.finish(proc, timeout=15.0)
             node.destroy_client(client)
     assert rc == 0, text
     assert 'Logger severity' not in text and 'Traceback' not in text, text
@@ -431,7 +416,7 @@ def test_late_replies_are_never_paired_with_the_wrong_request_and_the_cause_is_n
                 return sum(m.name[0] == 'leg1_coxa' for m in inbox.states) >= 150
             wait_for(ex, moving, 90.0, proc, 'reads of the moving joint')
         finally:
-            rc, text = out.finish(proc)
+            rc, text = out.finish(proc, timeout=15.0)
             inbox.close(node)
             node.destroy_publisher(cmd_pub)
             node.destroy_publisher(sched_pub)
@@ -464,7 +449,7 @@ def test_port_lost_then_sigterm_makes_no_false_torque_off_claim(robot, ros, tmp_
             proc.send_signal(signal.SIGTERM)
             proc.wait(timeout=30)
         finally:
-            rc, text = out.finish(proc)
+            rc, text = out.finish(proc, timeout=15.0)
             inbox.close(node)
     assert rc == 0, text
     assert 'torque state unknown: port lost' in text and 'torque off on all servos' not in text, text
@@ -477,7 +462,7 @@ def test_servos_at_another_baud_get_an_actionable_error(robot):
             s.set_register('baud_rate', 34)                          # 57600 baud
         proc, out = start_node_env(emu.port, ['startup_attempts:=1'])
         proc.wait(timeout=60)
-        rc, text = out.finish(proc)
+        rc, text = out.finish(proc, timeout=15.0)
     assert rc == 1
     assert 'no servo answers at 1000000 baud' in text and 'servo_tool' in text and '--baud' in text
     assert 'Traceback' not in text
@@ -493,7 +478,7 @@ def test_status_return_level_1_is_set_to_2_at_startup(robot, ros):
         try:
             wait_for(ex, lambda: len(inbox.states) > 20, 30.0, proc, 'reads')
         finally:
-            rc, text = out.finish(proc)
+            rc, text = out.finish(proc, timeout=15.0)
             inbox.close(node)
     assert rc == 0, text
     assert all(s.get('status_return_level') == 2 for s in emu.servos)

@@ -7,7 +7,6 @@ happened, no crash or hang.
 DDS stays on loopback on a domain of this file's own.
 """
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -35,29 +34,13 @@ PARAMS = ['timeout_margin_ms:=25.0', 'diagnostics_period_s:=0.3', 'timing_period
 OUTPUTS = {}                                # pid -> Output, for the message when a node exits early
 
 
-class Output(testing.ProcessOutput):
-    """The node's output (testing.ProcessOutput) and what these tests ask of it."""
-
-    def finish(self, proc, sig=signal.SIGINT, timeout=30.0):
-        if proc.poll() is None:
-            proc.send_signal(sig)
-        try:
-            proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-            self.lines.append(f'<<killed: no exit within {timeout} s of {sig!r}>>\n')
-        self._t.join(timeout=5.0)
-        return proc.returncode, self.text()
-
-
 def start(port, extra=()):
     args = [sys.executable, '-m', 'hexapod_driver.driver_node', '--ros-args', '-p', f'device:={port}']
     for prm in [*PARAMS, *extra]:
         args += ['-p', prm]
     proc = subprocess.Popen(args, env=testing.node_env(DOMAIN_ID), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
-    OUTPUTS[proc.pid] = Output(proc)
+    OUTPUTS[proc.pid] = testing.ProcessOutput(proc)
     return proc, OUTPUTS[proc.pid]
 
 

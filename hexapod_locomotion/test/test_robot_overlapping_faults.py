@@ -4,7 +4,6 @@ during start-up, and the port lost as Ctrl-C comes. Through the running process:
 says what happened once (not a thousand times a second), never crashes, and turns torque off at exit.
 """
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -30,17 +29,6 @@ class Output(testing.ProcessOutput):
     def count(self, needle):
         return sum(needle in ln for ln in list(self.lines))
 
-    def finish(self, proc, timeout=30.0):
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-            self.lines.append(f'<<killed: no exit within {timeout} s of SIGINT>>\n')
-        self._t.join(timeout=5.0)
-        return proc.returncode, self.text()
 
 
 def installed(pkg, exe):
