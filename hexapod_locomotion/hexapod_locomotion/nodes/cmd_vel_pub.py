@@ -200,7 +200,8 @@ def main(argv: list[str] | None = None) -> int:
             pub.publish(msg)
             count += 1
 
-        tick()
+        if not stop.is_set():      # Ctrl-C while waiting for subscribers: no motion command, only the zero
+            tick()
         node.create_timer(1.0 / rate, tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
         t_end = time.monotonic() + duration if duration > 0 else math.inf
         print(f'cmd_vel_pub: publishing vx={cmd.vx:g} m/s vy={cmd.vy:g} m/s wz={cmd.wz:g} rad/s on '
