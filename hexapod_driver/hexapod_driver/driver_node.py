@@ -19,7 +19,9 @@ In:  /joint_commands (sensor_msgs/JointState), /read_schedule (hexapod_msgs/Read
 Out: /joint_states (one message per read, stamped at the start of the read transaction),
      /servo_diagnostics (hexapod_msgs/ServoDiagnostics), /bus_timing (hexapod_msgs/BusTiming),
      /diagnostics (diagnostic_msgs/DiagnosticArray: every servo and the bus, each timing period
-     and at once on an error; the mapping is hexapod_model.diagnostics).
+     and at once on an error; the mapping is hexapod_model.diagnostics). All but /diagnostics are
+     lifecycle publishers: silent unless the node is active; while inactive, /joint_commands are
+     ignored (a warning says so) and only the read schedule and the emergency stop are taken.
 Events of the bus are logged as ``[kind] text`` (:class:`hexapod_driver.bus.Event`).
 """
 from __future__ import annotations
@@ -82,9 +84,11 @@ class DriverNode(LifecycleNode):
         self._thread: threading.Thread | None = None
         self._watchdog_fired = False
         self._quiet_failures = False              # at start-up a failure is main's one line, not a log line too
-        self.pub_states = self.create_publisher(JointState, contract.JOINT_STATES, QoSProfile(depth=200))
-        self.pub_diag = self.create_publisher(ServoDiagnostics, contract.SERVO_DIAGNOSTICS, 10)
-        self.pub_timing = self.create_publisher(BusTiming, contract.BUS_TIMING, 10)
+        # The data topics are lifecycle publishers: silent unless active. /diagnostics is not: it
+        # reports the servos and the bus (torque off, port closed) in every state.
+        self.pub_states = self.create_lifecycle_publisher(JointState, contract.JOINT_STATES, QoSProfile(depth=200))
+        self.pub_diag = self.create_lifecycle_publisher(ServoDiagnostics, contract.SERVO_DIAGNOSTICS, 10)
+        self.pub_timing = self.create_lifecycle_publisher(BusTiming, contract.BUS_TIMING, 10)
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, 10)
         self._timing_t0 = self.get_clock().now()
         if own.autostart:                         # before the services: a client that finds them finds torque on
@@ -132,6 +136,7 @@ class DriverNode(LifecycleNode):
             ok, text = self.core.torque_off_report()
             return self._failed(BusError(f'{exc}; {text}'), 'activate')
         self._log_events(self.core.take_events())
+        super().on_activate(state)       # the lifecycle publishers, before the loop's first reading
         self._active = True
         self._watchdog_fired = False
         self._running.set()
@@ -141,7 +146,8 @@ class DriverNode(LifecycleNode):
         return SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """The bus loop stopped, torque off (read back)."""
+        """The data topics silent, the bus loop stopped, torque off (read back)."""
+        super().on_deactivate(state)
         self._stop_loop()
         ok, text = self.core.torque_off_report()
         self._log('info' if ok else 'error', f'deactivated: {text}')
@@ -194,7 +200,8 @@ class DriverNode(LifecycleNode):
         for sub in self._subs:
             self.destroy_subscription(sub)
         self._subs = []
-        pub_cmd = self.create_publisher(JointState, contract.JOINT_COMMANDS, QoSProfile(depth=200))
+        pub_cmd = self.create_lifecycle_publisher(JointState, contract.JOINT_COMMANDS, QoSProfile(depth=200))
+        pub_cmd.on_activate(None)        # created while active: enabled now, disabled with the others
 
         def on_read(joint, theta, stamp):
             js = JointState()

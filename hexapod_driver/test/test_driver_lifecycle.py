@@ -1,16 +1,20 @@
 """The driver_node process as a managed (lifecycle) node against the emulated bus: each transition
-through its lifecycle services and what the servos and the topics show after it; and a fault
+through its lifecycle services and what the servos and the topics show after it (while inactive, no
+data topic carries a message and no command reaches the bus; /diagnostics goes on); and a fault
 injected through the bus the node is built from (``main(bus_factory=...)``).
 
 DDS stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on a domain of its own.
 """
+import math
 import os
 import subprocess
 import sys
+import time
 
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from lifecycle_msgs.msg import Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -21,7 +25,7 @@ from hexapod_driver.config import NODE  # noqa: E402
 from hexapod_driver.emulator import BusEmulator  # noqa: E402
 from hexapod_model import contract  # noqa: E402
 from hexapod_model.description import load_robot  # noqa: E402
-from hexapod_msgs.msg import ServoDiagnostics  # noqa: E402
+from hexapod_msgs.msg import BusTiming, ServoDiagnostics  # noqa: E402
 
 DOMAIN_ID = 20 + os.getpid() % 20          # 20..39: this package's node tests
 PARAMS = ['timeout_margin_ms:=25.0', 'diagnostics_period_s:=0.3', 'timing_period_s:=0.3',
@@ -84,6 +88,46 @@ def holds_port(proc, port) -> bool:
     return any(os.path.realpath(os.path.join(fds, fd)) == target for fd in os.listdir(fds))
 
 
+class Traffic:
+    """Every message the probe hears on the driver's topics, by topic."""
+
+    DATA = {contract.JOINT_STATES: JointState, contract.SERVO_DIAGNOSTICS: ServoDiagnostics,
+            contract.BUS_TIMING: BusTiming}        # silent unless active
+
+    def __init__(self, node):
+        self.node = node
+        self.heard = {topic: [] for topic in [*self.DATA, contract.DIAGNOSTICS]}
+        self.subs = [node.create_subscription(msg_type, topic, self.heard[topic].append, 500)
+                     for topic, msg_type in {**self.DATA, contract.DIAGNOSTICS: DiagnosticArray}.items()]
+
+    def stamped_within(self, topic: str, t0: float, t1: float = math.inf) -> list:
+        return [m for m in self.heard[topic] if t0 < contract.stamp_seconds(m.header.stamp) < t1]
+
+    def data_within(self, t0: float, t1: float) -> dict:
+        """{topic: how many messages stamped in (t0, t1)} for the data topics that carried any."""
+        counts = {topic: len(self.stamped_within(topic, t0, t1)) for topic in self.DATA}
+        return {topic: n for topic, n in counts.items() if n}
+
+    def close(self):
+        for sub in self.subs:
+            self.node.destroy_subscription(sub)
+
+
+def inactive_window(ex, proc, out, traffic, emu, command) -> None:
+    """In the inactive state: commands until the driver says it ignored one, and /diagnostics heard
+    twice (its timer runs, and the data topics' would have). Meanwhile no data topic may carry a
+    message stamped in the window (a stamp, not an arrival: nothing in flight counts) and the bus
+    stays quiet."""
+    t0, packets, goal = time.time(), emu.packets, emu.servo(1).get('goal_position')
+    ignored = out.text().count('command ignored: the driver is not active')
+    spin_until(ex, lambda: command(0.2) or (
+        out.text().count('command ignored: the driver is not active') > ignored
+        and len(traffic.stamped_within(contract.DIAGNOSTICS, t0)) >= 2), 30.0, proc,
+        'a command refused and /diagnostics while inactive')
+    assert traffic.data_within(t0, time.time()) == {}, 'a data topic published while inactive'
+    assert emu.packets == packets and emu.servo(1).get('goal_position') == goal     # the bus is quiet
+
+
 class Lifecycle:
     """The node's lifecycle services, called from the test's probe node."""
 
@@ -126,10 +170,15 @@ def test_lifecycle_transitions_through_the_running_node(robot, ros):
     node, ex = ros
     with BusEmulator(robot) as emu:
         proc, out = start(['-m', 'hexapod_driver.driver_node'], emu.port, ['autostart:=false'])
-        states, diags = [], []
-        subs = [node.create_subscription(JointState, contract.JOINT_STATES, states.append, 500),
-                node.create_subscription(ServoDiagnostics, contract.SERVO_DIAGNOSTICS, diags.append, 10)]
+        traffic = Traffic(node)
+        states, diags = traffic.heard[contract.JOINT_STATES], traffic.heard[contract.SERVO_DIAGNOSTICS]
         cmd_pub = node.create_publisher(JointState, contract.JOINT_COMMANDS, 10)
+
+        def command(position):
+            msg = JointState()
+            msg.header.stamp = node.get_clock().now().to_msg()
+            msg.name, msg.position = ['leg1_coxa'], [position]
+            cmd_pub.publish(msg)
         life = None
         try:
             life = Lifecycle(node, ex, proc)
@@ -141,29 +190,20 @@ def test_lifecycle_transitions_through_the_running_node(robot, ros):
             assert {e.instruction for e in emu.log} >= {p.PING, p.READ, p.WRITE}
             assert all(s.get('torque_enable') == 0 and s.get('return_delay_time') == 0 for s in emu.servos)
             assert emu.servo(1).get('cw_angle_limit') == 316                 # configured, torque off
-            assert not states
+            inactive_window(ex, proc, out, traffic, emu, command)          # configured, not active
 
             life.transition(Transition.TRANSITION_ACTIVATE, 'active')       # torque on, the loop runs
             assert all(s.get('torque_enable') == 1 and s.get('goal_position') == 512 for s in emu.servos)
             spin_until(ex, lambda: len(states) > 20 and diags, 30.0, proc, '/joint_states when active')
             assert all(s.torque_enabled for s in diags[-1].servos)
             goal = round(512 + 0.3 / robot.servo.rad_per_tick)
-
-            def command(position):
-                msg = JointState()
-                msg.header.stamp = node.get_clock().now().to_msg()
-                msg.name, msg.position = ['leg1_coxa'], [position]
-                cmd_pub.publish(msg)
             spin_until(ex, lambda: command(0.3) or emu.servo(1).get('goal_position') == goal, 10.0, proc,
                        'a command while active')
 
             life.transition(Transition.TRANSITION_DEACTIVATE, 'inactive')   # loop stopped, torque off
             assert all(s.get('torque_enable') == 0 for s in emu.servos)
-            packets, n_states = emu.packets, len(states)
-            spin_until(ex, lambda: command(-0.3) or 'command ignored: the driver is not active' in out.text(),
-                       10.0, proc, 'a command refused while inactive')
-            assert emu.packets == packets and emu.servo(1).get('goal_position') == goal   # the bus is quiet
-            assert len(states) <= n_states + 2                              # (in flight at deactivation)
+            inactive_window(ex, proc, out, traffic, emu, command)          # deactivated
+            assert emu.servo(1).get('goal_position') == goal
 
             life.transition(Transition.TRANSITION_CLEANUP, 'unconfigured')  # port closed
             assert not holds_port(proc, emu.port)
@@ -180,8 +220,7 @@ def test_lifecycle_transitions_through_the_running_node(robot, ros):
             if life is not None:
                 life.close()
             rc, text = out.finish(proc, timeout=15.0)
-            for s in subs:
-                node.destroy_subscription(s)
+            traffic.close()
             node.destroy_publisher(cmd_pub)
     assert rc == 0, text
     assert all(s.get('torque_enable') == 0 for s in emu.servos), text
