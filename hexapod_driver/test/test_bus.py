@@ -10,22 +10,11 @@ from hexapod_driver.bus import CommandError, DynamixelBus, EventKind, EventLog, 
 from hexapod_driver.config import DriverConfig
 from hexapod_driver.emulator import BusEmulator
 from hexapod_model.bus import BusError
-from hexapod_model.description import ALL_JOINTS, load_robot
+from hexapod_model.description import ALL_JOINTS
 
 # Generous reply timeout: the CI machine is shared and loaded; a lost reply then costs ~30 ms.
 BASE = dict(timeout_margin_ms=25.0, read_retries=1, missing_after_failures=2, reprobe_period_s=0.05,
             reconnect_period_s=0.05, diagnostics_period_s=1e6, command_timeout_s=0.0)
-
-
-@pytest.fixture(scope='module')
-def robot():
-    return load_robot()
-
-
-@pytest.fixture
-def emu(robot, tmp_path):
-    with BusEmulator(robot, link_path=tmp_path / 'ttyDXL') as e:
-        yield e
 
 
 def make_bus(robot, emu, clock=None, **kw):

@@ -24,7 +24,6 @@ from hexapod_driver import protocol as p  # noqa: E402
 from hexapod_driver.config import NODE  # noqa: E402
 from hexapod_driver.emulator import BusEmulator  # noqa: E402
 from hexapod_model import contract  # noqa: E402
-from hexapod_model.description import load_robot  # noqa: E402
 from hexapod_msgs.msg import BusTiming, ServoDiagnostics  # noqa: E402
 
 DOMAIN_ID = 20 + os.getpid() % 20          # 20..39: this package's node tests
@@ -52,17 +51,6 @@ class CrashingBus(DynamixelBus):
 
 sys.exit(driver_node.main(bus_factory=CrashingBus))
 '''
-
-
-@pytest.fixture(scope='module')
-def robot():
-    return load_robot()
-
-
-@pytest.fixture(scope='module')
-def ros():
-    with testing.ros_probe('driver_lifecycle_test', DOMAIN_ID) as probe:
-        yield probe
 
 
 def start(program, port, extra=()):

@@ -20,7 +20,7 @@ import hexapod_testing as testing  # noqa: E402
 from hexapod_driver.bus import EventKind  # noqa: E402
 from hexapod_driver.emulator import BusEmulator  # noqa: E402
 from hexapod_model import contract  # noqa: E402
-from hexapod_model.description import ALL_JOINTS, load_robot  # noqa: E402
+from hexapod_model.description import ALL_JOINTS  # noqa: E402
 from hexapod_msgs.msg import BusTiming, ReadSchedule, ServoDiagnostics  # noqa: E402
 from hexapod_msgs.srv import SetReadSchedule  # noqa: E402
 
@@ -42,17 +42,6 @@ def start_node(port, extra=()):
 
 def stop_node(proc):
     return testing.stop_process(proc, timeout_s=10.0)
-
-
-@pytest.fixture(scope='module')
-def robot():
-    return load_robot()
-
-
-@pytest.fixture(scope='module')
-def ros():
-    with testing.ros_probe('driver_node_test', DOMAIN_ID) as probe:
-        yield probe
 
 
 class Inbox:

@@ -7,7 +7,7 @@ import serial
 
 from hexapod_driver import protocol as p
 from hexapod_driver.emulator import BusEmulator, IdealServoBackend, ServoBusBackend
-from hexapod_model.description import ALL_JOINTS, load_robot
+from hexapod_model.description import ALL_JOINTS
 from hexapod_model.servo import servo_tick
 
 
@@ -37,17 +37,6 @@ class Line:
 
     def close(self):
         self.ser.close()
-
-
-@pytest.fixture(scope='module')
-def robot():
-    return load_robot()
-
-
-@pytest.fixture
-def emu(robot):
-    with BusEmulator(robot) as e:
-        yield e
 
 
 @pytest.fixture

@@ -23,7 +23,6 @@ from hexapod_driver import protocol as p  # noqa: E402
 from hexapod_driver.bus import EventKind  # noqa: E402
 from hexapod_driver.emulator import BusEmulator  # noqa: E402
 from hexapod_model import contract  # noqa: E402
-from hexapod_model.description import load_robot  # noqa: E402
 from hexapod_model.servo import servo_tick  # noqa: E402
 
 DOMAIN_ID = 170 + os.getpid() % 10          # 170..179: this file's nodes
@@ -42,17 +41,6 @@ def start(port, extra=()):
                             stderr=subprocess.STDOUT, text=True)
     OUTPUTS[proc.pid] = testing.ProcessOutput(proc)
     return proc, OUTPUTS[proc.pid]
-
-
-@pytest.fixture(scope='module')
-def robot():
-    return load_robot()
-
-
-@pytest.fixture(scope='module')
-def ros():
-    with testing.ros_probe('overlapping_faults_test', DOMAIN_ID) as probe:
-        yield probe
 
 
 class Inbox:

@@ -5,10 +5,8 @@ import pytest
 
 from hexapod_driver.bus import DynamixelBus, EventKind
 from hexapod_driver.config import DriverConfig
-from hexapod_driver.emulator import BusEmulator
 from hexapod_driver.local_bus import LocalDriverBus
 from hexapod_model.bus import BusError
-from hexapod_model.description import load_robot
 
 BASE = dict(timeout_margin_ms=25.0, read_retries=1, missing_after_failures=2, reprobe_period_s=0.05,
             reconnect_period_s=0.2, diagnostics_period_s=1e6, command_timeout_s=0.0)
@@ -33,17 +31,6 @@ class CostlyClock:
 
     def sleep(self, dt: float) -> None:
         self._tick(max(dt, 0.0))
-
-
-@pytest.fixture(scope='module')
-def robot():
-    return load_robot()
-
-
-@pytest.fixture
-def emu(robot, tmp_path):
-    with BusEmulator(robot, link_path=tmp_path / 'ttyDXL') as e:
-        yield e
 
 
 def test_controller_read_and_write_survive_a_brief_port_loss(robot, emu):
