@@ -55,7 +55,7 @@ def test_a_hundred_cases_cover_every_category():
         assert sum(len(e.joints) == len(ALL_JOINTS) for e in c.effects) <= 1
         assert len({j for e in local for j in e.joints}) == sum(len(e.joints) for e in local)   # disjoint
         if not c.walk:
-            assert all({int(j[3])} == {c.leg} for e in local for j in e.joints)
+            assert all(j.leg == c.leg for e in local for j in e.joints)
             assert 'supply_sag' not in [e.effect for e in c.effects]
 
 

@@ -19,10 +19,8 @@ from typing import Any, Iterable, Mapping
 import yaml
 
 from hexapod_model.dictionary import TERM_PARAMS, check_params
+from hexapod_model.joints import ALL_JOINTS, JOINT_ROLES, LEGS, Joint, JointNameError, joint_names
 from hexapod_model.yaml_files import source_path, yaml_problem
-
-JOINT_ROLES = ('coxa', 'femur', 'tibia')
-LEGS = (1, 2, 3, 4, 5, 6)
 
 
 class DescriptionError(ValueError):
@@ -30,25 +28,20 @@ class DescriptionError(ValueError):
 
 
 def joint_name(leg: int, role: str) -> str:
-    """Joint name of the recording contract, e.g. ``leg3_femur``."""
-    if leg not in LEGS or role not in JOINT_ROLES:
-        raise DescriptionError(f'no joint for leg={leg!r} role={role!r}')
-    return f'leg{leg}_{role}'
+    """Joint name of the recording contract, e.g. ``leg3_femur`` (the name of a :class:`Joint`)."""
+    try:
+        return str(Joint(leg, role))
+    except JointNameError as exc:
+        raise DescriptionError(str(exc)) from None
 
 
 def parse_joint_name(name: str) -> tuple[int, str]:
     """Inverse of :func:`joint_name`; raises :class:`DescriptionError` on a foreign name."""
     try:
-        leg_part, role = name.split('_', 1)
-        leg = int(leg_part.removeprefix('leg'))
-    except ValueError:
-        raise DescriptionError(f'joint name {name!r} is not of the form leg<1..6>_<coxa|femur|tibia>') from None
-    if not leg_part.startswith('leg') or leg not in LEGS or role not in JOINT_ROLES:
-        raise DescriptionError(f'joint name {name!r} is not of the form leg<1..6>_<coxa|femur|tibia>')
-    return leg, role
-
-
-ALL_JOINTS = tuple(joint_name(leg, role) for leg in LEGS for role in JOINT_ROLES)
+        j = Joint.parse(name)
+    except JointNameError as exc:
+        raise DescriptionError(str(exc)) from None
+    return j.leg, j.role
 
 
 # ----------------------------------------------------------------------------- dataclasses
@@ -153,7 +146,9 @@ class BusConfig:
     t_com_s: float
     joints: tuple[BusJoint, ...]
 
-    def by_joint(self, name: str) -> BusJoint:
+    def by_joint(self, joint) -> BusJoint:
+        """The bus entry of ``joint`` (a :class:`Joint` or its name)."""
+        name = str(joint)
         for j in self.joints:
             if j.joint == name:
                 return j
@@ -197,8 +192,11 @@ class Effect:
     """
 
     effect: str
-    joints: tuple[str, ...]
+    joints: tuple[Joint, ...]        # given as joints or their names
     params: Mapping[str, float]
+
+    def __post_init__(self):
+        object.__setattr__(self, 'joints', tuple(Joint.of(j) for j in self.joints))
 
 
 @dataclass(frozen=True)
@@ -251,12 +249,12 @@ class Robot:
     def joint_limits(self, name: str) -> tuple[float, float]:
         return self.joint_limits_rad[parse_joint_name(name)[1]]
 
-    def joint_effects(self, name: str) -> JointEffects:
-        """Resolve every effect listed for ``name`` into one :class:`JointEffects`."""
-        parse_joint_name(name)
+    def joint_effects(self, joint: Joint | str) -> JointEffects:
+        """Resolve every effect listed for ``joint`` (or the joint of that name) into one :class:`JointEffects`."""
+        joint = Joint.of(joint)
         kw: dict[str, Any] = {}
         for eff in self.effects:
-            if name not in eff.joints:
+            if joint not in eff.joints:
                 continue
             p = eff.params
             if eff.effect == 'coulomb_friction':
@@ -288,7 +286,7 @@ class Robot:
         """Extra point mass at the tibia tip of ``leg`` (mass_error effects on any of its joints)."""
         total = 0.0
         for eff in self.effects:
-            if eff.effect == 'mass_error' and any(parse_joint_name(j)[0] == leg for j in eff.joints):
+            if eff.effect == 'mass_error' and any(j.leg == leg for j in eff.joints):
                 total += eff.params['payload_kg']
         return total
 
@@ -594,5 +592,5 @@ def load_robot(path: str | Path | None = None, overlays: Iterable[str | Path] = 
 
 def effects_to_overlay(effects: Iterable[Effect]) -> dict[str, Any]:
     """An overlay mapping (to dump as YAML) that adds ``effects`` to a description."""
-    return {'effects': [{'effect': e.effect, 'joints': list(e.joints),
+    return {'effects': [{'effect': e.effect, 'joints': joint_names(e.joints),
                          'params': {k: float(v) for k, v in e.params.items()}} for e in effects]}

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hexapod_model.joints import Joint
+
 
 @dataclass(frozen=True)
 class TermParam:
@@ -105,12 +107,14 @@ def check_params(name: str, values) -> str | None:
 (T_K, T_REST, T_PA, T_PP, T_PPH, T_MU, T_TS, T_DS, N_TERMS) = range(9)
 
 
-def joint_terms(robot, joint: str) -> np.ndarray:
-    """The dictionary terms on ``joint`` as one vector (indices ``T_*``): spring stiffness and rest angle,
+def joint_terms(robot, joint) -> np.ndarray:
+    """The dictionary terms on ``joint`` (a :class:`~hexapod_model.joints.Joint` or its name; None: on no
+    joint) as one vector (indices ``T_*``): spring stiffness and rest angle,
     periodic friction amplitude, period and phase, load-friction coefficient, drive torque scale and
     motor-damping scale (``torque_scale / speed_scale``). Several terms of a kind: springs add (the rest
     angle is their stiffness-weighted mean), load friction adds, scales multiply, the last periodic
     friction counts."""
+    joint = None if joint is None else Joint.of(joint)
     v = np.zeros(N_TERMS)
     v[T_PP] = 1.0
     v[T_TS] = v[T_DS] = 1.0
@@ -141,7 +145,7 @@ def supply_resistance_ohm(robot) -> float:
 
 def has_terms(robot, joints) -> bool:
     """Whether any dictionary term acts on ``joints`` (a supply sag acts on every joint)."""
-    js = set(joints)
+    js = {Joint.of(j) for j in joints}
     return any(e.effect in BY_TERM and (e.effect == 'supply_sag' or js & set(e.joints)) for e in robot.effects)
 
 

@@ -46,8 +46,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_model.description import JointEffects, Robot, ServoParams, joint_name
+from hexapod_model.description import JointEffects, Robot, ServoParams
 from hexapod_model.dictionary import T_DS, T_K, T_MU, T_PA, T_TS, joint_terms, supply_resistance_ohm
+from hexapod_model.joints import Joint
 from hexapod_model.swing_common import (
     N_PARAMS,
     P_A2,
@@ -131,8 +132,8 @@ class LegModel:
             lc_new = (m2 * lc2 + payload * a3) / m_tot
             i2 = i2 + m2 * (lc2 - lc_new) ** 2 + payload * (a3 - lc_new) ** 2
             m2, lc2 = m_tot, lc_new
-        eff = [robot.joint_effects(joint_name(leg, r)) for r in ('femur', 'tibia')]
-        self.terms = np.array([joint_terms(robot, joint_name(leg, r)) for r in ('femur', 'tibia')])
+        eff = [robot.joint_effects(Joint(leg, r)) for r in ('femur', 'tibia')]
+        self.terms = np.array([joint_terms(robot, Joint(leg, r)) for r in ('femur', 'tibia')])
         p = np.zeros(N_PARAMS)
         p[P_M1], p[P_LC1], p[P_I1] = femur.mass_kg, femur.com_from_joint_m, femur.inertia_about_com_kgm2
         p[P_M2], p[P_LC2], p[P_I2], p[P_A2] = m2, lc2, i2, a2
@@ -271,12 +272,12 @@ class CoxaModel(LegModel):
     def __init__(self, robot: Robot, leg: int, femur_tibia_rad=(0.0, 0.0), substeps: int = 1):
         super().__init__(robot, leg, substeps=substeps)
         s = robot.servo
-        e = robot.joint_effects(joint_name(leg, 'coxa'))
+        e = robot.joint_effects(Joint(leg, 'coxa'))
         p = self.params
         p[[P_M1, P_LC1, P_M2, P_LC2, P_I2, P_A2, P_G]] = 0.0
         p[P_I1] = coxa_axis_inertia_kgm2(robot, leg, float(femur_tibia_rad[0]), float(femur_tibia_rad[1]))
         fc = s.reflected_coulomb_nm + e.extra_coulomb_nm
-        self.terms = np.array([joint_terms(robot, joint_name(leg, 'coxa')), joint_terms(robot, '')])
+        self.terms = np.array([joint_terms(robot, Joint(leg, 'coxa')), joint_terms(robot, None)])
         p[P_B2] = joint_damping_nms_per_rad(s, e, self.terms[0, T_DS])
         p[P_FC2] = fc
         p[P_FS2] = max(fc, e.static_friction_nm)

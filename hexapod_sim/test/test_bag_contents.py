@@ -6,10 +6,13 @@ from bag_samples import JS, REPO, T0, joint_state, write_bag
 
 from hexapod_model import contract
 from hexapod_model.imu import ImuReading, ImuSeries
+from hexapod_model.joints import Joint
 from hexapod_sim.bagio import BagContents, BagError, load_bag
 from hexapod_sim.bagio.contents import TOPICS
 
 BAGS = REPO / 'bags'
+
+FEMUR1 = Joint(1, 'femur')
 
 
 def test_a_walk_bag_holds_every_series_typed():
@@ -21,9 +24,9 @@ def test_a_walk_bag_holds_every_series_typed():
     js = bag.joint_states
     assert len(js) == len(js.stamp_ns) == len(js.log_ns) == len(js.name) == len(js.position) > 1000
     assert all(abs(s - n * 1e-9) < 1e-6 for s, n in zip(js.stamp_s[:50], js.stamp_ns[:50]))
-    femur = js.per_joint()['leg1_femur']
+    femur = js.per_joint()[FEMUR1]
     assert femur.shape[1] == 2 and np.all(np.diff(femur[:, 0]) >= 0)
-    assert js.per_joint(log_time=True)['leg1_femur'].shape == (len(femur), 3)
+    assert js.per_joint(log_time=True)[FEMUR1].shape == (len(femur), 3)
     assert len(bag.joint_commands) > 100 and bag.detections
     d = bag.detections[0]
     assert 1 <= d.leg <= 6 and isinstance(d.stopped, bool) and d.t_s >= d.swing_start_s

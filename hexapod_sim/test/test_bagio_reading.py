@@ -17,6 +17,7 @@ from mcap.records import Message
 from mcap.stream_reader import StreamReader
 
 from hexapod_model import contract
+from hexapod_model.joints import Joint
 from hexapod_sim import bagio
 from hexapod_sim.bagio import BagError, BagReader, BagWarning, BagWriter
 
@@ -38,6 +39,8 @@ def chunk_ends_and_counts(mcap_path):
                 pass
             out.append((ci.chunk_start_offset + ci.chunk_length, n))
     return out
+
+FEMUR1 = Joint(1, 'femur')
 
 
 def test_truncated_at_arbitrary_bytes(tmp_path):
@@ -180,17 +183,21 @@ def test_joint_series_per_joint(tmp_path):
     bag = bagio.load_bag(tmp_path / 'b')
     js = {contract.JOINT_COMMANDS: bag.joint_commands.per_joint(), contract.JOINT_STATES: bag.joint_states.per_joint()}
     base = T0 / 1e9
-    femur_cmd = js[contract.JOINT_COMMANDS]['leg1_femur']
+    femur_cmd = js[contract.JOINT_COMMANDS][FEMUR1]
     assert femur_cmd.shape == (5, 2)
     np.testing.assert_allclose(femur_cmd[:, 0] - base, [0.0, 0.004, 0.008, 0.012, 0.016], atol=1e-6)
     np.testing.assert_allclose(femur_cmd[:, 1], [0.0, 0.2, 0.4, 0.6, 0.8])
     meas = js[contract.JOINT_STATES]
-    assert list(meas) == ['leg1_femur']
-    np.testing.assert_allclose(meas['leg1_femur'][:, 0] - base, [0.001, 0.005, 0.009, 0.013, 0.017], atol=1e-6)
+    assert list(meas) == [FEMUR1]
+    np.testing.assert_allclose(meas[FEMUR1][:, 0] - base, [0.001, 0.005, 0.009, 0.013, 0.017], atol=1e-6)
     with BagWriter(tmp_path / 'bad') as w:
         w.write(contract.JOINT_STATES, JS, joint_state(T0, ['a', 'b'], [1.0]), T0)
     with pytest.raises(BagError, match='names 2 joint'):
         bagio.load_bag(tmp_path / 'bad')
+    with BagWriter(tmp_path / 'foreign') as w:
+        w.write(contract.JOINT_STATES, JS, joint_state(T0, ['leg7_femur'], [1.0]), T0)
+    with pytest.raises(BagError, match="unknown joint: joint name 'leg7_femur' is not of the form"):
+        bagio.load_bag(tmp_path / 'foreign').joint_states.per_joint()
 
 
 def test_relative_contract_names_and_old_absolute_bags_are_one_topic(tmp_path):
@@ -207,7 +214,7 @@ def test_relative_contract_names_and_old_absolute_bags_are_one_topic(tmp_path):
         assert r.resolve('joint_states') == r.resolve('/joint_states') == '/joint_states'
         assert [m[0] for m in r.messages(topics=[contract.JOINT_STATES])] == ['/joint_states']
         assert [m[0] for m in r.messages(topics=['/joint_states'])] == ['/joint_states']
-        assert bagio.load_bag(tmp_path / name).joint_states.per_joint()['leg1_femur'][0, 1] == 0.5
+        assert bagio.load_bag(tmp_path / name).joint_states.per_joint()[FEMUR1][0, 1] == 0.5
         assert r.resolve(contract.JOINT_COMMANDS) is None
 
 

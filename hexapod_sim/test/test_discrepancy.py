@@ -13,6 +13,7 @@ import pytest
 from synthetic import model_recording
 
 from hexapod_model.description import JOINT_ROLES, Effect, load_robot
+from hexapod_model.joints import Joint
 from hexapod_sim.calibration.plan import calibration_plan
 from hexapod_sim.discrepancy import analyse
 from hexapod_sim.discrepancy.effects import CANDIDATES
@@ -60,7 +61,7 @@ def test_single_effect_recovered_on_the_right_joint(robot, effect, joints, value
     assert len(a.effects) == 1, text_report(a)
     found = a.effects[0]
     assert found.effect.effect == effect
-    assert set(found.effect.joints) == set(joints)
+    assert set(found.effect.joints) == set(truth.joints)
     assert found.effect.params[key] == pytest.approx(value, rel=0.12)
     assert found.heldout_rmse_ticks_before / found.heldout_rmse_ticks_after >= 1.5
     assert found.heldout_rmse_ticks_after < 0.45          # back at the tick-rounding floor (0.29)
@@ -83,7 +84,7 @@ def test_clean_recording_gives_no_effect(robot, tmp_path):
     assert doc['mismatches'] == []
     # a brief excursion beyond rounding in an otherwise clean fit is not called a mismatch window,
     # and the report shows the peak that flagged it beside the whole window's RMS
-    blip = dataclasses.replace(a, mismatches=[Mismatch('leg1_tibia', 2.0, 2.3, 'moving', 0.69, 0.81)])
+    blip = dataclasses.replace(a, mismatches=[Mismatch(Joint(1, 'tibia'), 2.0, 2.3, 'moving', 0.69, 0.81)])
     text = text_report(blip)
     assert 'No missing physics found' in text and 'short stretch(es)' in text and 'mismatch window' not in text
     assert '0.81 /  0.69' in text
@@ -118,9 +119,9 @@ def test_two_effects_at_once_are_both_found(robot):
     got = {f.effect.effect: f for f in a.effects}
     # a readout delay of every joint is, to the replay, the servo law's goal latency: named as that
     assert set(got) == {'backlash', 'goal_latency'}, text_report(a)
-    assert got['backlash'].effect.joints == ('leg3_tibia',)
+    assert got['backlash'].effect.joints == (Joint(3, 'tibia'),)
     assert got['backlash'].effect.params['width_rad'] == pytest.approx(math.radians(1.2), rel=0.15)
-    assert set(got['goal_latency'].effect.joints) == set(every)
+    assert set(got['goal_latency'].effect.joints) == {Joint.parse(j) for j in every}
     assert got['goal_latency'].effect.params['delay_s'] == pytest.approx(0.004, rel=0.1)
     assert got['goal_latency'].scope == 'the whole robot'
     assert 'the servo law' in text_report(a)
@@ -129,7 +130,7 @@ def test_two_effects_at_once_are_both_found(robot):
     for e in doc['effects']:
         assert e['heldout_rmse_ticks_before'] / e['heldout_rmse_ticks_after'] >= 1.5
     # the mismatch windows of the nominal replay include the tibia with the play, at a load reversal
-    tib = [m for m in a.mismatches if m.joint == 'leg3_tibia']
+    tib = [m for m in a.mismatches if m.joint == Joint(3, 'tibia')]
     assert tib and any(m.condition == 'load_reversal' for m in tib)
     assert got['backlash'].condition == 'load_reversal'
 
@@ -155,12 +156,12 @@ def test_parsimony_keeps_joints_whose_own_held_out_reads_confirm_the_effect():
     namer = Namer.__new__(Namer)
     namer.s = dataclasses.replace(FitSettings(), min_drop_ticks=0.15)
     c = BY_NAME['static_friction']
-    femur = Hypothesis(c, ('leg3_femur',), affected=('leg3_femur', 'leg3_tibia'))
-    femur.hold_by_joint = {'leg3_femur': (600 * 0.87 ** 2, 600 * 0.34 ** 2, 600), 'leg3_tibia': (30 * 0.09, 30 * 0.09, 30)}
+    coxa, fem, tib = Joint(3, 'coxa'), Joint(3, 'femur'), Joint(3, 'tibia')
+    femur = Hypothesis(c, (fem,), affected=(fem, tib))
+    femur.hold_by_joint = {fem: (600 * 0.87 ** 2, 600 * 0.34 ** 2, 600), tib: (30 * 0.09, 30 * 0.09, 30)}
     for coxa_after, keep in ((0.32, True), (0.69, False)):
-        leg = Hypothesis(c, ('leg3_coxa', 'leg3_femur', 'leg3_tibia'),
-                         affected=('leg3_coxa', 'leg3_femur', 'leg3_tibia'))
-        leg.hold_by_joint = dict(femur.hold_by_joint, leg3_coxa=(35 * 0.70 ** 2, 35 * coxa_after ** 2, 35))
+        leg = Hypothesis(c, (coxa, fem, tib), affected=(coxa, fem, tib))
+        leg.hold_by_joint = {**femur.hold_by_joint, coxa: (35 * 0.70 ** 2, 35 * coxa_after ** 2, 35)}
         assert namer._extra_joints_confirm(leg, femur) is keep
 
 

@@ -8,6 +8,7 @@ import pytest
 from synthetic import model_recording
 
 from hexapod_model.description import JOINT_ROLES, Effect, load_robot
+from hexapod_model.joints import Joint
 from hexapod_sim.bagio import BagWriter
 from hexapod_sim.calibration.plan import calibration_plan
 from hexapod_sim.discrepancy.cli import main
@@ -111,7 +112,7 @@ def test_time_windows_restrict_the_analysis(bag, robot):
     from hexapod_sim.discrepancy import analyse
     _, rec = bag
     a = analyse(rec, robot, windows=parse_windows(['2:6', '9:12']), workers=1)
-    t = a.replay.reads['leg5_tibia'].t_s
+    t = a.replay.reads[Joint(5, 'tibia')].t_s
     assert t.min() >= 2.0 and t.max() <= 12.0 and not np.any((t > 6.0) & (t < 9.0))
     assert a.mode == 'windows'
 

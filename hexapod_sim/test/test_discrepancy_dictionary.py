@@ -3,6 +3,7 @@ one-leg stand recordings of the MuJoCo plant (the calibration routine of leg 2).
 import pytest
 
 from hexapod_model.description import Effect, load_robot
+from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy import analyse
 from hexapod_sim.discrepancy.report import overlay_yaml, text_report, to_json
 
@@ -20,7 +21,7 @@ def test_a_cable_spring_is_named_with_its_stiffness_and_rest_angle_and_the_overl
     rec = bench.record(case, robot)
     a = analyse(rec, robot, workers=1)
     assert a.effects == [], text_report(a)
-    assert [(t.effect.effect, t.effect.joints) for t in a.terms] == [('cable_spring', ('leg2_tibia',))], text_report(a)
+    assert [(t.effect.effect, t.effect.joints) for t in a.terms] == [('cable_spring', (Joint(2, 'tibia'),))], text_report(a)
     p = a.terms[0].effect.params
     assert p['stiffness_nm_per_rad'] == pytest.approx(0.3, abs=0.06)      # the bench's tolerances
     assert p['rest_angle_rad'] == pytest.approx(0.3, abs=0.1)
@@ -34,7 +35,7 @@ def test_a_cable_spring_is_named_with_its_stiffness_and_rest_angle_and_the_overl
     ov.write_text(overlay_yaml(a))
     fitted = load_robot(overlays=[ov])
     again = bench.record(bench.Case('fitted', None, None, None, None, {}), fitted)
-    j = 'leg2_tibia'
+    j = Joint(2, 'tibia')
     diff = (again.states[j].theta_rad - rec.states[j].theta_rad) / robot.servo.rad_per_tick
     assert len(diff) == len(rec.states[j].theta_rad)
     assert float((diff ** 2).mean()) ** 0.5 < 0.5

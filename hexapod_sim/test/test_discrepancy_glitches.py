@@ -8,7 +8,8 @@ import pytest
 from synthetic import model_recording
 
 from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES
-from hexapod_model.description import ALL_JOINTS, Effect, load_robot
+from hexapod_model.description import Effect, load_robot
+from hexapod_model.joints import JOINTS, Joint
 from hexapod_sim.bagio import BagWriter
 from hexapod_sim.calibration.plan import calibration_plan
 from hexapod_sim.discrepancy.analysis import analyse
@@ -17,7 +18,7 @@ from hexapod_sim.discrepancy.glitches import GlitchSettings, no_load_speed_rad_s
 from hexapod_sim.discrepancy.recording import Recording, load_recording
 
 WIDTH = math.radians(1.3)
-JOINT = 'leg5_tibia'
+JOINT = Joint(5, 'tibia')
 
 
 @pytest.fixture(scope='module')
@@ -45,13 +46,13 @@ def write_with_glitches(rec: Recording, path, stamp_shift: dict, value_shift: di
         for t, v in zip(s.t_s, s.theta_rad):
             writes.setdefault(float(t), {})[j] = float(v)
     for t, goals in writes.items():
-        names = [j for j in ALL_JOINTS if j in goals]
-        events.append((t, 0, JOINT_COMMANDS, names, [goals[j] for j in names], 0.0))
+        joints = [j for j in JOINTS if j in goals]
+        events.append((t, 0, JOINT_COMMANDS, [str(j) for j in joints], [goals[j] for j in joints], 0.0))
     for j, s in rec.states.items():
         for i, (t, v) in enumerate(zip(s.t_s, s.theta_rad)):
             dv = value_shift.get(i, 0.0) if j == JOINT else 0.0
             dt = stamp_shift.get(i, 0.0) if j == JOINT else 0.0
-            events.append((float(t), 1, JOINT_STATES, [j], [float(v) + dv], dt))
+            events.append((float(t), 1, JOINT_STATES, [str(j)], [float(v) + dv], dt))
     events.sort(key=lambda e: (e[0], e[1]))
     w = BagWriter(str(path), flush_period_s=60.0)
     try:
@@ -106,10 +107,10 @@ def test_glitched_reads_are_reported_and_do_not_change_the_effect(robot, clean, 
     assert '4 physically impossible sample(s) left out of the analysis' in text
     assert docs['clean']['glitches'] == []
     g = docs['glitched']['glitches']
-    assert len(g) == 4 and {x['joint'] for x in g} == {JOINT} and {x['topic'] for x in g} == {'read'}
+    assert len(g) == 4 and {x['joint'] for x in g} == {str(JOINT)} and {x['topic'] for x in g} == {'read'}
     assert sorted(x['kind'] for x in g) == ['out_of_order', 'speed', 'speed', 'stamp_jump']
     (a,), (b,) = docs['clean']['effects'], docs['glitched']['effects']
-    assert a['effect'] == b['effect'] == 'backlash' and a['joints'] == b['joints'] == [JOINT]
+    assert a['effect'] == b['effect'] == 'backlash' and a['joints'] == b['joints'] == [str(JOINT)]
     assert b['params']['width_rad'] == pytest.approx(a['params']['width_rad'], rel=0.05)
     assert b['params']['width_rad'] == pytest.approx(WIDTH, rel=0.15)
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Effect, load_robot
+from hexapod_model.joints import Joint
 from hexapod_model.servo import theta_to_tick
 from hexapod_model.swing_model import CoxaModel, LegModel, coxa_axis_inertia_kgm2
 from hexapod_sim.calibration.plan import PHASES, CalibrationError, calibration_plan, run_calibration
@@ -160,5 +161,5 @@ def test_run_calibration_writes_changed_goals_and_reads_the_phase_joints(robot):
     tibia = next(p for p in plan.phases if p.name == 'tibia')
     mid = [e for e in bus.log if e[0] == 'r' and tibia.t_start_s + 1 < e[1] < tibia.t_end_s - 1]
     assert {e[2] for e in mid} == {'leg2_tibia', 'leg5_tibia'}
-    assert rec.commands['leg2_tibia'].t_s[0] == 0.0
-    assert len(rec.states['leg5_tibia']) > 0.45 * plan.duration_s / (2 * bus.t_com_s)
+    assert rec.commands[Joint(2, 'tibia')].t_s[0] == 0.0
+    assert len(rec.states[Joint(5, 'tibia')]) > 0.45 * plan.duration_s / (2 * bus.t_com_s)

@@ -6,6 +6,7 @@ import math
 import pytest
 
 from hexapod_model.description import JOINT_ROLES, Effect, joint_name, load_robot
+from hexapod_model.joints import LEG_JOINTS, Joint
 from hexapod_sim.calibration.plan import calibration_plan, run_calibration
 from hexapod_sim.discrepancy import analyse
 from hexapod_sim.discrepancy.report import text_report
@@ -26,7 +27,7 @@ def test_backlash_in_the_mujoco_sim_is_named_located_and_fitted():
     truth = Effect('backlash', ('leg4_tibia',), {'width_rad': width})
     rec = _record(robot.with_effects([truth]), calibration_plan(robot, legs=(4,), phases=('tibia',)))
     a = analyse(rec, robot, workers=1)
-    assert [(f.effect.effect, f.effect.joints) for f in a.effects] == [('backlash', ('leg4_tibia',))], text_report(a)
+    assert [(f.effect.effect, f.effect.joints) for f in a.effects] == [('backlash', (Joint(4, 'tibia'),))], text_report(a)
     found = a.effects[0]
     assert found.effect.params['width_rad'] == pytest.approx(width, rel=0.25)
     assert found.heldout_rmse_ticks_before / found.heldout_rmse_ticks_after >= 1.5
@@ -43,7 +44,7 @@ def test_break_away_friction_on_a_coxa_is_found_between_two_firmware_torque_leve
     truth = Effect('static_friction', ('leg2_coxa',), {'tau_s_nm': 0.153})
     rec = _record(robot.with_effects([truth]), calibration_plan(robot, legs=(2,), phases=('coxa',)))
     a = analyse(rec, robot, workers=1)
-    assert [(f.effect.effect, f.effect.joints) for f in a.effects] == [('static_friction', ('leg2_coxa',))], text_report(a)
+    assert [(f.effect.effect, f.effect.joints) for f in a.effects] == [('static_friction', (Joint(2, 'coxa'),))], text_report(a)
     found = a.effects[0]
     g, pn = robot.servo.gain_nm_per_tick, robot.servo.punch_nm
     assert pn + 2 * g < found.effect.params['tau_s_nm'] < pn + 3 * g
@@ -56,7 +57,7 @@ def test_a_servo_law_unlike_the_model_is_named_as_the_servo_law_not_as_joint_eff
     joint effect. Alone, a robot-wide torque limit explains more than any one of the terms (more punch
     speeds a move up where more damping slows it), so the terms are fitted together."""
     robot = load_robot()
-    every = tuple(joint_name(2, r) for r in JOINT_ROLES)
+    every = LEG_JOINTS[2]
     punch = robot.servo.punch_nm               # 32 more in register 48: twice the model's punch
     truth = [Effect('punch', every, {'extra_punch_nm': punch}), Effect('motor_damping', every, {'ratio': 1.15}),
              Effect('goal_latency', every, {'delay_s': 0.001})]
@@ -104,7 +105,7 @@ def test_physics_outside_the_library_is_reported_unexplained_not_misnamed(monkey
     rec = _record(robot, calibration_plan(robot, legs=(2,)))
     a = analyse(rec, robot, workers=1)
     assert a.effects == [] and a.terms == [], text_report(a)
-    assert [u.joints for u in a.unexplained] == [(joint,)], text_report(a)
+    assert [u.joints for u in a.unexplained] == [(Joint.parse(joint),)], text_report(a)
     assert a.unexplained[0].heldout_rmse_ticks > 1.0 and a.unexplained[0].condition
     doc = to_json(a)
     assert doc['unexplained'][0]['joints'] == [joint]

@@ -8,6 +8,7 @@ import pytest
 
 from hexapod_model.description import load_robot
 from hexapod_model.imu import ImuSeries
+from hexapod_model.joints import Joint
 from hexapod_sim.bagio import BagReader
 from hexapod_sim.discrepancy.analysis import analyse
 from hexapod_sim.discrepancy.recording import load_recording
@@ -90,8 +91,9 @@ def test_walk_is_judged_on_alternate_swings_and_cannot_show_is_computed(rec, rob
         assert a.split.fit[j].any() and a.split.hold[j].any(), j
     pred = Predictor(a.replay, robot, workers=1)
     p0 = pred.predict([], a.replay.joints)
-    assert 'static_friction' in a.blind and 'leg1_femur' not in a.blind.get('coulomb_friction', ())
-    for name, joint in (('static_friction', a.blind['static_friction'][0]), ('coulomb_friction', 'leg1_femur')):
+    femur1 = Joint(1, 'femur')
+    assert 'static_friction' in a.blind and femur1 not in a.blind.get('coulomb_friction', ())
+    for name, joint in (('static_friction', a.blind['static_friction'][0]), ('coulomb_friction', femur1)):
         c = BY_NAME[name]
         change = prediction_change(pred, a.split, p0, c.make((joint,), c.typical))
         assert (not can_confirm(change, a.min_drop_ticks, a.min_gain_ticks2)) == (joint in a.blind.get(name, ())), \
@@ -254,13 +256,13 @@ def test_an_unexplained_free_leg_mismatch_that_the_whole_walk_follows_is_not_rep
     from hexapod_sim.discrepancy.whole_walk import PhaseRow, WholeWalk
 
     def walk(in_step_s, femur_touchdown=0.36, reads=200):
-        rows = {'leg2_femur': {'swing_forward': PhaseRow(reads, 0.32, 0.32), 'touchdown': PhaseRow(reads, 0.36, femur_touchdown),
+        rows = {Joint(2, 'femur'): {'swing_forward': PhaseRow(reads, 0.32, 0.32), 'touchdown': PhaseRow(reads, 0.36, femur_touchdown),
                                'lift_off': PhaseRow(5, 3.0, 3.0)},           # too few reads to count
-                'leg5_tibia': {'stance': PhaseRow(reads, 1.29, 1.29)}}
+                Joint(5, 'tibia'): {'stance': PhaseRow(reads, 1.29, 1.29)}}
         return WholeWalk(ground=None, in_step_until_s=in_step_s, nominal_in_step_until_s=in_step_s, phases=rows, runtime_s=1.0)
 
-    femur = Unexplained(('leg2_femur',), 'start_from_rest', 0.94)
-    tibia = Unexplained(('leg5_tibia',), 'gravity_load_high', 1.29)
+    femur = Unexplained((Joint(2, 'femur'),), 'start_from_rest', 0.94)
+    tibia = Unexplained((Joint(5, 'tibia'),), 'gravity_load_high', 1.29)
     assert _whole_walk_agrees([femur, tibia], walk(12.5), 12.5) == [tibia]
     assert _whole_walk_agrees([femur, tibia], walk(12.5, femur_touchdown=0.8), 12.5) == [femur, tibia]
     assert _whole_walk_agrees([femur, tibia], walk(5.0), 12.5) == [femur, tibia]       # out of step early

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexapod_model.description import ALL_JOINTS, load_robot
+from hexapod_model.description import load_robot
+from hexapod_model.joints import JOINTS, Joint
 from hexapod_model.servo import theta_to_tick
 from hexapod_sim.discrepancy import whole_walk as ww
 from hexapod_sim.discrepancy import whole_walk_search as wws
@@ -18,7 +19,7 @@ from hexapod_sim.discrepancy.effects import BY_NAME
 from hexapod_sim.discrepancy.recording import load_recording
 
 BAG = Path(__file__).resolve().parents[2] / 'bags' / 'discrepancy_walk_demo'
-SCOPE = ('leg6_femur',)
+SCOPE = (Joint(6, 'femur'),)
 
 
 @pytest.fixture(scope='module')
@@ -44,7 +45,7 @@ def _replay_step_by_step(rec, robot, ground, joints, t_end_s):
     dt = sim.dt
     n = int(math.ceil(t_end_s / dt)) + 2
     writes = ww._writes_by_tick(rec, dt)
-    cols = [ALL_JOINTS.index(j) for j in joints]
+    cols = [JOINTS.index(j) for j in joints]
     grid = np.empty((n, len(cols)))
     for k in range(n):
         grid[k] = sim.true_joint_angles()[cols]
@@ -63,9 +64,9 @@ def _replay_step_by_step(rec, robot, ground, joints, t_end_s):
 
 
 def test_the_replay_from_write_to_write_predicts_what_the_step_by_step_replay_does(rec, robot):
-    joints = ['leg1_coxa', 'leg6_femur', 'leg3_tibia']
-    slow = robot.with_effects([BY_NAME['readout_delay'].make(('leg6_femur',), 0.004),
-                               BY_NAME['backlash'].make(('leg3_tibia',), 0.02)])
+    joints = [Joint(1, 'coxa'), Joint(6, 'femur'), Joint(3, 'tibia')]
+    slow = robot.with_effects([BY_NAME['readout_delay'].make(joints[1:2], 0.004),
+                               BY_NAME['backlash'].make(joints[2:], 0.02)])
     for model in (robot, slow):
         want = _replay_step_by_step(rec, model, rec.ground, joints, 1.5)
         got = ww.replay_walk(rec, model, rec.ground, joints, t_end_s=1.5)
@@ -145,4 +146,4 @@ def test_the_search_with_its_shortcuts_finds_the_value_of_the_whole_search(rec, 
     v, c, r = wws._search_one(rec, robot, [], cand, SCOPE, rec.ground, until, fit, lambda msg: None)
     assert (v, c) == (want_v, want_c)
     pred = ww.replay_walk(rec, robot.with_effects([cand.make(SCOPE, v)]), rec.ground, SCOPE, t_end_s=until)
-    assert np.array_equal(r.pred['leg6_femur'], pred['leg6_femur'])      # its replay is the best value's
+    assert np.array_equal(r.pred[SCOPE[0]], pred[SCOPE[0]])      # its replay is the best value's

@@ -14,7 +14,8 @@ import pytest
 
 import hexapod_testing as testing
 from hexapod_driver.emulator import BusEmulator
-from hexapod_model.description import ALL_JOINTS, load_robot
+from hexapod_model.description import load_robot
+from hexapod_model.joints import JOINTS, LEG_JOINTS, Joint
 from hexapod_sim.calibration.stand import main as stand_calibration
 from hexapod_sim.discrepancy.recording import load_recording
 
@@ -38,7 +39,7 @@ def test_stand_calibration_runs_the_routine_on_the_driver_and_writes_the_contrac
         assert emu.servo(5).get('goal_position') == goal_femur
     assert 'wrote' in capsys.readouterr().out
     rec = load_recording(bag, robot)
-    assert rec.joints == ('leg2_coxa', 'leg2_femur', 'leg2_tibia')
+    assert rec.joints == LEG_JOINTS[2]
     assert rec.glitches == ()
     for j in rec.joints:
         s = rec.states[j]
@@ -102,10 +103,10 @@ def test_record_contract_records_the_driver_topics_into_a_contract_bag(robot, tm
     assert rc == 0, out
     assert 'wrote' in out
     r = load_recording(bag, robot)
-    assert set(r.states) == set(ALL_JOINTS)               # the driver's default schedule reads all 18
-    assert len(r.commands['leg1_coxa']) >= 50
+    assert set(r.states) == set(JOINTS)                   # the driver's default schedule reads all 18
+    assert len(r.commands[Joint(1, 'coxa')]) >= 50
     assert r.glitches == ()
-    s = r.states['leg1_femur']
+    s = r.states[Joint(1, 'femur')]
     assert len(s) >= 20 and np.all(np.diff(s.t_s) > 0)
 
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, Effect, joint_name, load_robot
+from hexapod_model.joints import joint_names
 from hexapod_sim.calibration.plan import calibration_plan, run_calibration
 from hexapod_sim.discrepancy import analyse
 
@@ -111,10 +112,10 @@ def record_walk(case: Case, robot, out_dir):
 
 def score(case: Case, a) -> dict:
     """Right term / unexplained / misnamed / clean for one case's analysis."""
-    named = [(t.effect.effect, t.effect.joints, dict(t.effect.params), t.heldout_rmse_ticks_before
+    named = [(t.effect.effect, tuple(joint_names(t.effect.joints)), dict(t.effect.params), t.heldout_rmse_ticks_before
               / max(t.heldout_rmse_ticks_after, 1e-9)) for t in a.terms]
     lists = [f.effect.effect for f in a.effects]
-    unexplained = [j for u in a.unexplained for j in u.joints]
+    unexplained = [str(j) for u in a.unexplained for j in u.joints]
     out = {'case': case.name, 'named': [(n, j[:3] if len(j) > 3 else j, {k: round(v, 3) for k, v in p.items()},
                                          round(r, 2)) for n, j, p, r in named],
            'list': lists, 'unexplained': unexplained, 'verdict': 'misnamed'}

@@ -50,6 +50,7 @@ import numpy as np
 import yaml
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Effect, effects_to_overlay, joint_name, load_robot, parse_joint_name
+from hexapod_model.joints import Joint, joint_names
 from hexapod_sim.calibration.plan import PHASES as CALIBRATION_PHASES
 from hexapod_sim.calibration.plan import calibration_plan, run_calibration
 from hexapod_sim.discrepancy.effects import BY_NAME
@@ -231,7 +232,8 @@ def record_case(case: Case, out_dir: Path, legs=LEGS, robot=None, progress: bool
 
 
 def _legs_of(joints) -> set[int]:
-    return {parse_joint_name(j)[0] for j in joints}
+    """The legs of ``joints`` (joints or their names)."""
+    return {Joint.of(j).leg for j in joints}
 
 
 def _as_truth_names(found: dict, case: Case) -> dict:
@@ -240,7 +242,8 @@ def _as_truth_names(found: dict, case: Case) -> dict:
     response against the goals by one time), nor viscous damping on every joint from the motor damping
     (``b = (ratio - 1) x`` the model's reflected damping). Anything else is returned as it is."""
     twin = {'goal_latency': 'readout_delay', 'motor_damping': 'viscous_damping'}.get(found['effect'])
-    truth = next((t for t in case.effects if t.effect == twin and set(t.joints) == set(found['joints'])), None)
+    truth = next((t for t in case.effects if t.effect == twin and set(joint_names(t.joints)) == set(found['joints'])),
+                 None)
     if truth is None:
         return found
     v = next(iter(found['params'].values()))
@@ -267,10 +270,10 @@ def score(case: Case, result: dict, truly_unshown=None) -> dict:
         if t.effect == 'mass_error':
             same = [i for i in cand if _legs_of(found[i]['joints']) == _legs_of(t.joints)]
         else:
-            same = [i for i in cand if set(found[i]['joints']) == set(t.joints)]
+            same = [i for i in cand if set(found[i]['joints']) == set(joint_names(t.joints))]
         pick = same[0] if same else (cand[0] if cand else None)
         key = BY_NAME[t.effect].key
-        row = {'effect': t.effect, 'truth_joints': list(t.joints), 'truth': t.params[key], 'named': pick is not None,
+        row = {'effect': t.effect, 'truth_joints': joint_names(t.joints), 'truth': t.params[key], 'named': pick is not None,
                'located': bool(same), 'fitted': math.nan, 'param_error': math.nan, 'ratio': math.nan,
                'unshown': [], 'credited': False}
         if pick is not None:
@@ -281,9 +284,9 @@ def score(case: Case, result: dict, truly_unshown=None) -> dict:
             row['ratio'] = f['heldout_rmse_ticks_before'] / max(f['heldout_rmse_ticks_after'], 1e-9)
         if not same and truly_unshown is not None:
             got = set(found[pick]['joints']) if pick is not None else set()
-            want = {j for j in t.joints if not (t.effect == 'mass_error' and j.endswith('_coxa'))}
+            want = {str(j) for j in t.joints if not (t.effect == 'mass_error' and j.role == 'coxa')}
             rest = sorted(want - got)
-            if (got <= set(t.joints) and t.effect != 'mass_error' and rest
+            if (got <= set(joint_names(t.joints)) and t.effect != 'mass_error' and rest
                     and set(rest) <= set(blind.get(t.effect, ())) and truly_unshown(t, tuple(rest))):
                 row['unshown'] = rest
                 row['credited'] = True
@@ -315,7 +318,7 @@ def unshown_check(bag: Path, robot=None):
             pred = Predictor(a.replay, base, workers=1)
             state.update(a=a, pred=pred, p0=pred.predict([], a.replay.joints))
         a, pred = state['a'], state['pred']
-        joints = tuple(j for j in joints if j in a.replay.reads)
+        joints = tuple(j for j in map(Joint.of, joints) if j in a.replay.reads)
         if not joints:
             return True           # not analysed at all: nothing of it is shown
         e = Effect(effect.effect, joints, dict(effect.params))

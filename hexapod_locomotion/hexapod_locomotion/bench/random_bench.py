@@ -67,6 +67,7 @@ from hexapod_locomotion.bench.random_cases import (
 )
 from hexapod_model.description import ALL_JOINTS, Effect, load_robot
 from hexapod_model.dictionary import BY_TERM
+from hexapod_model.joints import joint_names
 from hexapod_sim.discrepancy.effects import BY_NAME
 
 WALK_S = 12.0                 # simulated walking time of a walk case (see docs/discrepancy.md, "Random bench")
@@ -110,7 +111,7 @@ def score(case: RandomCase, result: dict, visible: list) -> dict:
     it is visible on (``{}``/``[]``: not shown). See the module docstring for the rules."""
     analysed = set(result.get('joints', {}))
     # a robot-wide truth in the tool's words: every analysed joint
-    seen = [Effect(e.effect, tuple(j for j in e.joints if j in analysed) or e.joints, dict(e.params))
+    seen = [Effect(e.effect, tuple(j for j in e.joints if str(j) in analysed) or e.joints, dict(e.params))
             if len(e.joints) == len(ALL_JOINTS) else e for e in case.effects]
     found = [_as_servo_law(fixed._as_truth_names(f, case.bench_case('score', seen)), case)
              for f in result.get('effects', [])]
@@ -119,20 +120,21 @@ def score(case: RandomCase, result: dict, visible: list) -> dict:
     used_f, used_t, used_u = set(), set(), set()
     rows = []
     for k, (t, cls) in enumerate(zip(case.effects, case.classes)):
-        vis = sorted(set(visible[k]) & analysed & set(t.joints)) if k < len(visible) else []
+        on = set(joint_names(t.joints))                 # the truth in the JSON's words
+        vis = sorted(set(visible[k]) & analysed & on) if k < len(visible) else []
         tol = case.tolerance[k] if k < len(case.tolerance) else {}
         row = {'effect': t.effect, 'class': cls, 'scope': scope_label(t.joints), 'truth': dict(t.params),
                'visible': vis, 'found': False, 'how': None, 'fitted': None, 'param_error': None, 'verdict': None}
         if cls == 'out-of-list':
             cand = [i for i, f in enumerate(terms) if f['term'] == t.effect and i not in used_t
-                    and (BY_TERM[t.effect].robot_wide or set(f['joints']) <= set(t.joints))]
+                    and (BY_TERM[t.effect].robot_wide or set(f['joints']) <= on)]
             if cand:
                 i = cand[0]
                 used_t.add(i)
                 ok, used = _term_ok(terms[i]['params'], t, tol)
                 row.update(found=True, how='term', fitted=dict(terms[i]['params']), param_error=used)
                 row['verdict'] = 'right' if ok else 'parameter off'
-            where = set(t.joints) if not BY_TERM[t.effect].robot_wide else analysed
+            where = on if not BY_TERM[t.effect].robot_wide else analysed
             near = [i for i, u in enumerate(unexplained) if set(u['joints']) & where]
             used_u |= set(near)
             if row['verdict'] != 'right' and any(set(unexplained[i]['joints']) & set(vis) for i in near):
@@ -147,8 +149,8 @@ def score(case: RandomCase, result: dict, visible: list) -> dict:
                 covers = [i for i in cand if legs_of(vis) <= legs_of(found[i]['joints']) <= legs_of(t.joints)]
             else:
                 cand = [i for i, f in enumerate(found) if f['effect'] == t.effect and i not in used_f
-                        and set(f['joints']) & set(t.joints)]
-                covers = [i for i in cand if set(vis) <= set(found[i]['joints']) <= set(t.joints)]
+                        and set(f['joints']) & on]
+                covers = [i for i in cand if set(vis) <= set(found[i]['joints']) <= on]
             pick = (covers or cand or [None])[0]
             if pick is not None:
                 used_f.add(pick)
@@ -167,11 +169,11 @@ def score(case: RandomCase, result: dict, visible: list) -> dict:
     for i, f in enumerate(found):
         if i in used_f:
             continue
-        if any(BY_TERM[t.effect].robot_wide or set(f['joints']) & set(t.joints) for t in off_list):
+        if any(BY_TERM[t.effect].robot_wide or set(f['joints']) & set(joint_names(t.joints)) for t in off_list):
             misnamed.append(f)
         else:
             false.append(f)
-    truth_joints = set().union(*(set(t.joints) for t in case.effects)) if case.effects else set()
+    truth_joints = set().union(*(set(joint_names(t.joints)) for t in case.effects)) if case.effects else set()
     false += [{'term': f['term'], 'joints': f['joints'], 'params': f['params']}
               for i, f in enumerate(terms) if i not in used_t]
     false += [{'unexplained': u['joints'], 'heldout_rmse_ticks': u.get('heldout_rmse_ticks')}

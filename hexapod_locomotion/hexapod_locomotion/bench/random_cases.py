@@ -14,6 +14,7 @@ from hexapod_locomotion.bench import dictionary_bench
 from hexapod_locomotion.bench import discrepancy_bench as fixed
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Effect, joint_name, load_robot, parse_joint_name
 from hexapod_model.dictionary import BY_TERM
+from hexapod_model.joints import Joint, joint_names
 from hexapod_sim.calibration.plan import PHASES as CALIBRATION_PHASES
 from hexapod_sim.discrepancy.effects import BY_NAME
 
@@ -82,11 +83,12 @@ class RandomCase:
 
 
 def scope_label(joints) -> str:
+    """'robot', 'leg3' or the joints' names (``joints``: joints or their names)."""
     if len(joints) == len(ALL_JOINTS):
         return 'robot'
     if len(joints) == 3 and len(legs_of(joints)) == 1:
-        return f'leg{parse_joint_name(joints[0])[0]}'
-    return ','.join(joints)
+        return f'leg{Joint.of(joints[0]).leg}'
+    return ','.join(joint_names(joints))
 
 
 def _effect_label(e: Effect) -> str:
@@ -94,7 +96,8 @@ def _effect_label(e: Effect) -> str:
 
 
 def legs_of(joints) -> set[int]:
-    return {parse_joint_name(j)[0] for j in joints}
+    """The legs of ``joints`` (joints or their names)."""
+    return {Joint.of(j).leg for j in joints}
 
 
 def _leg_joints(leg: int) -> tuple[str, ...]:
@@ -177,7 +180,7 @@ def draw_case(seed: int, index: int) -> RandomCase:
         classes.append(cls)
         tols.append(tol)
         if len(e.joints) < len(ALL_JOINTS):
-            taken |= set(e.joints)
+            taken |= set(joint_names(e.joints))       # the draw picks among names
     return RandomCase(index, tuple(effects), tuple(classes), leg=leg,
                       walk=(gait, terrain) if walk else None, cycle=cycle if walk else 'calibration',
                       terrain_seed=terrain_seed if walk else 0, tolerance=tuple(tols))
@@ -199,8 +202,9 @@ def categories(case: RandomCase) -> dict[str, tuple[str, ...]]:
 
 # ----------------------------------------------------------------------------- visibility
 def phase_rms(residual: dict, labels: dict, names) -> dict:
-    """Per joint and phase: (RMS of the residual [ticks], reads). ``labels``: phase index per read
-    (negative: not judged); ``names``: the phases' names by index. ``'*'``: every judged read."""
+    """Per joint name (the tool's JSON's words) and phase: (RMS of the residual [ticks], reads). ``labels``:
+    phase index per read (negative: not judged); ``names``: the phases' names by index. ``'*'``: every
+    judged read."""
     out = {}
     for j, r in residual.items():
         lab = np.asarray(labels[j])
@@ -213,7 +217,7 @@ def phase_rms(residual: dict, labels: dict, names) -> dict:
             sel = lab == k
             if np.any(sel):
                 row[name] = (float(np.sqrt(np.mean(r[sel] ** 2))), int(np.count_nonzero(sel)))
-        out[j] = row
+        out[str(j)] = row
     return out
 
 
@@ -279,6 +283,6 @@ def walk_phase_rms(rec, robot) -> dict:
     for j, p in pred.items():
         t = rec.states[j].t_s[:len(p)]
         residual[j] = rec_ticks(rec, nominal, j)[:len(p)].astype(float) - p
-        lab = whole_labels(phases[parse_joint_name(j)[0]], t)
+        lab = whole_labels(phases[j.leg], t)
         labels[j] = np.where(t >= START_S, lab, -1)
     return phase_rms(residual, labels, WHOLE_PHASES)

@@ -20,6 +20,7 @@ import numpy as np
 
 from hexapod_model import contract
 from hexapod_model.imu import ImuSeries
+from hexapod_model.joints import Joint, JointNameError
 from hexapod_sim.bagio.common import BagError
 from hexapod_sim.bagio.reader import BagReader
 
@@ -42,18 +43,23 @@ class JointMessages:
     def __len__(self) -> int:
         return len(self.stamp_s)
 
-    def per_joint(self, log_time: bool = False) -> dict[str, np.ndarray]:
+    def per_joint(self, log_time: bool = False) -> dict[Joint, np.ndarray]:
         """``{joint: array (N, 2)}`` with columns (header.stamp [s], position [rad]), sorted by stamp
         (stable); ``log_time=True`` adds a third column, the log time [s], so a stamp that disagrees
-        with when the message was recorded can be found."""
+        with when the message was recorded can be found. A name that is no joint of the contract is a
+        :class:`BagError`."""
         acc: dict[str, list] = {}
         for stamp, t_ns, names, pos in zip(self.stamp_s, self.log_ns, self.name, self.position):
             for n, p in zip(names, pos):
                 acc.setdefault(n, []).append((stamp, p, t_ns * 1e-9) if log_time else (stamp, p))
         out = {}
         for n, rows in acc.items():
+            try:
+                joint = Joint.parse(n)
+            except JointNameError as exc:
+                raise BagError(f'a JointState message names an unknown joint: {exc}') from None
             a = np.asarray(rows, dtype=float).reshape(-1, 3 if log_time else 2)
-            out[n] = a[np.argsort(a[:, 0], kind='stable')]
+            out[joint] = a[np.argsort(a[:, 0], kind='stable')]
         return out
 
 

@@ -12,7 +12,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from hexapod_model.description import Effect, Robot, load_robot, parse_joint_name
+from hexapod_model.description import Effect, Robot, load_robot
+from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy import structure
 from hexapod_sim.discrepancy.body_motion import body_motion_correction
 from hexapod_sim.discrepancy.effects import scope_name
@@ -119,7 +120,7 @@ class Unexplained:
     """A mismatch no candidate explains: joints, where it shows, its held-out RMS error [ticks] with the
     named effects in place, and the nearest candidate that was tried and not named (None: none passed)."""
 
-    joints: tuple[str, ...]
+    joints: tuple[Joint, ...]
     condition: str
     heldout_rmse_ticks: float
     nearest: Effect | None = None
@@ -139,7 +140,7 @@ class Analysis:
     conditions: dict
     mismatches: list[Mismatch]
     effects: list[FoundEffect]
-    joints: dict[str, JointFit]
+    joints: dict[Joint, JointFit]
     notes: list[str] = field(default_factory=list)
     runtime_s: float = 0.0
     log: list = field(default_factory=list)
@@ -221,7 +222,7 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
 
 def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: dict):
     """Walks: the gait phase of every mismatch window, and the residual per joint and phase."""
-    labels = {j: phases[parse_joint_name(j)[0]].label(replay.reads[j].t_s) for j in replay.joints}
+    labels = {j: phases[j.leg].label(replay.reads[j].t_s) for j in replay.joints}
     out = []
     for m in mism:
         t = replay.reads[m.joint].t_s
@@ -358,7 +359,7 @@ def _replay_analysed(rec: Recording, robot: Robot, joints, windows, mode: str, s
     start [s], settings: a walk's with its larger held-out drop)."""
     segments = None
     if windows:
-        legs_all = sorted({parse_joint_name(j)[0] for j in rec.joints})
+        legs_all = sorted({j.leg for j in rec.joints})
         segments = {leg: list(windows) for leg in legs_all}
         mode_used = 'windows'
         notes.append('analysed only the given time windows: '
@@ -441,7 +442,7 @@ def _name_effects(replay: Replay, robot: Robot, split, settings: FitSettings, pr
     return effects, found, nearest, blind, pred1
 
 
-def _joint_fits(replay: Replay, split, res0: dict, res1: dict) -> dict[str, JointFit]:
+def _joint_fits(replay: Replay, split, res0: dict, res1: dict) -> dict[Joint, JointFit]:
     jfit = {}
     for j in replay.joints:
         b, n = _rmse(res0, split.hold, [j])
@@ -462,7 +463,8 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             workers: int = 2, ground=None, whole_walk: bool = True) -> Analysis:
     """Find what the nominal model of ``robot`` leaves out of ``rec`` (see the package docstring).
 
-    ``joints``: restrict to these joints. ``windows``: list of (t_start, t_end) [s] to analyse
+    ``joints``: restrict to these joints (:class:`~hexapod_model.joints.Joint`, or their names).
+    ``windows``: list of (t_start, t_end) [s] to analyse
     (all legs), overriding the stand/walk choice. ``mode``: 'auto', 'stand' or 'walk'.
     ``block_s``: length of the alternating fit / held-out time blocks; default: 2 s on a stand or
     given windows, alternate swings of each leg on a walk (:func:`~.predict.make_split`).
@@ -473,6 +475,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
     if mode not in MODES:
         raise ValueError(f'mode must be one of {MODES}, got {mode!r}')
     robot = robot if robot is not None else load_robot()
+    joints = None if joints is None else tuple(Joint.of(j) for j in joints)
     settings = settings or FitSettings()
     notes: list[str] = []
     bar, step = _progress_bar(progress)

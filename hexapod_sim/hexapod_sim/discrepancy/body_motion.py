@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from hexapod_model.description import JOINT_ROLES, Robot, joint_name
+from hexapod_model.description import Robot
 from hexapod_model.imu import ImuSeries
+from hexapod_model.joints import LEG_JOINTS, Joint
 from hexapod_model.servo import theta_to_tick
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.simulate import Replay
@@ -50,7 +51,7 @@ def rotation_per_period(imu: ImuSeries, n_periods: int, dt: float) -> tuple[np.n
     return w, a
 
 
-def body_motion_correction(replay: Replay, rec: Recording, robot: Robot) -> dict[str, np.ndarray]:
+def body_motion_correction(replay: Replay, rec: Recording, robot: Robot) -> dict[Joint, np.ndarray]:
     """Per analysed joint, at each of its analysed reads: the MuJoCo replay with the body's measured motion
     minus the free-leg model's nominal prediction [ticks]. Needs ``rec.imu``."""
     from hexapod_sim.physics.plant import HexapodSim
@@ -69,18 +70,19 @@ def body_motion_correction(replay: Replay, rec: Recording, robot: Robot) -> dict
     links = np.array([b for b in range(m.nbody) if m.body_rootid[b] == m.body_rootid[trunk] and b != trunk
                       and m.body_mass[b] > 0 and m.body_parentid[b] != 0])
     mass = m.body_mass[links][:, None]
-    # the recorded goal writes, by the firmware tick at which they take effect
+    # the recorded goal writes, by the firmware tick at which they take effect (the plant takes joint names)
     writes: dict[int, dict[str, float]] = {}
     for j, cmd in rec.commands.items():
+        name = str(j)
         ks = np.ceil(cmd.t_s / dt - 1e-9).astype(np.int64)
         for k, th in zip(ks.tolist(), cmd.theta_rad.tolist()):
-            writes.setdefault(k, {})[j] = th
+            writes.setdefault(k, {})[name] = th
     starts: dict[int, list[tuple[int, int]]] = {}
     for leg in replay.legs:
         for i, (ka, _) in enumerate(replay.segments[leg]):
             starts.setdefault(ka, []).append((leg, i))
     cols = {j: c for c, j in enumerate(replay.joints)}
-    idx = [sim.joint_position_index(j) for j in replay.joints]
+    idx = [sim.joint_position_index(str(j)) for j in replay.joints]
     grid = np.empty((n, len(cols)))
     qpos = sim.data.qpos
     for k in range(n - 1):
@@ -89,7 +91,7 @@ def body_motion_correction(replay: Replay, rec: Recording, robot: Robot) -> dict
         w = omega[k]
         d.xfrc_applied[links, :3] = -mass * (np.cross(alpha[k], r) + np.cross(w, np.cross(w, r)))
         for leg, i in starts.get(k, ()):
-            names = [joint_name(leg, r) for r in JOINT_ROLES]
+            names = [str(j) for j in LEG_JOINTS[leg]]
             sim.set_joint_state(dict(zip(names, replay.q0[(leg, i)].tolist())),
                                 dict(zip(names, replay.dq0[(leg, i)].tolist())))
         grid[k] = qpos[idx]

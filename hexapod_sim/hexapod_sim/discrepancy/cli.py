@@ -26,6 +26,7 @@ from hexapod_model.cli_common import (
     ratio_at_least_one,
 )
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
+from hexapod_model.joints import Joint
 from hexapod_sim.bagio import BagWarning, one_warning
 from hexapod_sim.discrepancy.analysis import MODES, analyse
 from hexapod_sim.discrepancy.effects import BY_NAME
@@ -81,10 +82,12 @@ def main(argv=None) -> int:
 
 def _main(ap, args) -> int:
     try:
+        joints = None
         if args.joints:
             bad = [j for j in args.joints if j not in ALL_JOINTS]
             if bad:
                 raise RecordingError(f'--joints: unknown joint(s) {bad}; names are leg<1..6>_<coxa|femur|tibia>')
+            joints = tuple(Joint.parse(j) for j in args.joints)
         windows = parse_windows(args.windows) if args.windows else None
         robot = load_robot(args.robot, overlays=args.overlay)
         with warnings.catch_warnings(record=True) as caught:      # a damaged bag: read what is there, say so
@@ -100,7 +103,7 @@ def _main(ap, args) -> int:
         if args.candidates:
             settings.candidates = tuple(args.candidates)
         ground = None if args.terrain in (None, 'none') else Ground(args.terrain, args.terrain_seed, tuple(args.start_xy))
-        result = analyse(rec, robot, joints=args.joints, windows=windows, mode=args.mode, settings=settings,
+        result = analyse(rec, robot, joints=joints, windows=windows, mode=args.mode, settings=settings,
                          block_s=args.holdout_block, progress=args.progress, ground=ground,
                          whole_walk=args.terrain != 'none')
     except (RecordingError, DescriptionError, ValueError) as exc:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hexapod_model.description import EFFECT_PARAMS, JOINT_ROLES, SERVO_LAW_EFFECTS, Effect, Robot, joint_name, parse_joint_name
+from hexapod_model.description import EFFECT_PARAMS, SERVO_LAW_EFFECTS, Effect, Robot
 
 
 @dataclass(frozen=True)
@@ -83,23 +83,18 @@ BY_NAME = {c.effect: c for c in CANDIDATES}
 assert set(BY_NAME) == set(EFFECT_PARAMS) and all(EFFECT_PARAMS[c.effect] == (c.key,) for c in CANDIDATES)
 
 
-def leg_joints(leg: int) -> tuple[str, ...]:
-    return tuple(joint_name(leg, r) for r in JOINT_ROLES)
-
-
 def scope_name(joints, analysed) -> str:
     """Plain-language scope: 'leg 3 tibia', 'leg 3', 'the whole robot' or a list."""
     joints = tuple(joints)
     analysed = tuple(analysed)
     if len(joints) > 1 and set(joints) >= set(analysed):
         return 'the whole robot'
-    legs = sorted({parse_joint_name(j)[0] for j in joints})
+    legs = sorted({j.leg for j in joints})
     if len(joints) == 1:
-        leg, role = parse_joint_name(joints[0])
-        return f'leg {leg} {role}'
-    if len(legs) == 1 and set(joints) >= {j for j in analysed if parse_joint_name(j)[0] == legs[0]}:
+        return f'leg {joints[0].leg} {joints[0].role}'
+    if len(legs) == 1 and set(joints) >= {j for j in analysed if j.leg == legs[0]}:
         return f'leg {legs[0]}'
-    return ', '.join(f'leg {parse_joint_name(j)[0]} {parse_joint_name(j)[1]}' for j in joints)
+    return ', '.join(f'leg {j.leg} {j.role}' for j in joints)
 
 
 def apply(robot: Robot, effects) -> Robot:

@@ -50,8 +50,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from hexapod_model.description import Effect, Robot, parse_joint_name
-from hexapod_sim.discrepancy.effects import BY_NAME, CANDIDATES, Candidate, leg_joints
+from hexapod_model.description import Effect, Robot
+from hexapod_model.joints import LEG_JOINTS, Joint
+from hexapod_sim.discrepancy.effects import BY_NAME, CANDIDATES, Candidate
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, Split, affected_joints, effect_units
 from hexapod_sim.discrepancy.simulate import Replay
 
@@ -65,7 +66,7 @@ TWIN_OF = {law: joint_effect for joint_effect, law in ROBOT_WIDE_AS.items()}
 @dataclass
 class Hypothesis:
     candidate: Candidate
-    joints: tuple[str, ...]
+    joints: tuple[Joint, ...]
     screen_gain: float = 0.0
     screen_ratio: float = 1.0
     value: float = math.nan
@@ -74,7 +75,7 @@ class Hypothesis:
     hold_sse_before: float = math.nan
     hold_sse_after: float = math.nan
     n_hold: int = 0
-    affected: tuple[str, ...] = ()
+    affected: tuple[Joint, ...] = ()
     evals: int = 0
     # per affected joint: held-out (squared error before, after, number of reads)
     hold_by_joint: dict = field(default_factory=dict)
@@ -180,7 +181,7 @@ class Namer:
 
     def _hypotheses(self) -> list[Hypothesis]:
         joints = self.rep.joints
-        legs = sorted({parse_joint_name(j)[0] for j in joints})
+        legs = sorted({j.leg for j in joints})
         out = []
         for name in self.s.candidates:
             c = BY_NAME[name]
@@ -191,7 +192,7 @@ class Namer:
             if not c.leg_only:
                 out.extend(Hypothesis(c, (j,)) for j in joints)
             for leg in legs:
-                lj = tuple(j for j in leg_joints(leg) if j in joints)
+                lj = tuple(j for j in LEG_JOINTS[leg] if j in joints)
                 if len(lj) > 1 or c.leg_only:
                     out.append(Hypothesis(c, lj))
             if len(legs) > 1:
@@ -230,7 +231,7 @@ class Namer:
                 r = (self.meas[j] - base_pred[j])[mask]
                 if len(r) and math.sqrt(float(r @ r) / len(r)) > self.s.screen_floor_ticks:
                     active.add(j)
-        sig: dict[tuple, dict[str, np.ndarray]] = {}
+        sig: dict[tuple, dict[Joint, np.ndarray]] = {}
         for name in self.s.candidates:
             c = BY_NAME[name]
             mags = self._probes(c)
@@ -248,11 +249,11 @@ class Namer:
             if c.servo_law:
                 members = [h.joints[0]]
             elif c.leg_only:
-                members = list(dict.fromkeys(leg_joints(parse_joint_name(j)[0])[0] for j in h.joints))
+                members = list(dict.fromkeys(LEG_JOINTS[j.leg][0] for j in h.joints))
             else:
                 members = list(h.joints)
             for m in range(len(self._probes(c))):
-                D: dict[str, np.ndarray] = {}
+                D: dict[Joint, np.ndarray] = {}
                 for mj in members:
                     for a, d in sig.get((c.effect, mj, m), {}).items():
                         D[a] = D[a] + d if a in D else d
@@ -355,7 +356,7 @@ class Namer:
         self._score_held_out(h, effects, base_pred, aff)
         return h
 
-    def _score_before(self, h: Hypothesis, base_pred) -> list[str]:
+    def _score_before(self, h: Hypothesis, base_pred) -> list[Joint]:
         """``h``'s affected joints and its fitting and held-out errors under ``base_pred``; the joints."""
         aff = sorted(affected_joints(h.candidate.effect, h.joints) & set(self.rep.joints))
         h.affected = tuple(aff)

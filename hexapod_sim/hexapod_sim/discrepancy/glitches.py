@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexapod_model.description import ServoParams
+from hexapod_model.joints import Joint
 from hexapod_model.servo import theta_to_tick
 
 KINDS = ('stamp_jump', 'out_of_order', 'out_of_range', 'speed', 'clock')    # clock: /imu on another clock (recording.screen_imu)
@@ -35,13 +36,18 @@ KINDS = ('stamp_jump', 'out_of_order', 'out_of_range', 'speed', 'clock')    # cl
 
 @dataclass(frozen=True)
 class Glitch:
-    """One left-out sample: ``topic`` 'read' or 'command', its joint, its stamp [s from the bag start]."""
+    """One left-out sample: ``topic`` 'read' or 'command', its joint, its stamp [s from the bag start]
+    (``topic`` 'imu': the /imu series, no joint)."""
 
     topic: str
-    joint: str
+    joint: Joint | None
     t_s: float
     kind: str
     detail: str
+
+    @property
+    def joint_name(self) -> str:
+        return '' if self.joint is None else str(self.joint)
 
 
 @dataclass(frozen=True)
@@ -131,14 +137,14 @@ def speed_glitches(t: np.ndarray, theta: np.ndarray, servo: ServoParams,
     return out | speed, kinds, details
 
 
-def screen(rows: dict[str, np.ndarray], topic: str, servo: ServoParams | None,
-           settings: GlitchSettings = GlitchSettings()) -> tuple[dict[str, np.ndarray], list[tuple]]:
+def screen(rows: dict[Joint, np.ndarray], topic: str, servo: ServoParams | None,
+           settings: GlitchSettings = GlitchSettings()) -> tuple[dict[Joint, np.ndarray], list[tuple]]:
     """Split ``{joint: array (N, 2 or 3)}`` (stamp, value[, record time]) into kept rows and glitches.
 
     Returns the kept ``(N', 2)`` rows sorted by stamp and ``[(joint, stamp, kind, detail)]``.
     Position checks run on reads only (``servo`` given).
     """
-    kept: dict[str, np.ndarray] = {}
+    kept: dict[Joint, np.ndarray] = {}
     found: list[tuple] = []
     for j, a in rows.items():
         a = np.asarray(a, dtype=float)

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
-from hexapod_model.description import JOINT_ROLES, Robot, joint_name, parse_joint_name
+from hexapod_model.description import Robot
+from hexapod_model.joints import JOINT_ROLES, Joint
 from hexapod_model.servo import theta_to_tick, tick_to_theta
 from hexapod_model.swing_model import LegModel
 from hexapod_sim.discrepancy.simulate import Replay
@@ -58,7 +59,7 @@ WINDOW_S = 0.12        # sliding window of the residual RMS [s]
 
 @dataclass(frozen=True)
 class Mismatch:
-    joint: str
+    joint: Joint
     t_start: float
     t_end: float
     condition: str
@@ -83,7 +84,7 @@ def _near_events(events: np.ndarray, n: int, before: int, after: int) -> np.ndar
     return np.cumsum(m)[:n] > 0
 
 
-def period_conditions(replay: Replay, robot: Robot, joint: str, pred_traj: np.ndarray) -> np.ndarray:
+def period_conditions(replay: Replay, robot: Robot, joint: Joint, pred_traj: np.ndarray) -> np.ndarray:
     """Boolean matrix (period, condition) of the conditions (:data:`CONDITIONS`) ``joint`` is in.
 
     ``pred_traj``: nominal predicted joint angle [rad] per period (NaN outside the segments).
@@ -119,13 +120,13 @@ def period_conditions(replay: Replay, robot: Robot, joint: str, pred_traj: np.nd
     speed = np.abs(np.gradient(q, dt))
     fast = speed > HIGH_SPEED_RAD_S
     hold &= speed < HOLD_SPEED_RAD_S
-    leg, role = parse_joint_name(joint)
+    leg, role = joint.leg, joint.role
     load_rev = np.zeros(n, dtype=bool)
     g_high = np.zeros(n, dtype=bool)
     g_low = np.ones(n, dtype=bool)
     if role in ('femur', 'tibia'):
         model = LegModel(robot, leg)
-        other = joint_name(leg, 'tibia' if role == 'femur' else 'femur')
+        other = Joint(leg, 'tibia' if role == 'femur' else 'femur')
         q_other = tick_to_theta(replay.goals[other], s)
         qq = np.stack([q, q_other] if role == 'femur' else [q_other, q], axis=1)
         col = 0 if role == 'femur' else 1
@@ -148,19 +149,18 @@ def period_conditions(replay: Replay, robot: Robot, joint: str, pred_traj: np.nd
     return masks
 
 
-def read_conditions(replay: Replay, robot: Robot, trajectories) -> dict[str, np.ndarray]:
+def read_conditions(replay: Replay, robot: Robot, trajectories) -> dict[Joint, np.ndarray]:
     """Condition matrix (read, condition) of every analysed read; ``trajectories``: leg -> (t, theta (n, 3))."""
     out = {}
     for j in replay.joints:
-        leg, role = parse_joint_name(j)
-        _, th = trajectories[leg]
-        cond = period_conditions(replay, robot, j, th[:, JOINT_ROLES.index(role)])
+        _, th = trajectories[j.leg]
+        cond = period_conditions(replay, robot, j, th[:, JOINT_ROLES.index(j.role)])
         k = np.clip(np.floor(replay.reads[j].t_s / replay.dt + 1e-9).astype(np.int64), 0, len(cond) - 1)
         out[j] = cond[k]
     return out
 
 
-def mismatch_windows(replay: Replay, residuals: dict[str, np.ndarray], conditions: dict[str, np.ndarray],
+def mismatch_windows(replay: Replay, residuals: dict[Joint, np.ndarray], conditions: dict[Joint, np.ndarray],
                      threshold_ticks: float = 0.75, window_s: float = WINDOW_S, merge_gap_s: float = 0.25,
                      min_reads: int = 3) -> list[Mismatch]:
     """Time windows per joint whose residual RMS exceeds ``threshold_ticks`` (see module docstring)."""

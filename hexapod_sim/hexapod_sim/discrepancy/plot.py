@@ -9,7 +9,7 @@ import numpy as np
 from hexapod_sim.discrepancy.analysis import Analysis
 
 
-def pick_joints(a: Analysis, limit: int = 4) -> list[str]:
+def pick_joints(a: Analysis, limit: int = 4) -> list:
     """Joints of the found effects first (most improved first), else the worst-fitting joints."""
     gain = {j: v.heldout_rmse_ticks_before - v.heldout_rmse_ticks_after for j, v in a.joints.items()}
     found = {j for f in a.effects for j in f.effect.joints if j in a.joints}

@@ -16,8 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_model.description import Effect, Robot, joint_name, parse_joint_name
-from hexapod_sim.discrepancy.effects import BY_NAME, Candidate, leg_joints
+from hexapod_model.description import Effect, Robot
+from hexapod_model.joints import LEG_JOINTS, Joint
+from hexapod_sim.discrepancy.effects import BY_NAME, Candidate
 from hexapod_sim.discrepancy.simulate import Replay
 
 ROUNDING_VAR = 1.0 / 12.0   # variance [tick^2] of rounding to whole ticks (uniform in +-0.5)
@@ -49,7 +50,7 @@ def make_split(replay: Replay, block_s: float = 2.0, skip_start_s: float = 0.3, 
     fit, hold = {}, {}
     for j in replay.joints:
         r = replay.reads[j]
-        leg = parse_joint_name(j)[0]
+        leg = j.leg
         starts = np.array([replay.segments[leg][i][0] * replay.dt for i in r.segment])
         ok = r.t_s >= starts + skip_start_s
         if by_segment and len(replay.segments[leg]) > 1:
@@ -63,31 +64,30 @@ def make_split(replay: Replay, block_s: float = 2.0, skip_start_s: float = 0.3, 
     return Split(fit, hold, 0.0 if by_segment else block_s)
 
 
-def effect_units(c: Candidate, joints) -> list[tuple[str, tuple[str, ...]]]:
+def effect_units(c: Candidate, joints) -> list[tuple[Joint, tuple[Joint, ...]]]:
     """The smallest sets of ``joints`` candidate ``c`` is put on, each with a key joint: single joints;
     a payload's legs; the servo law's whole robot (it is the same firmware on every servo)."""
     joints = tuple(joints)
     if c.servo_law:             # on a single joint a servo-law term is that joint's own effect
         return [(joints[0], joints)] if len(joints) > 1 else []
     if c.leg_only:
-        return [(leg_joints(leg)[0], tuple(j for j in leg_joints(leg) if j in joints))
-                for leg in sorted({parse_joint_name(j)[0] for j in joints})]
+        return [(LEG_JOINTS[leg][0], tuple(j for j in LEG_JOINTS[leg] if j in joints))
+                for leg in sorted({j.leg for j in joints})]
     return [(j, (j,)) for j in joints]
 
 
-def affected_joints(effect: str, joints) -> set[str]:
+def affected_joints(effect: str, joints) -> set[Joint]:
     """Joints whose predictions an effect on ``joints`` changes."""
-    out: set[str] = set()
+    out: set[Joint] = set()
     for j in joints:
-        leg, role = parse_joint_name(j)
         if effect in TIME_SHIFTS:
             out.add(j)
         elif effect == 'mass_error':
-            out.update(leg_joints(leg))
-        elif role == 'coxa':
+            out.update(LEG_JOINTS[j.leg])
+        elif j.role == 'coxa':
             out.add(j)
         else:
-            out.update((joint_name(leg, 'femur'), joint_name(leg, 'tibia')))
+            out.update((Joint(j.leg, 'femur'), Joint(j.leg, 'tibia')))
     return out
 
 
@@ -109,13 +109,13 @@ class Predictor:
 
     @staticmethod
     def _key(effects, leg: int, which: str):
-        mine = {joint_name(leg, 'coxa')} if which == 'coxa' else {joint_name(leg, 'femur'), joint_name(leg, 'tibia')}
+        mine = {Joint(leg, 'coxa')} if which == 'coxa' else {Joint(leg, 'femur'), Joint(leg, 'tibia')}
         key = []
         for e in effects:
             if e.effect in TIME_SHIFTS:       # a shift of the prediction at the reads, not of the rollout
                 continue
             if e.effect == 'mass_error':
-                if any(parse_joint_name(j)[0] == leg for j in e.joints):
+                if any(j.leg == leg for j in e.joints):
                     key.append(('mass_error', 'leg', tuple(sorted(e.params.items()))))
                 continue
             js = tuple(sorted(set(e.joints) & mine))
@@ -138,14 +138,14 @@ class Predictor:
                 self.cache.popitem(last=False)
         return val
 
-    def predict(self, effects, joints) -> dict[str, np.ndarray]:
+    def predict(self, effects, joints) -> dict[Joint, np.ndarray]:
         """Predicted ticks at the analysed reads of ``joints`` for the base robot plus ``effects``."""
         effects = tuple(effects)
         robot = self.base.with_effects(effects)
         want = [j for j in joints if j in self.rep.reads]
         jobs = []
-        for leg in sorted({parse_joint_name(j)[0] for j in want}):
-            roles = {parse_joint_name(j)[1] for j in want if parse_joint_name(j)[0] == leg}
+        for leg in sorted({j.leg for j in want}):
+            roles = {j.role for j in want if j.leg == leg}
             if roles & {'femur', 'tibia'}:
                 jobs.append((leg, 'ft'))
             if 'coxa' in roles:
@@ -158,7 +158,7 @@ class Predictor:
         for (leg, which), per_seg in zip(jobs, results):
             cols = (('coxa', 0),) if which == 'coxa' else (('femur', 0), ('tibia', 1))
             for role, col in cols:
-                j = joint_name(leg, role)
+                j = Joint(leg, role)
                 if j in want:
                     out[j] = self.rep.sample(robot, j, per_seg, col)
         return out
@@ -191,7 +191,7 @@ def can_confirm(change: tuple[float, float, int], min_drop_ticks: float, min_gai
 
 
 def unobservable(pred: Predictor, split: Split, base_pred: dict, candidates, min_drop_ticks: float,
-                 min_gain_ticks2: float) -> dict[str, tuple]:
+                 min_gain_ticks2: float) -> dict[str, tuple[Joint, ...]]:
     """Per candidate effect: the analysed joints on which this recording cannot show it.
 
     The effect at its typical magnitude (:mod:`.effects`) is put on one joint (a payload: on one
@@ -210,7 +210,7 @@ def unobservable(pred: Predictor, split: Split, base_pred: dict, candidates, min
         for on in units:
             if on and not can_confirm(prediction_change(pred, split, base_pred, c.make(on, c.typical)),
                                       min_drop_ticks, min_gain_ticks2):
-                blind.extend(j for j in on if not (name == 'mass_error' and j.endswith('_coxa')))
+                blind.extend(j for j in on if not (name == 'mass_error' and j.role == 'coxa'))
         if blind:
             out[name] = tuple(blind)
     return out

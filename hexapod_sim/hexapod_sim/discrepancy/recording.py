@@ -19,8 +19,8 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, MSG_TYPES, bag_topic, stamp_parts_ns
-from hexapod_model.description import ALL_JOINTS, DescriptionError, parse_joint_name
 from hexapod_model.imu import ImuSeries
+from hexapod_model.joints import JOINTS, Joint, JointNameError
 
 IMU_MIN_SPECIFIC_FORCE = 1.0     # [m/s^2]: /imu samples below are left out (see load_recording)
 
@@ -48,8 +48,8 @@ class Series:
 class Recording:
     """Goal writes and position reads per joint (see the module docstring)."""
 
-    commands: Mapping[str, Series]
-    states: Mapping[str, Series]
+    commands: Mapping[Joint, Series]
+    states: Mapping[Joint, Series]
     t0_ns: int = 0
     source: str = '<memory>'
     glitches: tuple = ()     # samples left out as physically impossible (glitches.Glitch)
@@ -60,9 +60,9 @@ class Recording:
     ground: object | None = None
 
     @property
-    def joints(self) -> tuple[str, ...]:
+    def joints(self) -> tuple[Joint, ...]:
         """Joints that were both commanded and read, in the contract's order."""
-        return tuple(j for j in ALL_JOINTS if j in self.commands and j in self.states and len(self.states[j]))
+        return tuple(j for j in JOINTS if j in self.commands and j in self.states and len(self.states[j]))
 
     @property
     def duration_s(self) -> float:
@@ -70,15 +70,16 @@ class Recording:
         return float(max(ends)) if ends else 0.0
 
     @classmethod
-    def from_samples(cls, commands: Iterable[tuple[float, Mapping[str, float]]],
-                     reads: Iterable[tuple[float, str, float]], source: str = '<memory>',
+    def from_samples(cls, commands: Iterable[tuple[float, Mapping[Joint | str, float]]],
+                     reads: Iterable[tuple[float, Joint | str, float]], source: str = '<memory>',
                      t0_ns: int = 0) -> 'Recording':
-        """Build from ``commands = [(t_s, {joint: goal_rad})]`` and ``reads = [(t_s, joint, theta_rad)]``."""
-        cmd: dict[str, list] = {}
+        """Build from ``commands = [(t_s, {joint: goal_rad})]`` and ``reads = [(t_s, joint, theta_rad)]``
+        (joints or their names)."""
+        cmd: dict[Joint | str, list] = {}
         for t, goals in commands:
             for j, v in goals.items():
                 cmd.setdefault(j, []).append((float(t), float(v)))
-        st: dict[str, list] = {}
+        st: dict[Joint | str, list] = {}
         for t, j, v in reads:
             st.setdefault(j, []).append((float(t), float(v)))
         return cls(commands=_to_series(cmd, 'command'), states=_to_series(st, 'read'), t0_ns=t0_ns, source=source)
@@ -87,16 +88,16 @@ class Recording:
         """Write this recording as a contract bag (``/joint_commands`` per write, ``/joint_states`` per read)."""
         from hexapod_sim.bagio import BagWriter  # only needed when bags are written
         events = []
-        writes: dict[float, dict[str, float]] = {}
+        writes: dict[float, dict[Joint, float]] = {}
         for j, s in self.commands.items():
             for t, v in zip(s.t_s, s.theta_rad):
                 writes.setdefault(float(t), {})[j] = float(v)
         for t, goals in writes.items():
-            names = [j for j in ALL_JOINTS if j in goals]
-            events.append((t, 0, JOINT_COMMANDS, names, [goals[j] for j in names]))
+            joints = [j for j in JOINTS if j in goals]
+            events.append((t, 0, JOINT_COMMANDS, [str(j) for j in joints], [goals[j] for j in joints]))
         for j, s in self.states.items():
             for t, v in zip(s.t_s, s.theta_rad):
-                events.append((float(t), 1, JOINT_STATES, [j], [float(v)]))
+                events.append((float(t), 1, JOINT_STATES, [str(j)], [float(v)]))
         events.sort(key=lambda e: (e[0], e[1]))
         writer = BagWriter(str(path), flush_period_s=60.0)   # written in one go: large chunks compress better
         try:
@@ -110,12 +111,12 @@ class Recording:
             writer.close()
 
 
-def _to_series(d: Mapping[str, list], what: str) -> dict[str, Series]:
+def _to_series(d: Mapping[Joint | str, list], what: str) -> dict[Joint, Series]:
     out = {}
     for j, rows in d.items():
         try:
-            parse_joint_name(j)
-        except DescriptionError as exc:
+            j = Joint.of(j)
+        except JointNameError as exc:
             raise RecordingError(f'{what} for unknown joint: {exc}') from None
         a = np.array(rows, dtype=float).reshape(-1, 2)
         if not np.all(np.isfinite(a)):
@@ -149,7 +150,7 @@ def screen_imu(imu: ImuSeries, t0_s: float, duration_s: float) -> tuple[ImuSerie
     imu = imu.shifted(t0_s)
     a, b = float(imu.t_s[0]), float(imu.t_s[-1])
     if a > IMU_COVER_S or b < duration_s - IMU_COVER_S:
-        return None, (Glitch('imu', '', max(a, 0.0), 'clock',
+        return None, (Glitch('imu', None, max(a, 0.0), 'clock',
                              f'/imu stamped {a:.1f} to {b:.1f} s, the joint reads 0 to {duration_s:.1f} s: '
                              'another clock, /imu not used'),)
     return imu, ()
@@ -184,10 +185,10 @@ def load_recording(path: str | Path, robot=None) -> Recording:
         bag = load_bag(p, topics=(JOINT_COMMANDS, JOINT_STATES, contract.IMU, contract.SIM_SCENE),
                        required={JOINT_COMMANDS: 'the tool replays the recorded goals',
                                  JOINT_STATES: 'nothing to compare the model with'})
+        series = {JOINT_COMMANDS: bag.joint_commands.per_joint(log_time=True),
+                  JOINT_STATES: bag.joint_states.per_joint(log_time=True)}
     except BagError as exc:
         raise RecordingError(str(exc) if str(exc).startswith(str(p)) else f'{p}: {exc}') from None   # named once
-    series = {JOINT_COMMANDS: bag.joint_commands.per_joint(log_time=True),
-              JOINT_STATES: bag.joint_states.per_joint(log_time=True)}
     ground = _ground(bag.scene, p)
     for topic, d in series.items():
         for j, a in d.items():

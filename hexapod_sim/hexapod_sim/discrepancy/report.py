@@ -7,6 +7,7 @@ import yaml
 
 from hexapod_model.description import effects_to_overlay
 from hexapod_model.dictionary import BY_TERM
+from hexapod_model.joints import joint_names
 from hexapod_sim.discrepancy.analysis import UNEXPLAINED_TICKS as CLOSE_FIT_TICKS
 from hexapod_sim.discrepancy.analysis import Analysis
 from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
@@ -25,29 +26,29 @@ def to_json(a: Analysis, bag: str | None = None) -> dict:
     """The tool's JSON document (the format is stable; other tools and tests read it)."""
     return {
         'bag': str(bag if bag is not None else a.source),
-        'joints': {j: {'heldout_rmse_ticks_before': _f(v.heldout_rmse_ticks_before),
+        'joints': {str(j): {'heldout_rmse_ticks_before': _f(v.heldout_rmse_ticks_before),
                        'heldout_rmse_ticks_after': _f(v.heldout_rmse_ticks_after)}
                    for j, v in a.joints.items() if v.n_heldout > 0},
-        'mismatches': [{'joint': m.joint, 't_start': _f(m.t_start), 't_end': _f(m.t_end), 'condition': m.condition,
+        'mismatches': [{'joint': str(m.joint), 't_start': _f(m.t_start), 't_end': _f(m.t_end), 'condition': m.condition,
                         'rmse_ticks': _f(m.rmse_ticks), 'peak_rmse_ticks': _f(m.peak_rmse_ticks),
                         **({'phase': m.phase} if m.phase else {})}
                        for m in a.mismatches],
-        'phases': {j: {ph: {'reads': v.n_reads, 'rmse_ticks_before': _f(v.rmse_ticks_before),
+        'phases': {str(j): {ph: {'reads': v.n_reads, 'rmse_ticks_before': _f(v.rmse_ticks_before),
                             'rmse_ticks_after': _f(v.rmse_ticks_after)} for ph, v in row.items()}
                    for j, row in a.phase_fit.items()},
-        'effects': [{'effect': f.effect.effect, 'joints': list(f.effect.joints),
+        'effects': [{'effect': f.effect.effect, 'joints': joint_names(f.effect.joints),
                      'params': {k: float(v) for k, v in f.effect.params.items()},
                      'heldout_rmse_ticks_before': _f(f.heldout_rmse_ticks_before),
                      'heldout_rmse_ticks_after': _f(f.heldout_rmse_ticks_after),
                      'servo_law': BY_NAME[f.effect.effect].servo_law} for f in a.effects],
-        'cannot_show': {name: list(js) for name, js in a.blind.items()},
-        'unexplained': [{'joints': list(u.joints), 'condition': u.condition,
+        'cannot_show': {name: joint_names(js) for name, js in a.blind.items()},
+        'unexplained': [{'joints': joint_names(u.joints), 'condition': u.condition,
                          'heldout_rmse_ticks': _f(u.heldout_rmse_ticks),
                          **({'nearest': {'effect': u.nearest.effect,
                                          'params': {k: float(v) for k, v in u.nearest.params.items()},
                                          'heldout_rmse_ticks_after': _f(u.nearest_rmse_ticks)}}
                             if u.nearest is not None else {})} for u in a.unexplained],
-        'glitches': [{'topic': g.topic, 'joint': g.joint, 't': _f(g.t_s), 'kind': g.kind, 'detail': g.detail}
+        'glitches': [{'topic': g.topic, 'joint': g.joint_name, 't': _f(g.t_s), 'kind': g.kind, 'detail': g.detail}
                      for g in a.glitches],
         **({'whole_walk': _whole_walk_json(a.whole_walk)} if a.whole_walk is not None else {}),
         'physics_terms': terms_json(a),
@@ -59,7 +60,7 @@ def _whole_walk_json(w) -> dict:
     return {'ground': {'terrain': g.terrain, 'seed': int(g.seed), 'start_xy_m': [float(v) for v in g.start_xy_m]},
             'in_step_until_s': _f(w.in_step_until_s), 'nominal_in_step_until_s': _f(w.nominal_in_step_until_s),
             'runtime_s': _f(w.runtime_s),
-            'phases': {j: {ph: {'reads': v.n_reads, 'rmse_ticks_nominal': _f(v.rmse_ticks_nominal),
+            'phases': {str(j): {ph: {'reads': v.n_reads, 'rmse_ticks_nominal': _f(v.rmse_ticks_nominal),
                                 'rmse_ticks_fitted': _f(v.rmse_ticks_fitted)} for ph, v in row.items()}
                        for j, row in w.phases.items()}}
 
@@ -79,7 +80,7 @@ def _whole_walk_lines(w) -> list[str]:
 
 def terms_json(a: Analysis) -> list:
     """Dictionary terms named outside the candidate list (:mod:`.structure`), with values, units and wording."""
-    return [{'term': t.effect.effect, 'joints': list(t.effect.joints),
+    return [{'term': t.effect.effect, 'joints': joint_names(t.effect.joints),
              'params': {k: float(v) for k, v in t.effect.params.items()},
              'units': {p.key: p.unit for p in BY_TERM[t.effect.effect].params}, 'description': t.words,
              'heldout_rmse_ticks_before': _f(t.heldout_rmse_ticks_before),
@@ -118,7 +119,7 @@ def _header_lines(a: Analysis, max_windows: int) -> list[str]:
     if a.glitches:
         lines.append(f'  note: {summary_line(a.glitches)}:')
         for g in a.glitches[:max_windows]:
-            lines.append(f'    {g.topic} {g.joint} at {g.t_s:.3f} s: {g.detail}')
+            lines.append(f'    {g.topic} {g.joint_name} at {g.t_s:.3f} s: {g.detail}')
         if len(a.glitches) > max_windows:
             lines.append(f'    ... and {len(a.glitches) - max_windows} more (all in --json)')
     lines.append('')
@@ -187,8 +188,8 @@ def _blind_lines(a: Analysis) -> list[str]:
                  f'few held-out reads):')
     for name, js in a.blind.items():
         c = BY_NAME[name]
-        n_all = n_j - (sum(1 for j in a.replay.joints if j.endswith('_coxa')) if name == 'mass_error' else 0)
-        where = 'any analysed joint' if len(js) == n_all else ', '.join(js)
+        n_all = n_j - (sum(1 for j in a.replay.joints if j.role == 'coxa') if name == 'mass_error' else 0)
+        where = 'any analysed joint' if len(js) == n_all else ', '.join(joint_names(js))
         lines.append(f'  {c.describe(c.typical)} on {where} (it needs {REVEALED_BY[name]}; '
                      'not found there means not shown, not absent)')
     return lines
@@ -208,7 +209,7 @@ def _heldout_lines(a: Analysis, judged: dict) -> list[str]:
         lines.append('  ' + '   '.join(row))
     unjudged = [j for j, v in a.joints.items() if v.n_heldout == 0]
     if unjudged:
-        lines.append(f'  (no held-out reads, not judged: {", ".join(unjudged)})')
+        lines.append(f'  (no held-out reads, not judged: {", ".join(joint_names(unjudged))})')
     return lines
 
 

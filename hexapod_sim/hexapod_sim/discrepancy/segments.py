@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_model.description import joint_name
+from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
 
 
@@ -75,7 +75,7 @@ class LegPhases:
 def _goal_grid(rec: Recording, leg: int, t: np.ndarray) -> np.ndarray | None:
     cols = []
     for role in ('coxa', 'femur', 'tibia'):
-        cmd = rec.commands.get(joint_name(leg, role))
+        cmd = rec.commands.get(Joint(leg, role))
         if cmd is None or len(cmd) < 2:
             if role == 'femur':
                 return None
@@ -239,10 +239,10 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
     """
     if _legs_swing_together(swings):
         return False
-    femurs = [j for j in replay.joints if j.endswith('_femur')]
+    femurs = [j for j in replay.joints if j.role == 'femur']
     hits = 0
     for j in femurs:
-        leg = int(j[3])
+        leg = j.leg
         spans = swings.get(leg) or []
         if not spans:
             continue
@@ -273,7 +273,7 @@ def obstructed_swings(replay, residual: dict, settle_s: float = 0.1, factor: flo
     for leg in replay.legs:
         bad = set()
         for j in replay.joints:
-            if int(j[3]) != leg:
+            if j.leg != leg:
                 continue
             r = replay.reads[j]
             starts = np.array([replay.segments[leg][i][0] * replay.dt for i in r.segment])

@@ -22,14 +22,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_model.description import JOINT_ROLES, Robot, joint_name, parse_joint_name
+from hexapod_model.description import Robot
 from hexapod_model.dictionary import supply_resistance_ohm
+from hexapod_model.joints import LEG_JOINTS, Joint, joint_names
 from hexapod_model.servo import firmware_torque_nm, joint_tick_of_servo_tick, quantize_tick, servo_tick, theta_to_tick, tick_to_theta
 from hexapod_model.swing_model import CoxaModel, LegModel
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
 
 
-def goal_joint_ticks(theta_rad, robot: Robot, joint: str) -> np.ndarray:
+def goal_joint_ticks(theta_rad, robot: Robot, joint: Joint) -> np.ndarray:
     """Integer goal in joint-tick space that the servo firmware receives for commanded angles.
 
     The driver writes ``rint`` of the raw servo tick (mounting direction and offset applied) and
@@ -64,7 +65,7 @@ class Replay:
         self.robot = robot
         # per joint, added to the prediction at each analysed read [ticks]: what a fuller replay of the
         # nominal robot adds to the free-leg model (the body's motion in a walk, .body_motion); None = nothing
-        self.correction: dict[str, np.ndarray] | None = None
+        self.correction: dict[Joint, np.ndarray] | None = None
         self.moving_start = moving_start
         self.state_window_s = state_window_s
         self.rec = rec
@@ -73,22 +74,22 @@ class Replay:
         if joints is not None:
             unknown = [j for j in joints if j not in rec.states]
             if unknown:
-                raise RecordingError(f'--joints {unknown}: not read in {rec.source} (read: {sorted(rec.states)})')
+                raise RecordingError(f'--joints {joint_names(unknown)}: not read in {rec.source} '
+                                     f'(read: {joint_names(sorted(rec.states))})')
             uncmd = [j for j in joints if j not in rec.commands]
             if uncmd:
-                raise RecordingError(f'--joints {uncmd}: never commanded in {rec.source}')
+                raise RecordingError(f'--joints {joint_names(uncmd)}: never commanded in {rec.source}')
             avail = tuple(j for j in avail if j in set(joints))
         if not avail:
             raise RecordingError(f'{rec.source}: no joint is both commanded and read')
-        self.legs = tuple(sorted({parse_joint_name(j)[0] for j in avail}))
+        self.legs = tuple(sorted({j.leg for j in avail}))
         t_end = rec.duration_s
         self.n_periods = int(math.ceil(t_end / self.dt)) + 2
         k = np.arange(self.n_periods)
         # goal per period for every joint of the analysed legs
-        self.goals: dict[str, np.ndarray] = {}
+        self.goals: dict[Joint, np.ndarray] = {}
         for leg in self.legs:
-            for role in JOINT_ROLES:
-                j = joint_name(leg, role)
+            for j in LEG_JOINTS[leg]:
                 self.goals[j] = self._goals_per_period(j, k)
         # segments and analysed reads
         self.segments: dict[int, list[tuple[int, int]]] = {}
@@ -101,12 +102,11 @@ class Replay:
                 if kb - ka >= 2:
                     segs.append((ka, kb))
             self.segments[leg] = segs
-        self.reads: dict[str, JointReads] = {}
+        self.reads: dict[Joint, JointReads] = {}
         for j in avail:
-            leg = parse_joint_name(j)[0]
             s = rec.states[j]
             seg_of = np.full(len(s), -1)
-            for i, (ka, kb) in enumerate(self.segments[leg]):
+            for i, (ka, kb) in enumerate(self.segments[j.leg]):
                 m = (s.t_s >= ka * self.dt) & (s.t_s <= kb * self.dt)
                 seg_of[m & (seg_of < 0)] = i
             keep = seg_of >= 0
@@ -120,16 +120,14 @@ class Replay:
         self.dq0: dict[tuple[int, int], np.ndarray] = {}
         for leg in self.legs:
             for i, (ka, _) in enumerate(self.segments[leg]):
-                st = [self._moving_state_at(joint_name(leg, r), ka * self.dt) if moving_start
-                      else (self._state_at(joint_name(leg, r), ka * self.dt), 0.0) for r in JOINT_ROLES]
+                st = [self._moving_state_at(j, ka * self.dt) if moving_start
+                      else (self._state_at(j, ka * self.dt), 0.0) for j in LEG_JOINTS[leg]]
                 self.q0[(leg, i)] = np.array([x for x, _ in st])
                 self.dq0[(leg, i)] = np.array([v for _, v in st])
         # coxa inertia pose per segment: median commanded femur/tibia while the coxa moves
         self.coxa_pose: dict[tuple[int, int], tuple[float, float]] = {}
         for leg in self.legs:
-            gc = self.goals[joint_name(leg, 'coxa')]
-            gf = self.goals[joint_name(leg, 'femur')]
-            gt = self.goals[joint_name(leg, 'tibia')]
+            gc, gf, gt = (self.goals[j] for j in LEG_JOINTS[leg])
             for i, (ka, kb) in enumerate(self.segments[leg]):
                 moving = np.zeros(kb - ka, dtype=bool)
                 moving[1:] = np.diff(gc[ka:kb]) != 0
@@ -138,7 +136,7 @@ class Replay:
                                             float(tick_to_theta(np.median(gt[ka:kb][sel]), robot.servo)))
 
     # ------------------------------------------------------------------ set-up helpers
-    def _goals_per_period(self, j: str, k: np.ndarray) -> np.ndarray:
+    def _goals_per_period(self, j: Joint, k: np.ndarray) -> np.ndarray:
         cmd = self.rec.commands.get(j)
         hold = self._first_read_tick(j)
         if cmd is None or len(cmd) == 0:
@@ -149,7 +147,7 @@ class Replay:
         out = np.where(idx >= 0, g[np.clip(idx, 0, None)], hold)
         return np.ascontiguousarray(out, dtype=np.float64)
 
-    def _first_read_tick(self, j: str):
+    def _first_read_tick(self, j: Joint):
         s = self.rec.states.get(j)
         if s is None or len(s) == 0:
             cmd = self.rec.commands.get(j)
@@ -158,7 +156,7 @@ class Replay:
             return float(goal_joint_ticks(cmd.theta_rad[:1], self.robot, j)[0])
         return float(np.rint(theta_to_tick(s.theta_rad[0], self.robot.servo)))
 
-    def _state_at(self, j: str, t: float) -> float:
+    def _state_at(self, j: Joint, t: float) -> float:
         s = self.rec.states.get(j)
         if s is None or len(s) == 0:
             k = min(max(int(round(t / self.dt)), 0), self.n_periods - 1)
@@ -166,7 +164,7 @@ class Replay:
         i = int(np.searchsorted(s.t_s, t, side='right')) - 1
         return float(s.theta_rad[max(i, 0)])
 
-    def _moving_state_at(self, j: str, t: float) -> tuple[float, float]:
+    def _moving_state_at(self, j: Joint, t: float) -> tuple[float, float]:
         """(angle, velocity) at ``t``: least-squares line through the reads within the state window."""
         s = self.rec.states.get(j)
         if s is None or len(s) == 0:
@@ -186,12 +184,12 @@ class Replay:
         i_ext = self.other_current_a(leg, which)[ka:kb] if supply_resistance_ohm(robot) > 0 else None
         if which == 'ft':
             g = np.empty((kb - ka, 2))
-            g[:, 0] = self.goals[joint_name(leg, 'femur')][ka:kb]
-            g[:, 1] = self.goals[joint_name(leg, 'tibia')][ka:kb]
+            g[:, 0] = self.goals[Joint(leg, 'femur')][ka:kb]
+            g[:, 1] = self.goals[Joint(leg, 'tibia')][ka:kb]
             ro = LegModel(robot, leg).rollout(q0[1:], self.dq0[(leg, seg)][1:], g, i_ext=i_ext)
             return ka, ro.q_rad
         ro = CoxaModel(robot, leg, self.coxa_pose[(leg, seg)]).rollout_coxa(
-            q0[0], float(self.dq0[(leg, seg)][0]), self.goals[joint_name(leg, 'coxa')][ka:kb], i_ext=i_ext)
+            q0[0], float(self.dq0[(leg, seg)][0]), self.goals[Joint(leg, 'coxa')][ka:kb], i_ext=i_ext)
         return ka, ro.q_rad
 
     def other_current_a(self, leg: int, which: str) -> np.ndarray:
@@ -202,7 +200,7 @@ class Replay:
         cache = self.__dict__.setdefault('_other_current', {})
         if key not in cache:
             s = self.robot.servo
-            mine = {joint_name(leg, 'coxa')} if which == 'coxa' else {joint_name(leg, 'femur'), joint_name(leg, 'tibia')}
+            mine = {Joint(leg, 'coxa')} if which == 'coxa' else {Joint(leg, 'femur'), Joint(leg, 'tibia')}
             k = np.arange(self.n_periods)
             total = np.zeros(self.n_periods)
             for j, st in self.rec.states.items():
@@ -217,13 +215,13 @@ class Replay:
             cache[key] = total / (s.torque_constant_nm_per_a * s.gear_ratio)
         return cache[key]
 
-    def predict_joints(self, robot: Robot, joints) -> dict[str, np.ndarray]:
+    def predict_joints(self, robot: Robot, joints) -> dict[Joint, np.ndarray]:
         """Predicted (continuous) tick at every analysed read of ``joints`` for ``robot``."""
-        out: dict[str, np.ndarray] = {}
+        out: dict[Joint, np.ndarray] = {}
         want = [j for j in joints if j in self.reads]
-        legs = sorted({parse_joint_name(j)[0] for j in want})
+        legs = sorted({j.leg for j in want})
         for leg in legs:
-            roles = {parse_joint_name(j)[1] for j in want if parse_joint_name(j)[0] == leg}
+            roles = {j.role for j in want if j.leg == leg}
             jobs = []
             if roles & {'femur', 'tibia'}:
                 jobs.append(('ft', (('femur', 0), ('tibia', 1))))
@@ -232,13 +230,13 @@ class Replay:
             for which, cols in jobs:
                 per_seg = [self.rollout_leg(robot, leg, i, which) for i in range(len(self.segments[leg]))]
                 for role, col in cols:
-                    j = joint_name(leg, role)
+                    j = Joint(leg, role)
                     if j not in self.reads or role not in roles:
                         continue
                     out[j] = self.sample(robot, j, per_seg, col)
         return out
 
-    def sample(self, robot: Robot, j: str, per_seg, col: int) -> np.ndarray:
+    def sample(self, robot: Robot, j: Joint, per_seg, col: int) -> np.ndarray:
         """Predicted ticks at the reads of ``j`` from per-segment rollouts (column ``col``), with its readout delay."""
         r = self.reads[j]
         e = robot.joint_effects(j)
@@ -258,7 +256,7 @@ class Replay:
             pred += self.correction[j]
         return pred
 
-    def predict(self, robot: Robot) -> dict[str, np.ndarray]:
+    def predict(self, robot: Robot) -> dict[Joint, np.ndarray]:
         return self.predict_joints(robot, self.joints)
 
     def trajectory(self, robot: Robot, leg: int):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from hexapod_model.description import Effect, Robot, parse_joint_name
+from hexapod_model.description import Effect, Robot
 from hexapod_model.dictionary import BY_TERM, TERMS, Term
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, Split, affected_joints
 from hexapod_sim.discrepancy.simulate import Replay
@@ -176,7 +176,7 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
             found.append(FoundTerm(e, scope_name(e.joints, replay.joints), BY_TERM[e.effect].describe(e.params), rb, ra))
         done = {a for r in chosen for a in r[5]}
         todo = [a for a in todo if a not in done]
-    legs = {parse_joint_name(j)[0] for t in found if not BY_TERM[t.effect.effect].robot_wide for j in t.effect.joints}
+    legs = {j.leg for t in found if not BY_TERM[t.effect.effect].robot_wide for j in t.effect.joints}
     if len(legs) >= s.max_legs:
         # separate joint physics on half the robot at once is less likely than one robot-wide cause no term
         # captures (a walk sagging far below the supply gave weak motors and load friction on 12 joints)

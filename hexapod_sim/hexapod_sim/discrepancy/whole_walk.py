@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_model.description import ALL_JOINTS, Robot, parse_joint_name
+from hexapod_model.description import Robot
+from hexapod_model.joints import JOINTS, Joint
 from hexapod_model.servo import theta_to_tick
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
 from hexapod_sim.discrepancy.segments import PHASES, LegPhases
@@ -58,12 +59,14 @@ def whole_labels(phases: LegPhases, t: np.ndarray) -> np.ndarray:
 
 
 def _writes_by_tick(rec: Recording, dt: float) -> dict[int, dict[str, float]]:
-    """The recorded goal writes by the firmware tick they act on (the first at or after the write)."""
+    """The recorded goal writes by the firmware tick they act on (the first at or after the write), with
+    the joints' names (the plant's goals)."""
     writes: dict[int, dict[str, float]] = {}
     for j, cmd in rec.commands.items():
+        name = str(j)
         ks = np.ceil(cmd.t_s / dt - 1e-9).astype(np.int64)
         for k, th in zip(ks.tolist(), cmd.theta_rad.tolist()):
-            writes.setdefault(k, {})[j] = th
+            writes.setdefault(k, {})[name] = th
     return writes
 
 
@@ -74,14 +77,14 @@ def _sorted_writes(rec: Recording, dt: float) -> list[tuple[int, dict[str, float
 
 
 def _start_angles(rec: Recording, sim) -> dict[str, float] | None:
-    """The recording's first read of every joint, unless they are the plant's home pose (then None:
+    """The recording's first read of every joint by name, unless they are the plant's home pose (then None:
     a recording of the sim from its start replays from exactly the state it was made from)."""
     home = sim.true_joint_angles()
     first = {j: float(s.theta_rad[0]) for j, s in rec.states.items() if len(s)}
     tick = sim.robot.servo
-    off = max((abs(float(theta_to_tick(v, tick) - theta_to_tick(home[ALL_JOINTS.index(j)], tick)))
+    off = max((abs(float(theta_to_tick(v, tick) - theta_to_tick(home[JOINTS.index(j)], tick)))
                for j, v in first.items()), default=0.0)
-    return None if off <= 1.0 else first
+    return None if off <= 1.0 else {str(j): v for j, v in first.items()}
 
 
 class WalkReplay:
@@ -116,7 +119,7 @@ class WalkReplay:
         self._writes = writes[:bisect.bisect_left(writes, n, key=lambda w: w[0])]
         self._next_write = 0
         self.steps = 0                          # physics steps run: grid rows 0 .. steps - 1 are filled
-        self._cols = {j: ALL_JOINTS.index(j) for j in self.joints}
+        self._cols = {j: JOINTS.index(j) for j in self.joints}
         self._i0, self._f, self.pred, self._done = {}, {}, {}, {}
         for j in self.joints:
             t = rec.states[j].t_s
@@ -180,7 +183,7 @@ class Replays:
     def __init__(self, rec: Recording, robot: Robot, ground: Ground):
         self.rec, self.robot, self.ground = rec, robot, ground
         self._made: list[tuple[Robot, tuple, WalkReplay]] = []
-        self._meas: dict[str, np.ndarray] = {}
+        self._meas: dict[Joint, np.ndarray] = {}
         self._writes: dict[float, list] = {}          # physics step -> the writes by tick (the same for every model)
 
     def _sorted_writes(self, rec: Recording, dt: float) -> list:
@@ -188,7 +191,7 @@ class Replays:
             self._writes[dt] = _sorted_writes(rec, dt)
         return self._writes[dt]
 
-    def meas(self, joint: str) -> np.ndarray:
+    def meas(self, joint: Joint) -> np.ndarray:
         """The recorded reads of ``joint`` in ticks."""
         if joint not in self._meas:
             self._meas[joint] = rec_ticks(self.rec, self.robot, joint)
@@ -206,7 +209,7 @@ class Replays:
             self._made.append((model, tuple(r.joints), r))
         return r
 
-    def residuals(self, r: WalkReplay, joints=None, t_end_s: float | None = None) -> dict[str, np.ndarray]:
+    def residuals(self, r: WalkReplay, joints=None, t_end_s: float | None = None) -> dict[Joint, np.ndarray]:
         """Recorded minus predicted ticks of ``joints`` (default the replay's) at the reads up to ``t_end_s``
         (default the replay's end); NaN where the replay has not yet come."""
         out = {}
@@ -217,7 +220,7 @@ class Replays:
             out[j] = self.meas(j)[:len(p)] - p
         return out
 
-    def in_step(self, model: Robot, joints, need_s: float = 0.0) -> tuple[dict[str, np.ndarray], float]:
+    def in_step(self, model: Robot, joints, need_s: float = 0.0) -> tuple[dict[Joint, np.ndarray], float]:
         """(residuals, :func:`in_step_until`) of the whole-walk replay of ``model``, replayed until it leaves
         the recording (the first window whose median joint is above ``OUT_OF_STEP_TICKS``, as soon as every
         read of that window is replayed) but at least up to ``need_s``: the same verdict as the whole replay,
@@ -284,8 +287,8 @@ class WholeWalk:
     phases: dict                 # joint -> {phase name: PhaseRow}
     runtime_s: float
 
-    def worst(self, phase_names=WHOLE_PHASES) -> tuple[str, str, float]:
-        """(joint, phase, RMS) of the largest fitted RMS error over ``phase_names``."""
+    def worst(self, phase_names=WHOLE_PHASES) -> tuple[Joint | str, str, float]:
+        """(joint, phase, RMS) of the largest fitted RMS error over ``phase_names`` ('' where none is judged)."""
         best = ('', '', 0.0)
         for j, row in self.phases.items():
             for ph, v in row.items():
@@ -313,7 +316,7 @@ def compare(rec: Recording, robot: Robot, fitted: Robot | None, ground: Ground, 
     table = {}
     for j in joints:
         t = rec.states[j].t_s
-        lab = whole_labels(phases[parse_joint_name(j)[0]], t)
+        lab = whole_labels(phases[j.leg], t)
         judged = (t >= START_S) & (t < until1)
         row = {}
         for k, name in enumerate(WHOLE_PHASES):
@@ -326,7 +329,7 @@ def compare(rec: Recording, robot: Robot, fitted: Robot | None, ground: Ground, 
     return WholeWalk(ground, until1, until0, table, time.perf_counter() - t0)
 
 
-def rec_ticks(rec: Recording, robot: Robot, joint: str) -> np.ndarray:
+def rec_ticks(rec: Recording, robot: Robot, joint: Joint) -> np.ndarray:
     """The recorded reads of ``joint`` in ticks."""
     return theta_to_tick(rec.states[joint].theta_rad, robot.servo)
 

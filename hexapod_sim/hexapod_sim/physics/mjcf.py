@@ -40,6 +40,7 @@ import numpy as np
 
 from hexapod_model.description import JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.dictionary import T_DS, joint_terms
+from hexapod_model.joints import JOINTS, Joint
 from hexapod_model.kinematics import forward
 from hexapod_model.servo import tick_to_theta
 from hexapod_model.shapes import (  # noqa: F401
@@ -123,14 +124,14 @@ def home_foot_height_m(robot: Robot) -> float:
     return float(min(forward(robot, leg, robot.default_stance_rad)[2] for leg in LEGS))
 
 
-def _joint_attrs(robot: Robot, name: str) -> str:
+def _joint_attrs(robot: Robot, joint: Joint) -> str:
     """Per-joint overrides of the role class for friction/damping effects ('' when nominal)."""
-    e = robot.joint_effects(name)
+    e = robot.joint_effects(joint)
     s = robot.servo
     attrs = []
     if e.extra_coulomb_nm:
         attrs.append(f'frictionloss="{s.reflected_coulomb_nm + e.extra_coulomb_nm:.9g}"')
-    motor = joint_terms(robot, name)[T_DS]          # a weak motor's back-EMF damping (hexapod_model.dictionary)
+    motor = joint_terms(robot, joint)[T_DS]          # a weak motor's back-EMF damping (hexapod_model.dictionary)
     if e.extra_damping_nms_per_rad or e.damping_ratio != 1.0 or motor != 1.0:
         attrs.append(f'damping="{joint_damping_nms_per_rad(s, e, motor):.9g}"')
     return (' ' + ' '.join(attrs)) if attrs else ''
@@ -163,7 +164,8 @@ def _leg_xml(robot: Robot, leg: int, backlash: set[str]) -> list[str]:
     parent_end = None          # (a, d, alpha) of the previous link
     for role in JOINT_ROLES:
         dh = robot.dh[role]
-        name = joint_name(leg, role)
+        joint = Joint(leg, role)
+        name = str(joint)
         ind = '  ' * depth
         if parent_end is None:
             pos = (mount.px_m, mount.py_m, 0.0)
@@ -181,8 +183,8 @@ def _leg_xml(robot: Robot, leg: int, backlash: set[str]) -> list[str]:
             lines.append(f'{ind}<body name="{name}_rotor" pos="{_fmt(pos)}" quat="{_fmt(q)}">')
             lines.append(f'{ind}  <inertial pos="0 0 0" mass="{ROTOR_MASS_KG}" '
                          f'diaginertia="{ROTOR_INERTIA_KGM2} {ROTOR_INERTIA_KGM2} {ROTOR_INERTIA_KGM2}"/>')
-            lines.append(f'{ind}  <joint name="{name}" class="{role}"{_joint_attrs(robot, name)}/>')
-            w = robot.joint_effects(name).backlash_width_rad
+            lines.append(f'{ind}  <joint name="{name}" class="{role}"{_joint_attrs(robot, joint)}/>')
+            w = robot.joint_effects(joint).backlash_width_rad
             depth += 1
             ind = '  ' * depth
             lines.append(f'{ind}<body name="leg{leg}_{role}">')
@@ -190,7 +192,7 @@ def _leg_xml(robot: Robot, leg: int, backlash: set[str]) -> list[str]:
             closers.append('  ' * (depth - 1) + '</body>')
         else:
             lines.append(f'{ind}<body name="leg{leg}_{role}" pos="{_fmt(pos)}" quat="{_fmt(q)}">')
-            lines.append(f'{ind}  <joint name="{name}" class="{role}"{_joint_attrs(robot, name)}/>')
+            lines.append(f'{ind}  <joint name="{name}" class="{role}"{_joint_attrs(robot, joint)}/>')
         lines.append(f'{ind}  {inertial}')
         lines.extend(_link_geoms(robot, leg, role, ind + '  '))
         closers.append(ind + '</body>')
@@ -269,8 +271,7 @@ def scene(robot: Robot, terrain: str | Terrain = 'flat', seed: int = 0, fixed_ba
     if abs(ratio - round(ratio)) > 1e-9:
         raise ValueError(f'timestep_s={timestep_s} must divide the firmware period '
                          f'{robot.servo.control_period_s} s exactly')
-    backlash = {n for n in (joint_name(leg, r) for leg in LEGS for r in JOINT_ROLES)
-                if robot.joint_effects(n).backlash_width_rad > 0}
+    backlash = {str(j) for j in JOINTS if robot.joint_effects(j).backlash_width_rad > 0}
     if fixed_base:
         ter = None
         base_h = FIXED_BASE_HEIGHT_M

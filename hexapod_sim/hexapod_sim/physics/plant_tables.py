@@ -20,6 +20,7 @@ import numpy as np
 
 from hexapod_model.description import ALL_JOINTS, LEGS, Robot
 from hexapod_model.dictionary import T_K, T_MU, T_PA, T_PP, T_PPH, T_REST, T_TS, joint_terms, supply_resistance_ohm
+from hexapod_model.joints import JOINTS
 from hexapod_model.servo import firmware_torque_nm
 from hexapod_sim.physics import firmware
 
@@ -63,7 +64,7 @@ class PlantTables:
     def _build_firmware_tables(self, s, m, n: int):
         """The firmware's torque table, static friction, goal latency and readout delay of every servo.
         -> (the dictionary's terms per joint, Coulomb friction loss, break-away friction)."""
-        eff = [self.robot.joint_effects(j) for j in ALL_JOINTS]
+        eff = [self.robot.joint_effects(j) for j in JOINTS]
         self._tmax = np.array([s.stall_torque_nm if e.torque_max_nm is None else min(s.stall_torque_nm, e.torque_max_nm)
                                for e in eff])
         self._margin = np.array([s.compliance_margin_ticks + e.deadband_margin_ticks for e in eff], dtype=float)
@@ -74,7 +75,7 @@ class PlantTables:
         self._err_off = s.max_tick
         err = np.arange(-s.max_tick, s.max_tick + 1, dtype=float)
         table = np.zeros((n + 1, err.size))
-        terms = np.array([joint_terms(self.robot, j) for j in ALL_JOINTS])
+        terms = np.array([joint_terms(self.robot, j) for j in JOINTS])
         for i in range(n):
             table[i] = self._dir[i] * firmware_torque_nm(err, 0.0, s.gain_nm_per_tick, self._tmax[i], self._margin[i],
                                                          self._punch[i]) * terms[i, T_TS]   # a weak motor's drive
