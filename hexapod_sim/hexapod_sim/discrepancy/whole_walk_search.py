@@ -207,7 +207,7 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
 LOADED_CANDIDATES = ('backlash', 'static_friction', 'compliance_deadband')
 ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope is tried too
 SEARCH_BLOCK_S = 2.0          # alternating fit / held-out blocks of the search [s]
-SEARCH_GRID = 5               # log-spaced values over the candidate's range, then golden-section steps
+SEARCH_GRID = 9               # log-spaced values over the candidate's range, then golden-section steps
 SEARCH_REFINE = 4
 SEARCH_MIN_RATIO = 1.5        # held-out RMS improvement an effect must reach on its joints
 SEARCH_MIN_EXPLAINED = 0.75   # and the share of their excess over rounding it must explain
