@@ -32,7 +32,7 @@ from hexapod_sim.discrepancy.segments import (
 )
 from hexapod_sim.discrepancy.simulate import Replay
 from hexapod_sim.discrepancy.whole_walk import ROUNDING_TICKS
-from hexapod_sim.discrepancy.whole_walk_search import whole_walk_check
+from hexapod_sim.discrepancy.whole_walk_search import AGREES_MIN_READS, AGREES_SHARE, choose_terms, whole_walk_check
 
 MODES = ('auto', 'stand', 'walk')
 # A walk's swing starts in motion from the reads around lift-off; reads in the first 0.1 s are left
@@ -111,8 +111,6 @@ class FoundEffect:
 
 
 UNEXPLAINED_TICKS = 0.6     # held-out RMS error [ticks] above which a joint's mismatch is reported as unexplained
-WHOLE_WALK_AGREES_SHARE = 0.8   # the whole-walk replay in step over this share of a walk can clear an unexplained joint
-WHOLE_WALK_MIN_READS = 20       # a phase judged on fewer reads says nothing either way
 
 
 @dataclass(frozen=True)
@@ -200,10 +198,11 @@ def _unexplained(replay: Replay, split, cond: dict, res1: dict, jfit: dict, near
 
 
 def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found, unexplained, res1, jfit, nearest,
-                      settings: FitSettings, step):
+                      settings: FitSettings, step, choose=None):
     """The dictionary's structure search (:mod:`.structure`) on the joints the named effects leave
     unexplained; returns the terms found, the named effects they leave (a list effect a term displaced is
-    dropped), and the unexplained list, residuals and joint fits with them."""
+    dropped), and the unexplained list, residuals and joint fits with them. ``choose(effects, terms)``
+    (a walk: :func:`~.whole_walk_search.choose_terms`) picks between terms the swings fit alike."""
     if not unexplained or not settings.dictionary:
         return [], found, unexplained, res1, jfit
     step('searching the dictionary of physical terms')
@@ -213,6 +212,8 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
         return [], found, unexplained, res1, jfit
     found = [f for f in found if f.effect not in displaced]
     effects = [e for e in effects if e not in displaced]
+    if choose is not None:
+        terms = choose(effects, terms)
     pred = Predictor(replay, robot, workers=1).predict(tuple(effects) + tuple(t.effect for t in terms), replay.joints)
     res1 = {j: replay.reads[j].tick - pred[j] for j in replay.joints}
     jfit = {j: JointFit(v.heldout_rmse_ticks_before, _rmse(res1, split.hold, [j])[0], v.n_heldout)
@@ -270,11 +271,11 @@ def _whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
     whole walk with the effects found, follows to tick rounding in every phase over most of the walk:
     the free leg is then the model that falls short (a swing that starts while the leg still sheds the
     body's weight), not the robot's physics. A joint the replay judged on too few reads stays."""
-    if whole is None or not whole.in_step_until_s >= WHOLE_WALK_AGREES_SHARE * duration_s:
+    if whole is None or not whole.in_step_until_s >= AGREES_SHARE * duration_s:
         return unexplained
 
     def at_rounding(j):
-        rows = [v for v in whole.phases.get(j, {}).values() if v.n_reads >= WHOLE_WALK_MIN_READS]
+        rows = [v for v in whole.phases.get(j, {}).values() if v.n_reads >= AGREES_MIN_READS]
         return bool(rows) and max(v.rmse_ticks_fitted for v in rows) <= ROUNDING_TICKS
 
     return [u for u in unexplained if not all(at_rounding(j) for j in u.joints)]
@@ -494,8 +495,15 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         res1 = _residuals(replay, pred1)
         jfit = _joint_fits(replay, split, res0, res1)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
+        choose = None
+        if mode_used == 'walk' and whole_walk:
+            def choose(named, terms):
+                terms, more = choose_terms(rec, robot, named, terms, ground, phases, replay.joints, progress=step)
+                notes.extend(more)
+                return terms
         terms, found, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, found,
-                                                                  unexplained, res1, jfit, nearest, settings, step)
+                                                                  unexplained, res1, jfit, nearest, settings, step,
+                                                                  choose)
         phase_fit, whole = {}, None
         if mode_used == 'walk':
             mism, phase_fit = _locate_phases(replay, phases, mism, res0, res1)

@@ -39,6 +39,7 @@ class FoundTerm:
     words: str
     heldout_rmse_ticks_before: float
     heldout_rmse_ticks_after: float
+    alternatives: tuple = ()         # (Effect, held-out RMS after) of the other terms that passed at its joint
 
     @property
     def explained(self) -> float:
@@ -170,10 +171,12 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
         if not chosen:
             todo.pop(0)
             continue
-        for gain, ok, expl, obj, x, own, rb, ra in chosen:
+        alts = tuple((r[3].effect(r[4]), r[7]) for r in chosen[0][8]) if len(chosen) == 1 else ()
+        for gain, ok, expl, obj, x, own, rb, ra, *_ in chosen:
             e = obj.effect(x)
             base = base + (e,)
-            found.append(FoundTerm(e, scope_name(e.joints, replay.joints), BY_TERM[e.effect].describe(e.params), rb, ra))
+            found.append(FoundTerm(e, scope_name(e.joints, replay.joints), BY_TERM[e.effect].describe(e.params), rb, ra,
+                                   alts))
         done = {a for r in chosen for a in r[5]}
         todo = [a for a in todo if a not in done]
     legs = {j.leg for t in found if not BY_TERM[t.effect.effect].robot_wide for j in t.effect.joints}
@@ -214,8 +217,9 @@ def _current(pred, split, meas, base, own) -> float:
 
 
 def _round(pred, split, meas, base, j, todo, s: SearchSettings):
-    """Every joint term fitted at joint ``j`` over ``base``: the passing one with the largest held-out gain,
-    or a passing pair, or nothing."""
+    """Every joint term fitted at joint ``j`` over ``base``: the passing one with the largest held-out gain
+    (with the other passing ones as its last item: the whole walk may tell them apart), or a passing pair,
+    or nothing."""
     replay = pred.rep
     results = []
     for term, on in ((BY_TERM[t.name], (j,)) for t in TERMS if not t.robot_wide):
@@ -234,7 +238,7 @@ def _round(pred, split, meas, base, j, todo, s: SearchSettings):
     results.sort(key=lambda r: -r[0])
     passing = [r for r in results if r[1]]
     if passing:
-        return [passing[0]]
+        return [passing[0] + (passing[1:],)]
     if results and results[0][2] >= s.pair_from:
         return _pair(pred, split, meas, base, results[0], j, s)
     return []

@@ -12,21 +12,26 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_model.description import Robot
+from hexapod_model.description import Robot, parse_joint_name
+from hexapod_model.dictionary import BY_TERM
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.whole_walk import (
     LOADED_PHASES,
     ROUNDING_TICKS,
     START_S,
+    WHOLE_PHASES,
     Replays,
     WalkReplay,
     WholeWalk,
     compare,
     rec_ticks,
+    whole_labels,
 )
 from hexapod_sim.physics.terrain import Ground
 
 WIDEN_MIN_GAIN_S = 2.0        # [s] longer in step for an effect found on some joints to be put on all
+AGREES_SHARE = 0.8            # the whole-walk replay in step over this share of a walk can clear a joint
+AGREES_MIN_READS = 20         # a phase judged on fewer reads says nothing either way
 
 
 def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, joints, ww: WholeWalk,
@@ -64,6 +69,105 @@ def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: d
     return out, wide, ww
 
 
+def walk_ground(rec: Recording, ground: Ground | None) -> tuple[Ground, str]:
+    """(ground, where it comes from) of the whole-walk replay: ``ground`` as given, else the recording's
+    (``/sim/scene``), else a flat floor."""
+    if ground is not None:
+        return ground, 'as given'
+    if rec.ground is not None:
+        return rec.ground, "from the bag's /sim/scene"
+    return Ground(), 'assumed: a flat floor, as for a calibration walk; --terrain sets it'
+
+
+def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground: Ground | None, phases: dict,
+                 joints, progress=lambda msg: None) -> tuple[list, list[str]]:
+    """The dictionary terms of a walk's swings, judged on the whole walk (the named effects and the other
+    terms in place). A joint term the whole walk does not need (without it the replay follows its joints
+    to tick rounding in every phase over most of the walk: what the free leg missed there is the free-leg
+    model's, as in :func:`follows`) is dropped. A term found where others passed as well
+    (:attr:`.structure.FoundTerm.alternatives`; a weaker motor and friction that grows with the gear load
+    slow a swinging leg alike, but only the friction holds a leg that carries the body) is replayed with
+    each of them, and the one whose joints follow the recording best, over the span the best replay stays
+    in step, is kept. -> (terms, notes)."""
+    from dataclasses import replace
+    joint_terms = [t for t in terms if not BY_TERM[t.effect.effect].robot_wide]
+    if not joint_terms:
+        return list(terms), []
+    ground, _ = walk_ground(rec, ground)
+    replays = Replays(rec, robot, ground)
+    joints = [j for j in joints if j in rec.states]
+    out, notes = list(terms), []
+    for t in joint_terms:
+        k = next(i for i, u in enumerate(out) if u is t)
+        others = list(named) + [u.effect for u in out if u is not t]
+        progress(f'whole walk: without {t.effect.effect} on {", ".join(t.effect.joints)}')
+        res, until = replays.in_step(robot.with_effects(others), joints)
+        if follows(rec, res, until, phases, t.effect.joints):
+            notes.append(f'whole walk: without {t.words} on {", ".join(t.effect.joints)} the replay follows '
+                         'the recording there to tick rounding in every phase: the free leg missed it, not the robot')
+            out.pop(k)
+            continue
+        if not t.alternatives:
+            continue
+        options = [(t.effect, t.heldout_rmse_ticks_after)] + list(t.alternatives)
+        runs = []
+        for e, _ra in options:
+            progress(f'whole walk: {e.effect} on {", ".join(e.joints)}')
+            runs.append(replays.in_step(robot.with_effects(others + [e]), joints))
+        until = max(u for _, u in runs)
+        scores = [_joint_rms(rec, res, t.effect.joints, until) for res, _ in runs]
+        best = int(np.argmin(scores))
+        if best:
+            e, ra = options[best]
+            out[k] = replace(t, effect=e, words=BY_TERM[e.effect].describe(e.params), heldout_rmse_ticks_after=ra,
+                             alternatives=tuple(o for i, o in enumerate(options) if i != best))
+            notes.append(f'whole walk: {e.effect.replace("_", " ")} and {t.effect.effect.replace("_", " ")} fit the '
+                         f'swings of {", ".join(e.joints)} alike; the whole walk follows the recording with '
+                         f'{e.effect.replace("_", " ")} ({scores[best]:.2f} ticks RMS against {scores[0]:.2f})')
+    return out, notes
+
+
+def follows(rec: Recording, res: dict, until_s: float, phases: dict, joints) -> bool:
+    """Whether a whole-walk replay (``res``: its residuals, in step until ``until_s``) follows ``joints`` to
+    tick rounding in every phase judged on at least ``AGREES_MIN_READS`` reads, in step over at least
+    ``AGREES_SHARE`` of the walk."""
+    if until_s < AGREES_SHARE * rec.duration_s:
+        return False
+    for j in joints:
+        t = rec.states[j].t_s
+        r = res[j]
+        t = t[:len(r)]
+        lab = whole_labels(phases[parse_joint_name(j)[0]], t)
+        judged = (t >= START_S) & (t < until_s)
+        rows = []
+        for k in range(len(WHOLE_PHASES)):
+            sel = judged & (lab == k)
+            v = r[sel]
+            v = v[np.isfinite(v)]
+            if len(v) >= AGREES_MIN_READS:
+                rows.append(float(np.sqrt(np.mean(v ** 2))))
+        if not rows or max(rows) > ROUNDING_TICKS:
+            return False
+    return True
+
+
+def _joint_rms(rec: Recording, res: dict, joints, until_s: float) -> float:
+    """RMS residual [ticks] of ``joints`` over the reads from ``START_S`` to ``until_s`` (a read the replay
+    has not reached counts as out of step: inf)."""
+    sq, n = 0.0, 0
+    for j in joints:
+        t = rec.states[j].t_s
+        sel = (t >= START_S) & (t < until_s)
+        r = res[j]
+        if len(r) < int(np.count_nonzero(t < until_s)):
+            return math.inf
+        v = r[sel[:len(r)]]
+        v = v[np.isfinite(v)]                   # a read the replay predicts no value for
+        sq += float(np.sum(v ** 2))
+        n += len(v)
+    return math.sqrt(sq / n) if n else math.inf
+
+
 def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
                      joints, search: bool = True, progress=lambda msg: None
                      ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict]:
@@ -71,12 +175,7 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     that it puts on every joint (:func:`widen`), what :func:`search_loaded` finds in its loaded phases
     (with ``search``), and the notes for the report. ``ground``: None takes the recording's
     (``/sim/scene``), else a flat floor."""
-    if ground is not None:
-        origin = 'as given'
-    elif rec.ground is not None:
-        ground, origin = rec.ground, "from the bag's /sim/scene"
-    else:
-        ground, origin = Ground(), 'assumed: a flat floor, as for a calibration walk; --terrain sets it'
+    ground, origin = walk_ground(rec, ground)
     fitted = robot.with_effects(effects) if effects else None
     replays = Replays(rec, robot, ground)
     ww = compare(rec, robot, fitted, ground, phases, joints, replays)
@@ -108,7 +207,7 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
 LOADED_CANDIDATES = ('backlash', 'static_friction', 'compliance_deadband')
 ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope is tried too
 SEARCH_BLOCK_S = 2.0          # alternating fit / held-out blocks of the search [s]
-SEARCH_GRID = 5               # log-spaced values over the candidate's range, then golden-section steps
+SEARCH_GRID = 9               # log-spaced values over the candidate's range, then golden-section steps
 SEARCH_REFINE = 4
 SEARCH_MIN_RATIO = 1.5        # held-out RMS improvement an effect must reach on its joints
 SEARCH_MIN_EXPLAINED = 0.75   # and the share of their excess over rounding it must explain
@@ -296,4 +395,4 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
     return found
 
 
-__all__ = ['LoadedFind', 'search_loaded', 'whole_walk_check', 'widen']
+__all__ = ['LoadedFind', 'choose_terms', 'follows', 'search_loaded', 'walk_ground', 'whole_walk_check', 'widen']
