@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_model.description import Robot, parse_joint_name
+from hexapod_model.description import Robot
 from hexapod_model.dictionary import BY_TERM
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.whole_walk import (
@@ -100,10 +100,10 @@ def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground:
     for t in joint_terms:
         k = next(i for i, u in enumerate(out) if u is t)
         others = list(named) + [u.effect for u in out if u is not t]
-        progress(f'whole walk: without {t.effect.effect} on {", ".join(t.effect.joints)}')
+        progress(f'whole walk: without {t.effect.effect} on {", ".join(map(str, t.effect.joints))}')
         res, until = replays.in_step(robot.with_effects(others), joints)
         if follows(rec, res, until, phases, t.effect.joints):
-            notes.append(f'whole walk: without {t.words} on {", ".join(t.effect.joints)} the replay follows '
+            notes.append(f'whole walk: without {t.words} on {", ".join(map(str, t.effect.joints))} the replay follows '
                          'the recording there to tick rounding in every phase: the free leg missed it, not the robot')
             out.pop(k)
             continue
@@ -112,7 +112,7 @@ def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground:
         options = [(t.effect, t.heldout_rmse_ticks_after)] + list(t.alternatives)
         runs = []
         for e, _ra in options:
-            progress(f'whole walk: {e.effect} on {", ".join(e.joints)}')
+            progress(f'whole walk: {e.effect} on {", ".join(map(str, e.joints))}')
             runs.append(replays.in_step(robot.with_effects(others + [e]), joints))
         until = max(u for _, u in runs)
         scores = [_joint_rms(rec, res, t.effect.joints, until) for res, _ in runs]
@@ -122,7 +122,7 @@ def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground:
             out[k] = replace(t, effect=e, words=BY_TERM[e.effect].describe(e.params), heldout_rmse_ticks_after=ra,
                              alternatives=tuple(o for i, o in enumerate(options) if i != best))
             notes.append(f'whole walk: {e.effect.replace("_", " ")} and {t.effect.effect.replace("_", " ")} fit the '
-                         f'swings of {", ".join(e.joints)} alike; the whole walk follows the recording with '
+                         f'swings of {", ".join(map(str, e.joints))} alike; the whole walk follows the recording with '
                          f'{e.effect.replace("_", " ")} ({scores[best]:.2f} ticks RMS against {scores[0]:.2f})')
     return out, notes
 
@@ -137,7 +137,7 @@ def follows(rec: Recording, res: dict, until_s: float, phases: dict, joints) -> 
         t = rec.states[j].t_s
         r = res[j]
         t = t[:len(r)]
-        lab = whole_labels(phases[parse_joint_name(j)[0]], t)
+        lab = whole_labels(phases[j.leg], t)
         judged = (t >= START_S) & (t < until_s)
         rows = []
         for k in range(len(WHOLE_PHASES)):
