@@ -211,14 +211,16 @@ class Outcome:
     tool: str
     code: int | None
     lines: list
-    seconds: float
+    seconds: float                  # wall time: what the limit judges
     trace: str = ''
+    cpu_s: float = float('nan')     # CPU time of this process (every thread) meanwhile: a loaded machine
+                                    # stretches the wall time, a tool that works longer the CPU time
 
     def problem(self) -> str:
         if self.trace:
             return f'{self.tool}: uncaught {self.trace}'
         if self.seconds > CASE_LIMIT_S:
-            return f'{self.tool}: took {self.seconds:.1f} s'
+            return f'{self.tool}: took {self.seconds:.1f} s (CPU {self.cpu_s:.1f} s)'
         if self.code == 2 and len(self.lines) != 1:
             return f'{self.tool}: exit 2 with {len(self.lines)} stderr lines: {self.lines[:3]}'
         if self.code == 0 and len([x for x in self.lines if 'warning' in x]) > 1:
@@ -239,7 +241,7 @@ def _alarm(signum, frame):
 def run_tool(name: str, fn) -> Outcome:
     """``fn()`` (a tool's main, returning its exit code) with stderr captured and a time limit."""
     err = io.StringIO()
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     code, trace = None, ''
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.setitimer(signal.ITIMER_REAL, CASE_LIMIT_S * 3)
@@ -260,7 +262,7 @@ def run_tool(name: str, fn) -> Outcome:
     lines = [x for x in err.getvalue().splitlines() if x.strip()]
     if 'Traceback' in err.getvalue():
         trace = trace or 'traceback printed: ' + lines[-1][:200]
-    return Outcome(name, code, lines, time.perf_counter() - t0, trace)
+    return Outcome(name, code, lines, time.perf_counter() - t0, trace, time.process_time() - cpu0)
 
 
 def _read_all(bag: Path) -> int:
@@ -330,7 +332,8 @@ class Tally:
     (0 without a warning, 0 with one warning line, 2 with one error line), failures and slowest run."""
     kinds: dict = field(default_factory=dict)      # kind -> [cases, failed]
     tools: dict = field(default_factory=dict)      # tool -> [runs, clean, warned, refused, failed, slowest s]
-    slowest: tuple = (0.0, '', -1)                 # (seconds, tool, case)
+    slowest: tuple = (0.0, '', -1, 0.0)            # (seconds, tool, case, CPU seconds)
+    most_cpu_s: float = 0.0
 
     def add(self, i: int, kind: str, outcomes: list[Outcome]) -> list[str]:
         """Count case ``i``; its problems (empty if it passed)."""
@@ -347,8 +350,9 @@ class Tally:
             t[3] += not failed and o.code == 2
             t[4] += failed
             t[5] = max(t[5], o.seconds)
+            self.most_cpu_s = max(self.most_cpu_s, o.cpu_s)
             if o.seconds > self.slowest[0]:
-                self.slowest = (o.seconds, o.tool, i)
+                self.slowest = (o.seconds, o.tool, i, o.cpu_s)
         return problems
 
     @property
@@ -360,8 +364,9 @@ class Tally:
         out += [f'  {k}: {n}, {f}' for k, (n, f) in sorted(self.kinds.items())]
         out.append('tool: runs, exit 0 clean, exit 0 with one warning, exit 2 with one line, failed, slowest s')
         out += [f'  {name}: {t[0]}, {t[1]}, {t[2]}, {t[3]}, {t[4]}, {t[5]:.2f}' for name, t in sorted(self.tools.items())]
-        s, tool, i = self.slowest
-        out.append(f'slowest tool run: {tool} on case {i}, {s:.2f} s')
+        s, tool, i, cpu = self.slowest
+        out.append(f'slowest tool run: {tool} on case {i}, {s:.2f} s (CPU {cpu:.2f} s); most CPU time of a tool run '
+                   f'{self.most_cpu_s:.2f} s')
         return out
 
 
