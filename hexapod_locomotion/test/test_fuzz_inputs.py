@@ -16,7 +16,7 @@ def base(tmp_path_factory):
 def test_100_seeded_cases_end_in_one_line_or_read_what_they_can(base, tmp_path):
     failing = []
     for i in range(100):
-        what, outcomes = fuzz_inputs.run_case(i, 0, base, tmp_path)
+        _, what, outcomes = fuzz_inputs.run_case(i, 0, base, tmp_path)
         problems = [p for p in (o.problem() for o in outcomes) if p]
         if problems:
             failing.append(f'case {i}: {what}: {problems}')
@@ -43,3 +43,30 @@ def test_a_bag_with_several_corrupt_chunks_gives_one_warning_line(base, tmp_path
         o = out[tool]
         assert not o.problem(), (what, o)
         assert len([x for x in o.lines if 'warning' in x]) <= 1 and not any('Error processing' in x for x in o.lines)
+
+
+def test_the_tally_counts_cases_per_kind_and_endings_per_tool():
+    O = fuzz_inputs.Outcome
+    tally = fuzz_inputs.Tally()
+    assert tally.add(0, 'bag bitflip', [O('analyse', 0, [], 0.5), O('replay-reader', 0, ['replay: warning: x'], 1.5)]) == []
+    assert tally.add(1, 'bag bitflip', [O('analyse', 2, ['analyse: error: x'], 0.2),
+                                        O('replay-reader', None, [], 3.0, 'KeyError: 1 (reader.py:1)', 2.5)]) != []
+    assert tally.add(2, 'description nan', [O('analyse', 2, ['a', 'b'], 0.1)]) != []
+    assert tally.kinds == {'bag bitflip': [2, 1], 'description nan': [1, 1]} and tally.failed == 2
+    assert tally.tools['analyse'] == [3, 1, 0, 1, 1, 0.5]
+    assert tally.tools['replay-reader'] == [2, 0, 1, 0, 1, 3.0]
+    assert tally.slowest == (3.0, 'replay-reader', 1, 2.5)
+    assert 'slowest tool run: replay-reader on case 1, 3.00 s (CPU 2.50 s); most CPU time of a tool run 2.50 s' \
+        in tally.report()
+    assert O('discrepancy', 0, [], 10.5, cpu_s=4.0).problem() == 'discrepancy: took 10.5 s (CPU 4.0 s)'
+
+
+@pytest.mark.parametrize('case', [290, 409, 662, 721, 881, 961])
+def test_the_cases_the_1000_case_run_found_end_in_one_line(base, tmp_path, case):
+    """Seed 0 of ``fuzz_inputs --cases 1000``: a leg number that is null or a list (load_robot and discrepancy
+    ended in a TypeError traceback), and a bit flip that renamed a field in the schema record of /imu or
+    /sim/body_pose (analyse and discrepancy ended in an AttributeError traceback)."""
+    kind, what, outcomes = fuzz_inputs.run_case(case, 0, base, tmp_path)
+    assert not [o.problem() for o in outcomes if o.problem()], what
+    refused = [o for o in outcomes if o.code == 2]
+    assert refused and all(len(o.lines) == 1 for o in refused), (what, outcomes)

@@ -412,8 +412,9 @@ def check_keys(data: Any, schema: Any = SCHEMA, where: str = '') -> None:
 def _legs_from(d: Mapping[str, Any]) -> tuple[LegMount, ...]:
     """The ``legs`` section: one mount per leg 1..6, in leg order."""
     legs_raw = _require(d, 'legs', 'robot')
-    if not isinstance(legs_raw, list) or sorted(_require(x, 'leg', 'legs[]') for x in legs_raw) != list(LEGS):
-        raise DescriptionError('legs: expected exactly one entry for each leg 1..6')
+    ids = [_require(x, 'leg', 'legs[]') for x in legs_raw] if isinstance(legs_raw, list) else None
+    if ids is None or not all(type(i) is int for i in ids) or sorted(ids) != list(LEGS):
+        raise DescriptionError(f'legs: expected exactly one entry for each leg 1..6 (leg: {ids!r})')
     legs = []
     for x in sorted(legs_raw, key=lambda x: x['leg']):
         w = f'legs[leg={x["leg"]}]'

@@ -94,6 +94,26 @@ def test_bad_input_is_one_line_naming_the_bag(tmp_path):
     assert _one_line(e).startswith(f'{short}: /joint_states message') and 'names 2 joint' in str(e.value)
 
 
+def test_a_topic_whose_stored_definition_lacks_a_contract_field_is_one_line(tmp_path):
+    """A damaged schema record that still parses (a bit flip made /imu's field ``header`` ``jeader``):
+    the loader read the messages field by field into an AttributeError traceback."""
+    from hexapod_sim.bagio import BagReader, BagWriter
+    ref = BagReader(BAGS / 'tripod_blocks_adaptive')
+    bag = tmp_path / 'renamed'
+    topics = (contract.bag_topic(contract.JOINT_STATES), '/imu')
+    with BagWriter(bag) as w:
+        for topic in topics:
+            text = ref.schema_text(topic)
+            w.add_topic(topic, ref.topics()[topic], definition=text.replace('std_msgs/Header header', 'std_msgs/Header jeader', 1)
+                        if topic == '/imu' else text)
+        for topic, msg_type, t_ns, raw in ref.messages(topics, end_ns=ref.start_ns + 10**8, raw=True):
+            w.write(topic, msg_type, raw, t_ns)
+    with pytest.raises(BagError) as e:
+        load_bag(bag)
+    assert _one_line(e).startswith(f'{bag}: /imu message at t=') and "no attribute 'header'" in str(e.value)
+    assert 'the definition the bag stores for sensor_msgs/msg/Imu is not the installed one' in str(e.value)
+
+
 def test_the_discrepancy_tool_gives_one_line_and_exit_2_for_a_bag_without_its_topics(tmp_path, capsys):
     from hexapod_sim.discrepancy.cli import main as discrepancy
     states = write_bag(tmp_path / 'states', [(contract.bag_topic(contract.JOINT_STATES), JS,

@@ -14,9 +14,10 @@ Each case damages a small valid input and runs the tools on it in this process:
   ``discrepancy --robot``/``--overlay``.
 
 A case passes if each tool ends with code 0 (at most one warning line) or 2 (exactly one error line),
-prints no traceback, and takes at most 10 s; the peak memory of the run is printed (every case under
-1 GB if the run's peak is). A failing case prints its seed and what happened; the exit code is 1 if
-any failed.
+prints no traceback, and takes at most 10 s. A failing case prints its seed and what happened; a
+progress line every 10 cases; at the end, cases and failures per kind of damage, per tool its runs,
+how they ended and its slowest run, and the peak memory of the run (every case under 1 GB if the
+run's peak is). The exit code is 1 if any case failed.
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ import tempfile
 import time
 import traceback
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
@@ -210,14 +211,16 @@ class Outcome:
     tool: str
     code: int | None
     lines: list
-    seconds: float
+    seconds: float                  # wall time: what the limit judges
     trace: str = ''
+    cpu_s: float = float('nan')     # CPU time of this process (every thread) meanwhile: a loaded machine
+                                    # stretches the wall time, a tool that works longer the CPU time
 
     def problem(self) -> str:
         if self.trace:
             return f'{self.tool}: uncaught {self.trace}'
         if self.seconds > CASE_LIMIT_S:
-            return f'{self.tool}: took {self.seconds:.1f} s'
+            return f'{self.tool}: took {self.seconds:.1f} s (CPU {self.cpu_s:.1f} s)'
         if self.code == 2 and len(self.lines) != 1:
             return f'{self.tool}: exit 2 with {len(self.lines)} stderr lines: {self.lines[:3]}'
         if self.code == 0 and len([x for x in self.lines if 'warning' in x]) > 1:
@@ -238,7 +241,7 @@ def _alarm(signum, frame):
 def run_tool(name: str, fn) -> Outcome:
     """``fn()`` (a tool's main, returning its exit code) with stderr captured and a time limit."""
     err = io.StringIO()
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     code, trace = None, ''
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.setitimer(signal.ITIMER_REAL, CASE_LIMIT_S * 3)
@@ -259,7 +262,7 @@ def run_tool(name: str, fn) -> Outcome:
     lines = [x for x in err.getvalue().splitlines() if x.strip()]
     if 'Traceback' in err.getvalue():
         trace = trace or 'traceback printed: ' + lines[-1][:200]
-    return Outcome(name, code, lines, time.perf_counter() - t0, trace)
+    return Outcome(name, code, lines, time.perf_counter() - t0, trace, time.process_time() - cpu0)
 
 
 def _read_all(bag: Path) -> int:
@@ -300,7 +303,8 @@ def description_tools(desc: Path, as_overlay: bool, bag: Path) -> list[Outcome]:
             run_tool('discrepancy', lambda: discrepancy([str(bag), '--no-progress', *flag]))]
 
 
-def run_case(i: int, seed: int, base: Path, work: Path) -> tuple[str, list[Outcome]]:
+def run_case(i: int, seed: int, base: Path, work: Path) -> tuple[str, str, list[Outcome]]:
+    """(kind of damage, what was done, each tool's outcome) of case ``i``."""
     rng = random.Random(f'{seed}:{i}')
     case_dir = work / f'case_{i}'
     case_dir.mkdir()
@@ -308,13 +312,62 @@ def run_case(i: int, seed: int, base: Path, work: Path) -> tuple[str, list[Outco
         if rng.random() < 0.7:
             kind = rng.choice(BAG_KINDS)
             what = f'bag {kind}: ' + mutate_bag(base, case_dir / 'bag', kind, rng)
-            return what, bag_tools(case_dir / 'bag')
+            return f'bag {kind}', what, bag_tools(case_dir / 'bag')
         kind = rng.choice(DESC_KINDS)
         desc = case_dir / 'robot.yaml'
         what, as_overlay = mutate_description(desc, kind, rng)
-        return 'description ' + what, description_tools(desc, as_overlay, base)
+        return f'description {kind}', 'description ' + what, description_tools(desc, as_overlay, base)
     finally:
         shutil.rmtree(case_dir, ignore_errors=True)
+
+
+def peak_memory_mb() -> float:
+    """The peak resident memory of this process so far (every case runs in it)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+@dataclass
+class Tally:
+    """The figures of a run: cases and failures per kind of damage; per tool its runs, how they ended
+    (0 without a warning, 0 with one warning line, 2 with one error line), failures and slowest run."""
+    kinds: dict = field(default_factory=dict)      # kind -> [cases, failed]
+    tools: dict = field(default_factory=dict)      # tool -> [runs, clean, warned, refused, failed, slowest s]
+    slowest: tuple = (0.0, '', -1, 0.0)            # (seconds, tool, case, CPU seconds)
+    most_cpu_s: float = 0.0
+
+    def add(self, i: int, kind: str, outcomes: list[Outcome]) -> list[str]:
+        """Count case ``i``; its problems (empty if it passed)."""
+        problems = [p for p in (o.problem() for o in outcomes) if p]
+        k = self.kinds.setdefault(kind, [0, 0])
+        k[0] += 1
+        k[1] += bool(problems)
+        for o in outcomes:
+            t = self.tools.setdefault(o.tool, [0, 0, 0, 0, 0, 0.0])
+            failed = bool(o.problem())
+            t[0] += 1
+            t[1] += not failed and o.code == 0 and not any('warning' in x for x in o.lines)
+            t[2] += not failed and o.code == 0 and any('warning' in x for x in o.lines)
+            t[3] += not failed and o.code == 2
+            t[4] += failed
+            t[5] = max(t[5], o.seconds)
+            self.most_cpu_s = max(self.most_cpu_s, o.cpu_s)
+            if o.seconds > self.slowest[0]:
+                self.slowest = (o.seconds, o.tool, i, o.cpu_s)
+        return problems
+
+    @property
+    def failed(self) -> int:
+        return sum(f for _, f in self.kinds.values())
+
+    def report(self) -> list[str]:
+        out = ['kind of damage: cases, failed']
+        out += [f'  {k}: {n}, {f}' for k, (n, f) in sorted(self.kinds.items())]
+        out.append('tool: runs, exit 0 clean, exit 0 with one warning, exit 2 with one line, failed, slowest s')
+        out += [f'  {name}: {t[0]}, {t[1]}, {t[2]}, {t[3]}, {t[4]}, {t[5]:.2f}' for name, t in sorted(self.tools.items())]
+        s, tool, i, cpu = self.slowest
+        out.append(f'slowest tool run: {tool} on case {i}, {s:.2f} s (CPU {cpu:.2f} s); most CPU time of a tool run '
+                   f'{self.most_cpu_s:.2f} s')
+        return out
 
 
 def main(args=None) -> int:
@@ -329,26 +382,27 @@ def main(args=None) -> int:
     work = Path(opts.out) if opts.out else Path(tempfile.mkdtemp(prefix='fuzz_inputs_'))
     work.mkdir(parents=True, exist_ok=True)
     base = make_base_bag(work / 'base')
-    failed, slowest, t0 = 0, 0.0, time.monotonic()
+    size_kb = sum(f.stat().st_size for f in base.iterdir()) / 1024
+    print(f'fuzz_inputs: {opts.cases} cases (seed {opts.seed}) on a base bag of {size_kb:.0f} kB', flush=True)
+    tally, t0 = Tally(), time.monotonic()
     try:
         for i in range(opts.cases):
-            what, outcomes = run_case(i, opts.seed, base, work)
-            slowest = max([slowest] + [o.seconds for o in outcomes])
-            problems = [p for p in (o.problem() for o in outcomes) if p]
+            kind, what, outcomes = run_case(i, opts.seed, base, work)
+            problems = tally.add(i, kind, outcomes)
             if problems:
-                failed += 1
                 print(f'case {i} (seed {opts.seed}): {what}: ' + '; '.join(problems), flush=True)
-            if (i + 1) % 50 == 0:
-                print(f'fuzz_inputs: {i + 1}/{opts.cases} cases, {failed} failing, '
-                      f'{time.monotonic() - t0:.0f} s', file=sys.stderr, flush=True)
+            if (i + 1) % 10 == 0 or i + 1 == opts.cases:
+                print(f'fuzz_inputs: {i + 1}/{opts.cases} cases, {tally.failed} failing, '
+                      f'{time.monotonic() - t0:.0f} s, slowest tool run {tally.slowest[0]:.2f} s, '
+                      f'peak memory {peak_memory_mb():.0f} MB', file=sys.stderr, flush=True)
     finally:
         if not opts.out:
             shutil.rmtree(work, ignore_errors=True)
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f'fuzz_inputs: {opts.cases} cases (seed {opts.seed}): {opts.cases - failed} passed, {failed} failed; '
-          f'slowest tool run {slowest:.2f} s; peak memory of the run {peak_mb:.0f} MB')
-    return 1 if failed else 0
-
+    print('\n'.join(tally.report()))
+    print(f'fuzz_inputs: {opts.cases} cases (seed {opts.seed}): {opts.cases - tally.failed} passed, '
+          f'{tally.failed} failed; slowest tool run {tally.slowest[0]:.2f} s; peak memory of the run '
+          f'{peak_memory_mb():.0f} MB; {time.monotonic() - t0:.0f} s')
+    return 1 if tally.failed else 0
 
 if __name__ == '__main__':
     sys.exit(main())

@@ -205,11 +205,14 @@ def load_bag(path: str | Path, topics: Iterable[str] = TOPICS, required: Mapping
         raise ValueError(f'load_bag: no series for the topic(s) {unknown}; it reads {list(TOPICS)}')
     present = _check(reader, str(path), wanted, required or {})
     acc = _Acc()
-    for bag_name, _type, t_ns, msg in reader.messages(topics=present) if present else ():
+    for bag_name, msg_type, t_ns, msg in reader.messages(topics=present) if present else ():
         try:
             acc.add(contract.topic_key(bag_name), t_ns, msg)
         except BagError as exc:
             raise BagError(f'{path}: {exc}') from None
+        except (AttributeError, TypeError, ValueError) as exc:     # e.g. a damaged schema record that still parses
+            raise BagError(f'{path}: {bag_name} message at t={t_ns} ns does not read as the contract\'s {msg_type} '
+                           f'({exc}): the definition the bag stores for {msg_type} is not the installed one') from None
     in_bag = frozenset(contract.topic_key(t) for t in reader.topics())
     return acc.contents(str(path), in_bag, reader.warnings)
 
