@@ -32,6 +32,7 @@ import traceback
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -243,6 +244,9 @@ class LocomotionNode(Node):
             if not self.bus.stopped.is_set():
                 self.failed = True
                 self.get_logger().error(f'locomotion stopped: {exc}')
+        except InvalidHandle:
+            # the node is being destroyed under this thread (its owner's shutdown): a normal stop
+            return
         except RCLError:
             # SIGINT/SIGTERM shut the context down while this thread was publishing: a normal stop
             if self.context.ok():
