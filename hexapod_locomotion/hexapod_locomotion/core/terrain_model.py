@@ -21,7 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_locomotion.core.terrain_features import FEATURE_NAMES, FEATURES_VERSION
+from hexapod_locomotion.core.terrain_estimator import CycleLegClassifier, fit_temperature
+from hexapod_locomotion.core.terrain_features import CYCLE_FEATURE_NAMES, FEATURE_NAMES, FEATURES_VERSION, LEG_FEATURES
+from hexapod_model.description import LEGS
 
 FORMAT = 'hexapod-terrain-model'
 DEFAULT_MODEL = Path(__file__).parents[1] / 'data' / 'terrain_model.pkl.gz'
@@ -31,13 +33,43 @@ class TerrainModelError(ValueError):
     """A model file that cannot be used (the message says why), or bad training data."""
 
 
-def make_estimator(seed: int = 0):
-    """Gradient-boosted trees (scikit-learn's histogram GBDT: missing features, e.g. no /power, are
-    handled natively). Trained on the train set and scored on the test set, it classed more cycles
-    right than smaller boosted models, random or extra trees and a logistic regression."""
-    from sklearn.ensemble import HistGradientBoostingClassifier
-    return HistGradientBoostingClassifier(max_iter=200, learning_rate=0.1, max_leaf_nodes=15, min_samples_leaf=5,
-                                          random_state=seed)
+# Chosen by leave-one-seed-out cross-validation over the train set's seeds (0-5) only, on the cycles
+# classed right and on synthetic crossings (the leg blocks of two walks of one gait spliced: front and
+# middle legs of the new class, the rest and the cycle's features of the old): the cycle model at a
+# tenth of the legs' weight, a front leg three times a middle one, 50 trees per class of 15 leaves over
+# 63 bins: 97.0 % of 606 cycles and 90 % of the crossings classed new, against 94.9 % and 2 % for the
+# cycle model alone. Twice the trees classed 97.4 % and 89 %, in a file twice as large (580 KiB).
+CYCLE_WEIGHT = 0.1
+FRONT_WEIGHT = 3.0
+TREE_PARAMS = {'max_iter': 50, 'learning_rate': 0.2, 'max_leaf_nodes': 15, 'min_samples_leaf': 5, 'max_bins': 63}
+
+
+def make_estimator(seed: int = 0, temperature: float = 1.0) -> CycleLegClassifier:
+    """The cycle-and-leg classifier of :mod:`.terrain_estimator` with the chosen weights."""
+    return CycleLegClassifier(len(CYCLE_FEATURE_NAMES), len(LEG_FEATURES), legs=len(LEGS), cycle_weight=CYCLE_WEIGHT,
+                              front_weight=FRONT_WEIGHT, temperature=temperature, seed=seed, tree_params=TREE_PARAMS)
+
+
+def cross_temperature(x: np.ndarray, y: np.ndarray, groups, seed: int = 0) -> float:
+    """The softmax temperature that calibrates the probabilities, fitted on out-of-group scores (each
+    group - a seed of the generated walks, a bag - scored by a model trained on the others); 1 with
+    fewer than two groups."""
+    groups = np.asarray(groups)
+    names = list(dict.fromkeys(groups.tolist()))
+    if len(names) < 2:
+        return 1.0
+    scores, truth = [], []
+    for g in names:
+        tr, te = groups != g, groups == g
+        if len(set(y[tr].tolist())) < 2:
+            continue
+        est = make_estimator(seed).fit(x[tr], y[tr])
+        known = np.isin(y[te], est.classes_)
+        scores.append(est.log_scores(x[te][known]))
+        truth.append(np.searchsorted(est.classes_, y[te][known]))
+    if not scores or not sum(len(t) for t in truth):
+        return 1.0
+    return fit_temperature(np.concatenate(scores), np.concatenate(truth))
 
 
 def code_version(root: Path | None = None) -> str:
@@ -58,17 +90,19 @@ class TerrainModel:
     provenance: dict
 
     @classmethod
-    def fit(cls, x: np.ndarray, labels, provenance: dict, seed: int = 0) -> 'TerrainModel':
+    def fit(cls, x: np.ndarray, labels, provenance: dict, seed: int = 0, groups=None) -> 'TerrainModel':
+        """``groups``: per row, the seed or bag it came from (for the temperature's cross-validation)."""
         y = np.asarray(labels)
         if len(y) == 0:
             raise TerrainModelError('no labelled gait cycles to train on')
         classes = tuple(sorted(set(y.tolist())))
         if len(classes) < 2:
             raise TerrainModelError(f'training needs at least two classes, got {list(classes)}')
-        est = make_estimator(seed)
-        est.fit(np.asarray(x, dtype=float), y)
+        x = np.asarray(x, dtype=float)
+        t = cross_temperature(x, y, np.zeros(len(y)) if groups is None else groups, seed)
+        est = make_estimator(seed, temperature=t).fit(x, y)
         counts = {c: int(np.sum(y == c)) for c in classes}
-        return cls(est, classes, {**provenance, 'cycles_per_class': counts})
+        return cls(est, classes, {**provenance, 'cycles_per_class': counts, 'temperature': t})
 
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(class per row, confidence per row: the predicted class's probability)."""

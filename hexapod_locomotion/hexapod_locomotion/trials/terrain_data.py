@@ -320,7 +320,7 @@ COURSE_TRIAL_S = {'tripod': 36.0, 'tetrapod': 50.0, 'pentapod': 84.0}
 DAMPED_OVERLAY = str(Path(__file__).parents[1] / 'data' / 'damped_servo.yaml')
 # name -> (terrains, seeds, durations, overlays)
 SETS = {
-    'train': ('classes', (0, 1, 2), CLASS_TRIAL_S, ()),
+    'train': ('classes', (0, 1, 2, 3, 4, 5), CLASS_TRIAL_S, ()),
     'test': ('classes', (10, 11), CLASS_TRIAL_S, ()),
     'courses': ('course', (20, 21, 22), COURSE_TRIAL_S, ()),
     'damped': ('classes', (10,), CLASS_TRIAL_S, (DAMPED_OVERLAY,)),
