@@ -171,3 +171,20 @@ def test_the_temperature_fitted_on_held_out_scores_calibrates_them():
     assert 1.7 < fit_temperature(scores, truth) < 2.4
     sharp = np.array([rng.choice(5, p=p) for p in softmax(scores / 0.5)])
     assert 0.4 < fit_temperature(scores, sharp) < 0.6
+
+
+def test_each_leg_takes_the_class_under_its_foot_on_a_course():
+    from types import SimpleNamespace
+
+    from hexapod_locomotion.trials.terrain_data import leg_labels
+    from hexapod_sim.physics.terrain_classes import layout
+    segs = layout('course', 20)
+    edge = segs[0].x1_m
+    events = [('x', t, edge - 0.5 + 0.05 * t) for t in np.arange(0.0, 20.0, 0.1)]      # 0.05 m/s
+    at = SimpleNamespace(t_start_s=9.0, t_end_s=11.0)                                 # the trunk crosses at 10 s
+    before = SimpleNamespace(t_start_s=0.0, t_end_s=2.0)                             # every foot on the first class
+    got = leg_labels('course', 20, events, [at, before], load_robot())
+    first, second = segs[0].label, segs[1].label
+    # legs 1, 2 front (0.225 m ahead of the trunk), 3, 4 rear, 5, 6 middle: on the boundary
+    assert got[0] == (second, second, first, first, '-', '-')
+    assert got[1] == (first,) * 6

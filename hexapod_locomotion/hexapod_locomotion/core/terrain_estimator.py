@@ -9,7 +9,9 @@ log-probability is ``cycle_weight`` times the cycle model's plus the weighted me
 weighs ``front_weight ** (x / x_max)`` (its nominal foot x over the frontmost's): the front legs step
 on a new class first, so weighting them lets the class change sooner when the robot walks onto it.
 The sum is divided by ``temperature`` before the softmax, fitted so the probabilities are calibrated
-(see :func:`fit_temperature`).
+(see :func:`fit_temperature`). The leg model may be trained with a label per leg: on a walk across
+class boundaries the legs of one cycle stand on different classes, and so learn how a leg on the new
+class feels while the others are still on the old.
 """
 from __future__ import annotations
 
@@ -37,10 +39,15 @@ class CycleLegClassifier:
     def _leg_rows(self, x: np.ndarray) -> np.ndarray:
         return x[:, self.n_cycle:self.n_cycle + self.legs * self.n_leg].reshape(len(x) * self.legs, self.n_leg)
 
-    def fit(self, x, y) -> 'CycleLegClassifier':
-        x, y = np.asarray(x, dtype=float), np.asarray(y)
-        self.cycle_model_ = boosted_trees(self.seed, **self.tree_params).fit(x[:, :self.n_cycle], y)
-        self.leg_model_ = boosted_trees(self.seed, **self.tree_params).fit(self._leg_rows(x), np.repeat(y, self.legs))
+    def fit(self, x, y, leg_y=None, skip: str = '-') -> 'CycleLegClassifier':
+        """``y``: the class per row, ``leg_y`` (rows, legs): per leg (default: the row's); a label ``skip``
+        trains nothing (the cycle model skips such a row, the leg model such a leg)."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=object)
+        leg_y = np.repeat(y, self.legs) if leg_y is None else np.asarray(leg_y, dtype=object).reshape(-1)
+        rows, legs = y != skip, leg_y != skip
+        self.cycle_model_ = boosted_trees(self.seed, **self.tree_params).fit(x[rows, :self.n_cycle], y[rows].astype(str))
+        self.leg_model_ = boosted_trees(self.seed, **self.tree_params).fit(self._leg_rows(x)[legs],
+                                                                           leg_y[legs].astype(str))
         if list(self.leg_model_.classes_) != list(self.cycle_model_.classes_):
             raise ValueError('the leg and cycle models have different classes')
         self.classes_ = self.cycle_model_.classes_

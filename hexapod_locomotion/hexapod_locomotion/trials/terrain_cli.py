@@ -7,8 +7,8 @@
   bench                      the classifier's time per gait cycle (features + prediction)
 
 Sets (every gait; seeds in brackets): train [0-5] and test [10-11] walk each terrain class,
-courses [20-22] the mixed courses; damped [10] and damped-train [0] walk each class with a servo
-law of 1.5 x the motor damping (data/damped_servo.yaml). Label files: one interval per line,
+courses [20-22] and courses-train [0-5] the mixed courses; damped [10] and damped-train [0] walk
+each class with a servo law of 1.5 x the motor damping (data/damped_servo.yaml). Label files: one interval per line,
 ``START_S END_S LABEL`` in the bag's stamps, ``-`` for no label (docs/terrain.md).
 """
 from __future__ import annotations
@@ -44,7 +44,7 @@ from hexapod_locomotion.trials.terrain_data import (
     write_labels,
 )
 from hexapod_model.cli_common import add_no_progress_option, interrupted, make_parser, nonnegative_int, positive_float
-from hexapod_model.description import DescriptionError, load_robot
+from hexapod_model.description import LEGS, DescriptionError, load_robot
 
 
 def _sets_arg(value: str) -> str:
@@ -152,13 +152,14 @@ def _train(args) -> int:
     data = _gather(args, robot, classes)
     x, y = _stack(data)
     groups = np.concatenate([[_group(d)] * len(d['labels']) for d in data])
+    legs = np.concatenate([np.asarray(d['leg_labels'], dtype=object).reshape(-1, len(LEGS)) for d in data])
     keep = y != UNLABELLED
     sources = [{'set': s, 'trials': [f'{sp.terrain} seed {sp.seed} {sp.gait} {sp.duration_s:g} s'
                                      + (f' overlays {list(sp.overlays)}' if sp.overlays else '')
                                      for sp in set_specs(s)]} for s in args.sets]
     sources += [{'bag': str(b), 'labels': str(labels_path(b))} for b in args.bags]
     cmd = './hexapod terrain ' + ' '.join(shlex.quote(a) for a in args.argv)
-    model = TerrainModel.fit(x[keep], y[keep], provenance(cmd, sources), groups=groups[keep])
+    model = TerrainModel.fit(x, y, provenance(cmd, sources), groups=groups, leg_labels=legs)
     unknown = sorted(set(model.classes) - set(classes))
     if unknown:
         raise TerrainDataError(f'labels {unknown} are not among the classes {list(classes)}')
