@@ -21,7 +21,9 @@ What a foot feels, and where it shows:
 * *power*: mean and spread of the battery power over the cycle (NaN when not recorded);
 * *per leg* (:data:`LEG_FEATURES`, a block per leg after the cycle's features): the leg's nominal
   foot position, its latest swing-down's features, its stance error per joint role (mean, spread)
-  and the error's drift over the stance phase right after its latest touchdown. The front legs meet
+  and the error's drift over the stance phase right after its latest touchdown, each relative to the
+  other legs' (the size of a stance error depends on the servo law, its pattern over the legs on the
+  ground under each). The front legs meet
   a new class first; a classifier that sees the legs apart can follow them.
 
 :data:`FEATURE_NAMES` (the cycle's :data:`CYCLE_FEATURE_NAMES`, then every leg's) orders the vector;
@@ -38,7 +40,7 @@ from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, join
 from hexapod_model.kinematics import forward, stance_feet
 from hexapod_model.servo import tick_to_theta
 
-FEATURES_VERSION = 2
+FEATURES_VERSION = 3
 CONTACT_RESIDUAL_TICK = 2.0     # err - err_est above this counts as the leg being held by something [N]
 SLOPE_READS = 3                 # the residual's growth is taken over the last reads before the stop [N]
 
@@ -55,7 +57,7 @@ CYCLE_FEATURE_NAMES = (
 # per leg: its latest swing-down in the cycle, its stance reads in the cycle and the drift of the
 # error in the stance phase right after its latest touchdown (a soft floor keeps giving way there)
 LEG_FEATURES = (('nominal_x_mm', 'nominal_y_mm') + _SWING + ('no_ground',)
-                + tuple(f'stance_{r}_{s}' for r in JOINT_ROLES for s in ('mean_tick', 'std_tick', 'settle_tick')))
+                + tuple(f'stance_{r}_{s}' for r in JOINT_ROLES for s in ('mean_rel', 'std_rel', 'settle_rel')))
 FEATURE_NAMES = CYCLE_FEATURE_NAMES + tuple(f'leg{leg}_{n}' for leg in LEGS for n in LEG_FEATURES)
 
 
@@ -222,18 +224,41 @@ class CycleFeatureExtractor:
         return CycleFeatures(t0, t_end, len(phases), np.array(vals, dtype=float))
 
     def _leg_values(self, phases, per_leg) -> list[float]:
-        """:data:`LEG_FEATURES` of every leg, in LEGS order."""
+        """:data:`LEG_FEATURES` of every leg, in LEGS order. The stance errors are relative to the
+        other legs' (see :func:`_relative`): their size depends on the servo law, their pattern over
+        the legs on the ground under each."""
         seq = ([self._last_phase] if self._last_phase is not None else []) + phases
-        out = []
-        for leg in LEGS:
-            out += self._nominal_mm[leg] + per_leg.get(leg, [math.nan] * (len(_SWING) + 1))
-            after = next((seq[i] for i in range(len(seq) - 1, 0, -1)
-                          if leg in seq[i - 1].legs and leg not in seq[i].legs), None)
-            for role in JOINT_ROLES:
+        stance = np.full((len(LEGS), len(JOINT_ROLES), 3), np.nan)
+        for i, leg in enumerate(LEGS):
+            after = next((seq[k] for k in range(len(seq) - 1, 0, -1)
+                          if leg in seq[k - 1].legs and leg not in seq[k].legs), None)
+            for j, role in enumerate(JOINT_ROLES):
                 allv = np.concatenate([np.asarray(ph.leg_stance.get((leg, role), ()), dtype=float) for ph in phases])
                 e = np.asarray(after.leg_stance.get((leg, role), ()), dtype=float) if after is not None else ()
-                out += [_nan(np.mean, allv), _nan(np.std, allv), _half_drift(e) if len(e) >= 4 else math.nan]
+                stance[i, j] = (_nan(np.mean, allv), _nan(np.std, allv), _half_drift(e) if len(e) >= 4 else math.nan)
+        stance = _relative(stance)
+        out = []
+        for i, leg in enumerate(LEGS):
+            out += self._nominal_mm[leg] + per_leg.get(leg, [math.nan] * (len(_SWING) + 1)) + stance[i].ravel().tolist()
         return out
+
+
+def _relative(stance: np.ndarray) -> np.ndarray:
+    """(legs, roles, [mean, spread, settle]) -> each leg's mean error in standard deviations of the
+    legs' means about their mean, its spread and settle drift over the legs' mean magnitude (NaN
+    where the legs give no scale)."""
+    out = np.full_like(stance, np.nan)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        for j in range(stance.shape[1]):
+            m = stance[:, j, 0]
+            if np.isfinite(m).sum() >= 2:
+                out[:, j, 0] = (m - np.nanmean(m)) / np.nanstd(m)
+            for k in (1, 2):
+                v = stance[:, j, k]
+                if np.isfinite(v).any():
+                    out[:, j, k] = v / np.nanmean(np.abs(v))
+    out[~np.isfinite(out)] = np.nan
+    return out
 
 
 def _nan(fn, a) -> float:

@@ -37,10 +37,10 @@ class TerrainModelError(ValueError):
 # Chosen by leave-one-seed-out cross-validation over the training seeds (0-5: the train and
 # courses-train sets) only, on the class walks' cycles classed right and on the courses' class changes
 # seen within two gait cycles of the trunk crossing: the cycle model at a tenth of the legs' weight, a
-# front leg three times a middle one, 50 trees per class of 15 leaves over 63 bins: 96.5 % of 606 cycles
-# and 21 of 31 changes, against 95.9 % and 12 for the cycle model alone, and 97.0 % and 13 for the same
-# model trained without the courses' legs. A front leg 5 times a middle one: 96.5 % and 21; no cycle
-# model: 93.6 % and 23; twice the trees (a file twice as large) classed about as many cycles right.
+# front leg three times a middle one, 50 trees per class of 15 leaves over 63 bins: 96.7 % of 606 cycles
+# and 21 of 31 changes, against 95.9 % and 12 for the cycle model alone and 96.5 % and 12 for the same
+# model trained without the courses' legs; a front leg 5 times a middle one: 96.2 % and 21. Twice the
+# trees (a file twice as large) classed about as many cycles right.
 CYCLE_WEIGHT = 0.1
 FRONT_WEIGHT = 3.0
 TREE_PARAMS = {'max_iter': 50, 'learning_rate': 0.2, 'max_leaf_nodes': 15, 'min_samples_leaf': 5, 'max_bins': 63}
