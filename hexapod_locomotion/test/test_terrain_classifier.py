@@ -133,3 +133,58 @@ def test_analyse_confusion_against_labels_and_an_unknown_label(soft_walk, tmp_pa
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "bad.txt:1: unknown label 'grass'" in r.stderr
     assert analyse is not None and terrain_cli is not None
+
+
+def _two_class_rows(rng, n, shift):
+    """Rows of 2 cycle features and 6 leg blocks (nominal x, two features), every block of one class."""
+    xs = np.array([225.0, 225.0, -225.0, -225.0, 0.0, 0.0])
+    legs = [np.c_[np.full(n, x), rng.normal(shift, 1.0, size=(n, 2))] for x in xs]
+    return np.c_[rng.normal(shift, 1.0, size=(n, 2)), *legs]
+
+
+def test_the_front_legs_weigh_more_and_a_crossing_switches_the_class():
+    from hexapod_locomotion.core.terrain_estimator import CycleLegClassifier
+    rng = np.random.default_rng(1)
+    a, b = _two_class_rows(rng, 80, 0.0), _two_class_rows(rng, 80, 4.0)
+    x, y = np.r_[a, b], np.array(['a'] * 80 + ['b'] * 80)
+    est = CycleLegClassifier(2, 3, cycle_weight=0.25, front_weight=3.0, tree_params={'max_iter': 30}).fit(x, y)
+    w = est.leg_weights(x[:1])[0]
+    np.testing.assert_allclose(w / w[4], [3, 3, 1 / 3, 1 / 3, 1, 1])
+    assert (est.predict(a) == 'a').mean() > 0.95 and (est.predict(b) == 'b').mean() > 0.95
+    # the front and middle legs on class b, the rear legs and the whole cycle's features still a
+    crossing = a[:20].copy()
+    for leg in (0, 1, 4, 5):
+        crossing[:, 2 + 3 * leg:5 + 3 * leg] = b[:20, 2 + 3 * leg:5 + 3 * leg]
+    assert (est.predict(crossing) == 'b').mean() > 0.9
+    p = est.predict_proba(crossing)
+    np.testing.assert_allclose(p.sum(axis=1), 1.0)
+    # with the legs weighed alike and the cycle model at full weight the same rows stay a
+    even = CycleLegClassifier(2, 3, cycle_weight=1.0, front_weight=1.0, tree_params={'max_iter': 30}).fit(x, y)
+    assert (even.predict(crossing) == 'a').mean() > 0.5
+
+
+def test_the_temperature_fitted_on_held_out_scores_calibrates_them():
+    from hexapod_locomotion.core.terrain_estimator import fit_temperature, softmax
+    rng = np.random.default_rng(2)
+    scores = rng.normal(0.0, 4.0, size=(4000, 5))
+    truth = np.array([rng.choice(5, p=p) for p in softmax(scores / 2.0)])      # drawn at temperature 2
+    assert 1.7 < fit_temperature(scores, truth) < 2.4
+    sharp = np.array([rng.choice(5, p=p) for p in softmax(scores / 0.5)])
+    assert 0.4 < fit_temperature(scores, sharp) < 0.6
+
+
+def test_each_leg_takes_the_class_under_its_foot_on_a_course():
+    from types import SimpleNamespace
+
+    from hexapod_locomotion.trials.terrain_data import leg_labels
+    from hexapod_sim.physics.terrain_classes import layout
+    segs = layout('course', 20)
+    edge = segs[0].x1_m
+    events = [('x', t, edge - 0.5 + 0.05 * t) for t in np.arange(0.0, 20.0, 0.1)]      # 0.05 m/s
+    at = SimpleNamespace(t_start_s=9.0, t_end_s=11.0)                                 # the trunk crosses at 10 s
+    before = SimpleNamespace(t_start_s=0.0, t_end_s=2.0)                             # every foot on the first class
+    got = leg_labels('course', 20, events, [at, before], load_robot())
+    first, second = segs[0].label, segs[1].label
+    # legs 1, 2 front (0.225 m ahead of the trunk), 3, 4 rear, 5, 6 middle: on the boundary
+    assert got[0] == (second, second, first, first, '-', '-')
+    assert got[1] == (first,) * 6

@@ -18,10 +18,16 @@ What a foot feels, and where it shows:
   its mean, spread and drift over the phase (a foot that slides or sinks changes the load);
 * *leveling*: the plane through the commanded feet at each swing-down start (its tilt and the
   feet's scatter about it: what the leveling had to absorb);
-* *power*: mean and spread of the battery power over the cycle (NaN when not recorded).
+* *power*: mean and spread of the battery power over the cycle (NaN when not recorded);
+* *per leg* (:data:`LEG_FEATURES`, a block per leg after the cycle's features): the leg's nominal
+  foot position, its latest swing-down's features, its stance error per joint role (mean, spread)
+  and the error's drift over the stance phase right after its latest touchdown, each relative to the
+  other legs' (the size of a stance error depends on the servo law, its pattern over the legs on the
+  ground under each). The front legs meet
+  a new class first; a classifier that sees the legs apart can follow them.
 
-:data:`FEATURE_NAMES` orders the vector; :data:`FEATURES_VERSION` changes whenever a feature's
-meaning does (a model file records it and is refused by another version).
+:data:`FEATURE_NAMES` (the cycle's :data:`CYCLE_FEATURE_NAMES`, then every leg's) orders the vector;
+:data:`FEATURES_VERSION` changes whenever a feature's meaning does (a model file records it and is refused by another version).
 """
 from __future__ import annotations
 
@@ -34,20 +40,25 @@ from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, join
 from hexapod_model.kinematics import forward, stance_feet
 from hexapod_model.servo import tick_to_theta
 
-FEATURES_VERSION = 1
+FEATURES_VERSION = 3
 CONTACT_RESIDUAL_TICK = 2.0     # err - err_est above this counts as the leg being held by something [N]
 SLOPE_READS = 3                 # the residual's growth is taken over the last reads before the stop [N]
 
 _SWING = ('t_stop_frac', 'contact_z_mm', 'contact_reads', 'residual_slope_tick', 'stop_residual_tick',
           'stop_margin_tick', 'init_lag_tick')
 _STANCE = tuple(f'stance_{r}_{s}' for r in JOINT_ROLES for s in ('mean_tick', 'std_tick', 'drift_tick'))
-FEATURE_NAMES = (
+CYCLE_FEATURE_NAMES = (
     tuple(f'swing_{n}_{s}' for n in _SWING for s in ('mean', 'std', 'min', 'max'))
     + ('swing_no_ground_frac',)
     + _STANCE
     + ('level_tilt_mrad', 'level_scatter_mm', 'level_height_mm', 'level_tilt_change_mrad')
     + ('power_mean_w', 'power_std_w')
     + ('legs_per_phase', 'cycle_s_per_t_des'))
+# per leg: its latest swing-down in the cycle, its stance reads in the cycle and the drift of the
+# error in the stance phase right after its latest touchdown (a soft floor keeps giving way there)
+LEG_FEATURES = (('nominal_x_mm', 'nominal_y_mm') + _SWING + ('no_ground',)
+                + tuple(f'stance_{r}_{s}' for r in JOINT_ROLES for s in ('mean_rel', 'std_rel', 'settle_rel')))
+FEATURE_NAMES = CYCLE_FEATURE_NAMES + tuple(f'leg{leg}_{n}' for leg in LEGS for n in LEG_FEATURES)
 
 
 @dataclass
@@ -66,6 +77,7 @@ class _Phase:
     fields: dict
     det: dict = field(default_factory=dict)            # leg -> list of detector reads (tuples)
     stance: dict = field(default_factory=dict)         # role -> list of (t, error tick)
+    leg_stance: dict = field(default_factory=dict)     # (leg, role) -> list of error tick
     level: tuple = (math.nan, math.nan, math.nan)      # (tilt rad, scatter m, height m) at the start
 
 
@@ -81,12 +93,15 @@ class CycleFeatureExtractor:
     def __init__(self, robot: Robot):
         self.robot = robot
         self.servo = robot.servo
-        self.ground_z = float(stance_feet(robot)[0, 2])      # nominal ground in the body frame
+        feet = stance_feet(robot)
+        self.ground_z = float(feet[0, 2])                     # nominal ground in the body frame
+        self._nominal_mm = {leg: [1000.0 * float(feet[i, 0]), 1000.0 * float(feet[i, 1])] for i, leg in enumerate(LEGS)}
         self._goal = dict(zip(ALL_JOINTS, [robot.default_stance_rad[JOINT_ROLES.index(parse_joint_name(j)[1])]
                                            for j in ALL_JOINTS]))
         self._phases: list[_Phase] = []
         self._power: list[tuple[float, float]] = []
         self._last_tilt = math.nan
+        self._last_phase: _Phase | None = None                  # the previous cycle's last phase
 
     # -- streams
     def command(self, names, positions) -> None:
@@ -103,6 +118,7 @@ class CycleFeatureExtractor:
             return
         err = (self._goal[name] - float(position)) / self.servo.rad_per_tick
         ph.stance.setdefault(role, []).append((t_s, err))
+        ph.leg_stance.setdefault((leg, role), []).append(err)
 
     def power(self, t_s: float, watts: float) -> None:
         if math.isfinite(watts):
@@ -174,12 +190,13 @@ class CycleFeatureExtractor:
 
     def _close(self, t_end: float) -> CycleFeatures:
         phases, self._phases = self._phases, []
-        swing = []
+        swing, per_leg = [], {}
         for ph in phases:
             for slot, leg in enumerate(ph.legs):
                 v = self._swing_leg(ph, slot, ph.det.get(leg, []))
                 if v is not None:
                     swing.append(v)
+                    per_leg[leg] = v                      # the leg's latest swing-down
         s = np.array(swing) if swing else np.full((1, len(_SWING) + 1), np.nan)
         vals = []
         for i in range(len(_SWING)):
@@ -202,7 +219,46 @@ class CycleFeatureExtractor:
         vals += [_nan(np.mean, pw), _nan(np.std, pw)]
         t_des = phases[0].t_des_s
         vals += [float(np.mean([len(ph.legs) for ph in phases])), (t_end - t0) / t_des]
+        vals += self._leg_values(phases, per_leg)
+        self._last_phase = phases[-1]
         return CycleFeatures(t0, t_end, len(phases), np.array(vals, dtype=float))
+
+    def _leg_values(self, phases, per_leg) -> list[float]:
+        """:data:`LEG_FEATURES` of every leg, in LEGS order. The stance errors are relative to the
+        other legs' (see :func:`_relative`): their size depends on the servo law, their pattern over
+        the legs on the ground under each."""
+        seq = ([self._last_phase] if self._last_phase is not None else []) + phases
+        stance = np.full((len(LEGS), len(JOINT_ROLES), 3), np.nan)
+        for i, leg in enumerate(LEGS):
+            after = next((seq[k] for k in range(len(seq) - 1, 0, -1)
+                          if leg in seq[k - 1].legs and leg not in seq[k].legs), None)
+            for j, role in enumerate(JOINT_ROLES):
+                allv = np.concatenate([np.asarray(ph.leg_stance.get((leg, role), ()), dtype=float) for ph in phases])
+                e = np.asarray(after.leg_stance.get((leg, role), ()), dtype=float) if after is not None else ()
+                stance[i, j] = (_nan(np.mean, allv), _nan(np.std, allv), _half_drift(e) if len(e) >= 4 else math.nan)
+        stance = _relative(stance)
+        out = []
+        for i, leg in enumerate(LEGS):
+            out += self._nominal_mm[leg] + per_leg.get(leg, [math.nan] * (len(_SWING) + 1)) + stance[i].ravel().tolist()
+        return out
+
+
+def _relative(stance: np.ndarray) -> np.ndarray:
+    """(legs, roles, [mean, spread, settle]) -> each leg's mean error in standard deviations of the
+    legs' means about their mean, its spread and settle drift over the legs' mean magnitude (NaN
+    where the legs give no scale)."""
+    out = np.full_like(stance, np.nan)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        for j in range(stance.shape[1]):
+            m = stance[:, j, 0]
+            if np.isfinite(m).sum() >= 2:
+                out[:, j, 0] = (m - np.nanmean(m)) / np.nanstd(m)
+            for k in (1, 2):
+                v = stance[:, j, k]
+                if np.isfinite(v).any():
+                    out[:, j, k] = v / np.nanmean(np.abs(v))
+    out[~np.isfinite(out)] = np.nan
+    return out
 
 
 def _nan(fn, a) -> float:

@@ -6,9 +6,9 @@
   record BAG --terrain T     walk the sim on a terrain and write a bag with its label file
   bench                      the classifier's time per gait cycle (features + prediction)
 
-Sets (every gait; seeds in brackets): train [0-2] and test [10-11] walk each terrain class,
-courses [20-22] the mixed courses; damped [10] and damped-train [0] walk each class with a servo
-law of 1.5 x the motor damping (data/damped_servo.yaml). Label files: one interval per line,
+Sets (every gait; seeds in brackets): train [0-5] and test [10-11] walk each terrain class,
+courses [20-22] and courses-train [0-5] the mixed courses; damped [10] and damped-train [0] walk
+each class with a servo law of 1.5 x the motor damping (data/damped_servo.yaml). Label files: one interval per line,
 ``START_S END_S LABEL`` in the bag's stamps, ``-`` for no label (docs/terrain.md).
 """
 from __future__ import annotations
@@ -44,7 +44,7 @@ from hexapod_locomotion.trials.terrain_data import (
     write_labels,
 )
 from hexapod_model.cli_common import add_no_progress_option, interrupted, make_parser, nonnegative_int, positive_float
-from hexapod_model.description import DescriptionError, load_robot
+from hexapod_model.description import LEGS, DescriptionError, load_robot
 
 
 def _sets_arg(value: str) -> str:
@@ -130,6 +130,13 @@ def _stack(data):
     return x, y
 
 
+def _group(d: dict) -> str:
+    """The cross-validation group of a trial or bag: its seed (the walks of one seed share the terrain
+    draws) or the bag."""
+    src = d['source']
+    return f'seed {src["seed"]}' if 'seed' in src else str(src.get('bag'))
+
+
 def _generate(args) -> int:
     for s in args.sets:
         t0 = time.monotonic()
@@ -144,20 +151,23 @@ def _train(args) -> int:
     classes = _classes(args)
     data = _gather(args, robot, classes)
     x, y = _stack(data)
+    groups = np.concatenate([[_group(d)] * len(d['labels']) for d in data])
+    legs = np.concatenate([np.asarray(d['leg_labels'], dtype=object).reshape(-1, len(LEGS)) for d in data])
     keep = y != UNLABELLED
     sources = [{'set': s, 'trials': [f'{sp.terrain} seed {sp.seed} {sp.gait} {sp.duration_s:g} s'
                                      + (f' overlays {list(sp.overlays)}' if sp.overlays else '')
                                      for sp in set_specs(s)]} for s in args.sets]
     sources += [{'bag': str(b), 'labels': str(labels_path(b))} for b in args.bags]
     cmd = './hexapod terrain ' + ' '.join(shlex.quote(a) for a in args.argv)
-    model = TerrainModel.fit(x[keep], y[keep], provenance(cmd, sources))
+    model = TerrainModel.fit(x, y, provenance(cmd, sources), groups=groups, leg_labels=legs)
     unknown = sorted(set(model.classes) - set(classes))
     if unknown:
         raise TerrainDataError(f'labels {unknown} are not among the classes {list(classes)}')
     path = model.save(args.out)
     counts = ', '.join(f'{c} {n}' for c, n in model.provenance['cycles_per_class'].items())
     print(f'trained on {int(keep.sum())} labelled gait cycles ({counts}); model: {path} '
-          f'({path.stat().st_size / 1024:.0f} KiB, code {model.provenance["code_version"]})')
+          f'({path.stat().st_size / 1024:.0f} KiB, code {model.provenance["code_version"]}, probability '
+          f'temperature {model.provenance["temperature"]:.2f})')
     return 0
 
 
@@ -200,6 +210,7 @@ def _evaluate(args) -> int:
         print(f'  {g}: {accuracy(mg) * 100:.1f} % of {int(mg.sum())}')
     for line in confusion_lines(m, classes):
         print(line)
+    _calibration_line(model, data, y, keep)
     lags = change_lags(data, pred)
     if lags:
         ok = sum(1 for v in lags if v is not None and v <= 1)
@@ -210,6 +221,23 @@ def _evaluate(args) -> int:
               f'{ok} ({100 * ok / len(lags):.0f} %); cycles of delay: '
               + ', '.join(f'{k}: {v}' for k, v in sorted(hist.items())))
     return 0
+
+
+def _calibration_line(model: TerrainModel, data, y, keep) -> None:
+    """How well the published confidence matches: its mean against the accuracy, and the log loss."""
+    x = np.concatenate([d['X'] for d in data if len(d['X'])])
+    probs = model.probabilities(x)[keep]
+    names = [str(c) for c in model.estimator.classes_]
+    known = np.isin(y[keep], names)
+    if not known.any():
+        return
+    probs, truth = probs[known], np.array([names.index(t) for t in y[keep][known]])
+    hit = probs.argmax(axis=1) == truth
+    loss = -np.mean(np.log(np.clip(probs[np.arange(len(truth)), truth], 1e-12, 1.0)))
+    print(f'confidence: mean {100 * probs.max(axis=1).mean():.1f} % (accuracy {100 * hit.mean():.1f} %); '
+          f'{100 * probs.max(axis=1)[hit].mean():.1f} % when right, '
+          + (f'{100 * probs.max(axis=1)[~hit].mean():.1f} % when wrong' if (~hit).any() else 'never wrong')
+          + f'; log loss {loss:.3f}')
 
 
 def _record(args) -> int:

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from hexapod_locomotion.core.terrain_features import REQUIRED_TOPICS, CycleFeatureExtractor, feed_message
+from hexapod_locomotion.core.terrain_model import UNLABELLED
 from hexapod_model.contract import (
     GROUND_DETECTION,
     JOINT_COMMANDS,
@@ -38,11 +39,14 @@ from hexapod_model.contract import (
     stamp_seconds,
     topic_key,
 )
+from hexapod_model.description import LEGS
 
-UNLABELLED = '-'
 # the trunk within this distance of a segment boundary: some feet may stand on the other class (the
 # front and rear feet are 0.225 m ahead of and behind the trunk, plus half a stride) [m]
 BOUNDARY_MARGIN_M = 0.30
+# a foot within this distance of a segment boundary over a cycle may stand on either class (half a
+# step of 0.05 m plus the foot's slip) [m]
+FOOT_MARGIN_M = 0.08
 CACHE_FORMAT = 1
 
 
@@ -135,6 +139,28 @@ def truth_labels(terrain: str, seed: int, events) -> list[tuple[float, float, st
     return out
 
 
+def leg_labels(terrain: str, seed: int, events, cycles, robot) -> list[tuple[str, ...]]:
+    """Per cycle, the label of each leg (LEGS order) from the truth of the trunk's x: the class under
+    the leg's nominal foot over the whole cycle, ``-`` where the foot comes within FOOT_MARGIN_M of a
+    class boundary. Legs of a cycle across a boundary get the class each one stands on."""
+    from hexapod_model.kinematics import stance_feet
+    from hexapod_sim.physics.terrain_classes import label_at, layout
+    segs = layout(terrain, seed)
+    tx = np.array([(e[1], e[2]) for e in events if e[0] == 'x'])
+    if len(tx) == 0:
+        return [(UNLABELLED,) * len(LEGS) for _ in cycles]
+    fx = stance_feet(robot)[:, 0]
+    edges = np.array([sg.x1_m for sg in segs[:-1]])
+    out = []
+    for c in cycles:
+        x0, x1 = np.interp([c.t_start_s, c.t_end_s], tx[:, 0], tx[:, 1])
+        lo, hi = min(x0, x1) + fx - FOOT_MARGIN_M, max(x0, x1) + fx + FOOT_MARGIN_M
+        across = [bool(np.any((edges > a) & (edges < b))) for a, b in zip(lo, hi)]
+        names = label_at(segs, (lo + hi) / 2)
+        out.append(tuple(UNLABELLED if cut else str(n) for cut, n in zip(across, names)))
+    return out
+
+
 def cycle_labels(cycles, intervals) -> list[str]:
     """The label of each cycle: that of the interval holding its whole span, else ``-``."""
     out = []
@@ -215,7 +241,7 @@ def trial_cycles(spec: TrialSpec) -> dict:
     robot = load_robot(overlays=spec.overlays)
     cycles = replay(robot, events)
     intervals = truth_labels(spec.terrain, spec.seed, events)
-    out = _pack(cycles, intervals, asdict(spec))
+    out = _pack(cycles, intervals, asdict(spec), leg_labels(spec.terrain, spec.seed, events, cycles, robot))
     tmp = path.with_suffix(f'.tmp{os.getpid()}')
     with open(tmp, 'wb') as f:
         pickle.dump(out, f, protocol=pickle.HIGHEST_PROTOCOL)
@@ -223,11 +249,14 @@ def trial_cycles(spec: TrialSpec) -> dict:
     return out
 
 
-def _pack(cycles, intervals, source) -> dict:
+def _pack(cycles, intervals, source, legs=None) -> dict:
+    """``legs``: the labels per leg (:func:`leg_labels`); None: each leg takes its cycle's."""
     from hexapod_locomotion.core.terrain_features import FEATURE_NAMES
     x = np.array([c.values for c in cycles]) if cycles else np.zeros((0, len(FEATURE_NAMES)))
-    return {'X': x, 'labels': cycle_labels(cycles, intervals), 't_start': [c.t_start_s for c in cycles],
-            't_end': [c.t_end_s for c in cycles], 'intervals': intervals, 'source': source}
+    labels = cycle_labels(cycles, intervals)
+    return {'X': x, 'labels': labels, 't_start': [c.t_start_s for c in cycles],
+            't_end': [c.t_end_s for c in cycles], 'intervals': intervals, 'source': source,
+            'leg_labels': legs if legs is not None else [(lab,) * len(LEGS) for lab in labels]}
 
 
 # ----------------------------------------------------------------------------- bags and label files
@@ -320,9 +349,10 @@ COURSE_TRIAL_S = {'tripod': 36.0, 'tetrapod': 50.0, 'pentapod': 84.0}
 DAMPED_OVERLAY = str(Path(__file__).parents[1] / 'data' / 'damped_servo.yaml')
 # name -> (terrains, seeds, durations, overlays)
 SETS = {
-    'train': ('classes', (0, 1, 2), CLASS_TRIAL_S, ()),
+    'train': ('classes', (0, 1, 2, 3, 4, 5), CLASS_TRIAL_S, ()),
     'test': ('classes', (10, 11), CLASS_TRIAL_S, ()),
     'courses': ('course', (20, 21, 22), COURSE_TRIAL_S, ()),
+    'courses-train': ('course', (0, 1, 2, 3, 4, 5), COURSE_TRIAL_S, ()),
     'damped': ('classes', (10,), CLASS_TRIAL_S, (DAMPED_OVERLAY,)),
     'damped-train': ('classes', (0,), CLASS_TRIAL_S, (DAMPED_OVERLAY,)),
 }
