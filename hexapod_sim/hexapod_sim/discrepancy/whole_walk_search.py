@@ -212,7 +212,7 @@ SEARCH_REFINE = 4
 SEARCH_MIN_RATIO = 1.5        # held-out RMS improvement an effect must reach on its joints
 SEARCH_MIN_EXPLAINED = 0.75   # and the share of their excess over rounding it must explain
 ROUNDING_RMS = 0.29           # uniform tick rounding: 1/sqrt(12)
-EDGE_FACTOR = 1.1             # a fit within this factor of its range's low end is no measurement: not named
+EDGE_FACTOR = 1.5             # a fit within this factor of its range's low end is no measurement: not named
 WIDEN_BRACKET = 0.2           # a widened effect's value is refitted within +-20 % of the parts' mean
 SEARCH_CHECK_S = 0.5          # [s] of replay between two looks at a candidate's error so far
 SEARCH_HORIZON_S = 20.0       # [s] of the walk (in step) the search replays: its cost does not grow with the walk
@@ -354,6 +354,19 @@ def _search_one(rec, robot, base: list, cand, scope, ground, until_s, fit, progr
     return best[0], best[1], best[2].replay
 
 
+def _least_measured(cand, robot: Robot) -> float:
+    """The least value of a loaded-phase candidate the whole walk names: ``EDGE_FACTOR`` times its range's low
+    end (a fit that runs towards the smallest plausible value is no measurement: on walks it gave break-away
+    friction of 0.09 N m and play of 0.17 degrees on joints that have neither), and for play and the
+    dead-band at least one tick, the reads' resolution (the dead-band register holds whole ticks)."""
+    least = cand.lo * EDGE_FACTOR
+    if cand.effect == 'backlash':
+        least = max(least, robot.servo.rad_per_tick)
+    elif cand.effect == 'compliance_deadband':
+        least = max(least, 1.0)
+    return least
+
+
 def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, ww: WholeWalk,
                   progress=lambda msg: None, replays: Replays | None = None) -> list[LoadedFind]:
     """Effects of :data:`LOADED_CANDIDATES` that explain what the whole walk's loaded phases leave, on the
@@ -386,7 +399,7 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
         after, eff = min(trials, key=lambda x: x[0])
         explained = (before ** 2 - after ** 2) / max(before ** 2 - ROUNDING_RMS ** 2, 1e-9)
         c = BY_NAME[eff.effect]
-        at_edge = eff.params[c.key] <= c.lo * EDGE_FACTOR      # the fit ran to the smallest plausible value
+        at_edge = eff.params[c.key] < _least_measured(c, robot)
         if before / max(after, 1e-9) >= SEARCH_MIN_RATIO and explained >= SEARCH_MIN_EXPLAINED and not at_edge:
             worst = max(LOADED_PHASES, key=lambda ph: max((ww.phases[j][ph].rmse_ticks_fitted for j in scope
                                                            if ph in ww.phases[j]), default=0.0))
