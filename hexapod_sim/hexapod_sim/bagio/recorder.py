@@ -350,6 +350,9 @@ def _write_queued(rec: 'Recorder', item) -> str | None:
     return None
 
 
+END_QUEUE_WAIT_S = 1.0         # [s] a queue lock held this long at close was left taken (see _end_queue)
+
+
 class _QueuedWrites:
     """The writing side of a recorder that queues (:class:`RecorderThread`, :class:`~hexapod_sim.bagio.recorder_process.RecorderProcess`):
     both take messages and /tf requests through their own bounded queue, ``_put``."""
@@ -401,13 +404,21 @@ class _QueuedWrites:
 
     def _end_queue(self) -> bool:
         """Mark the queue closed and wake its waiters (callers waiting for room: their messages are
-        dropped); False if it was closed already."""
-        with self._not_full:
+        dropped); False if it was closed already.
+
+        The queue's lock is only ever held for a moment (waiters give it up while they wait), so one still
+        held after ``END_QUEUE_WAIT_S`` was left taken: Ctrl-C's KeyboardInterrupt can arrive in a writer
+        after the lock was taken and before its ``with`` block began, and nothing gives it back. The close
+        then takes it over, or the recording would never end."""
+        self._not_full.acquire(timeout=END_QUEUE_WAIT_S)
+        try:
             if self._closed:
                 return False
             self._closed = True
             self._not_empty.notify()
             self._not_full.notify_all()
+        finally:
+            self._not_full.release()
         return True
 
 
