@@ -31,8 +31,7 @@ from hexapod_sim.discrepancy.segments import (
     swing_segments,
 )
 from hexapod_sim.discrepancy.simulate import Replay
-from hexapod_sim.discrepancy.whole_walk import ROUNDING_TICKS
-from hexapod_sim.discrepancy.whole_walk_search import AGREES_MIN_READS, AGREES_SHARE, choose_terms, whole_walk_check
+from hexapod_sim.discrepancy.whole_walk_search import choose_terms, follows_to_rounding, whole_walk_check
 
 MODES = ('auto', 'stand', 'walk')
 # A walk's swing starts in motion from the reads around lift-off; reads in the first 0.1 s are left
@@ -271,12 +270,12 @@ def _whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
     whole walk with the effects found, follows to tick rounding in every phase over most of the walk:
     the free leg is then the model that falls short (a swing that starts while the leg still sheds the
     body's weight), not the robot's physics. A joint the replay judged on too few reads stays."""
-    if whole is None or not whole.in_step_until_s >= AGREES_SHARE * duration_s:
+    if whole is None:
         return unexplained
 
     def at_rounding(j):
-        rows = [v for v in whole.phases.get(j, {}).values() if v.n_reads >= AGREES_MIN_READS]
-        return bool(rows) and max(v.rmse_ticks_fitted for v in rows) <= ROUNDING_TICKS
+        rows = [(v.n_reads, v.rmse_ticks_fitted) for v in whole.phases.get(j, {}).values()]
+        return follows_to_rounding(whole.in_step_until_s, duration_s, rows)
 
     return [u for u in unexplained if not all(at_rounding(j) for j in u.joints)]
 

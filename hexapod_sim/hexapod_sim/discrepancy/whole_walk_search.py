@@ -127,12 +127,19 @@ def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground:
     return out, notes
 
 
+def follows_to_rounding(in_step_until_s: float, duration_s: float, rows) -> bool:
+    """The rule by which the whole walk clears a joint: a replay in step over at least ``AGREES_SHARE`` of the
+    walk, and on that joint every phase judged on at least ``AGREES_MIN_READS`` reads (``rows``: (reads,
+    RMS [ticks]) per phase; at least one) within tick rounding."""
+    if not in_step_until_s >= AGREES_SHARE * duration_s:
+        return False
+    judged = [rms for n, rms in rows if n >= AGREES_MIN_READS]
+    return bool(judged) and max(judged) <= ROUNDING_TICKS
+
+
 def follows(rec: Recording, res: dict, until_s: float, phases: dict, joints) -> bool:
     """Whether a whole-walk replay (``res``: its residuals, in step until ``until_s``) follows ``joints`` to
-    tick rounding in every phase judged on at least ``AGREES_MIN_READS`` reads, in step over at least
-    ``AGREES_SHARE`` of the walk."""
-    if until_s < AGREES_SHARE * rec.duration_s:
-        return False
+    tick rounding (:func:`follows_to_rounding`)."""
     for j in joints:
         t = rec.states[j].t_s
         r = res[j]
@@ -141,12 +148,10 @@ def follows(rec: Recording, res: dict, until_s: float, phases: dict, joints) -> 
         judged = (t >= START_S) & (t < until_s)
         rows = []
         for k in range(len(WHOLE_PHASES)):
-            sel = judged & (lab == k)
-            v = r[sel]
+            v = r[judged & (lab == k)]
             v = v[np.isfinite(v)]
-            if len(v) >= AGREES_MIN_READS:
-                rows.append(float(np.sqrt(np.mean(v ** 2))))
-        if not rows or max(rows) > ROUNDING_TICKS:
+            rows.append((len(v), float(np.sqrt(np.mean(v ** 2))) if len(v) else 0.0))
+        if not follows_to_rounding(until_s, rec.duration_s, rows):
             return False
     return True
 
@@ -408,4 +413,4 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
     return found
 
 
-__all__ = ['LoadedFind', 'choose_terms', 'follows', 'search_loaded', 'walk_ground', 'whole_walk_check', 'widen']
+__all__ = ['LoadedFind', 'choose_terms', 'follows', 'follows_to_rounding', 'search_loaded', 'walk_ground', 'whole_walk_check', 'widen']
