@@ -4,7 +4,7 @@ import math
 import pytest
 
 from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
-from hexapod_locomotion.core.course import CourseConfig, CourseKeeper
+from hexapod_locomotion.core.course import CourseConfig, CourseKeeper, placed_turn_share
 
 CYCLE = 2.0
 
@@ -81,3 +81,44 @@ def test_the_reference_is_not_wound_up():
 def test_bad_gain_is_named():
     with pytest.raises(LocomotionError, match='heading_gain'):
         CourseConfig(heading_gain=math.nan)
+
+
+def test_walking_straight_the_reference_holds_however_far_the_body_yawed():
+    """A leg stalled on a block yawed the body by 0.4 rad (more than max_heading_error_rad): the reference
+    stays at the start heading, so once the body is back there nothing more is corrected."""
+    k = CourseKeeper(CourseConfig(heading_gain=0.5, max_heading_error_rad=0.3, trend=0.0))
+    cmd = VelocityCommand(0.05, 0.0, 0.0)
+    k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE)
+    out = k.command(2.0, cmd, (0.1, 0.0), -0.4, CYCLE)
+    assert k.yaw_ref == 0.0
+    assert out.wz == pytest.approx(0.5 * 0.3 / CYCLE)          # the correction asked for is limited
+    k.command(4.0, cmd, (0.2, 0.0), 0.0, CYCLE)
+    out = k.command(6.0, cmd, (0.3, 0.0), 0.0, CYCLE)
+    assert out.wz == pytest.approx(0.0, abs=1e-12)
+
+
+def test_the_yaw_rate_is_divided_by_the_share_of_the_placed_turn():
+    assert placed_turn_share(2) == pytest.approx(2 / 3)
+    assert placed_turn_share(3) == pytest.approx(3 / 4)
+    assert placed_turn_share(6) == pytest.approx(6 / 7)
+    k = CourseKeeper(turn_share=0.75)
+    cmd = VelocityCommand(0.0, 0.0, 0.1)
+    assert k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE).wz == pytest.approx(0.1 / 0.75)
+    with pytest.raises(LocomotionError, match='turn_share'):
+        CourseKeeper(turn_share=0.0)
+
+
+def test_the_heading_error_is_carried_on_by_its_trend():
+    """The body yaws at -0.05 rad/s, sampled every second (cycle 2 s). At t = 4 s the last cycle's samples
+    (t = 3, 4) average 0.175 rad of error at t = 3.5; the cycle before (t = 1, 2) 0.075 at t = 1.5: the
+    error grows by 0.05 rad/s, so now it is 0.2 rad, and the yaw rate asked is 0.5 * 0.2 / 2 s (on the
+    mean alone 0.5 * 0.175 / 2 s)."""
+    k = CourseKeeper(CourseConfig(heading_gain=0.5, lateral_gain=0.0, trend=1.0))
+    cmd = VelocityCommand(0.05, 0.0, 0.0)
+    for t in range(4):
+        k.command(float(t), cmd, (0.05 * t, 0.0), -0.05 * t, CYCLE)
+    assert k.command(4.0, cmd, (0.2, 0.0), -0.2, CYCLE).wz == pytest.approx(0.5 * 0.2 / CYCLE)
+    plain = CourseKeeper(CourseConfig(heading_gain=0.5, lateral_gain=0.0, trend=0.0))
+    for t in range(4):
+        plain.command(float(t), cmd, (0.05 * t, 0.0), -0.05 * t, CYCLE)
+    assert plain.command(4.0, cmd, (0.2, 0.0), -0.2, CYCLE).wz == pytest.approx(0.5 * 0.175 / CYCLE)
