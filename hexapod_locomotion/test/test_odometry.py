@@ -111,6 +111,22 @@ def test_imu_yaw_is_fused_by_the_variances():
     assert e.pose_cov[5, 5] == pytest.approx(2.5e-5 * 2.25e-4 / 2.5e-4)
 
 
+def test_legs_that_slipped_together_leave_the_yaw_to_the_imu():
+    """The square of the test above, the legs' yaw 0.10 rad, the IMU's 0.20: 0.1 rad apart is 6.3 standard
+    deviations (sqrt(2.25e-4 + 2.5e-5) = 0.0158 rad), beyond the 3 of slip_gate_sigma: the feet slipped
+    together, the IMU's yaw alone counts (fused by the variances it would be 0.19)."""
+    square = np.array([[0.1, 0.1, 0], [-0.1, 0.1, 0], [-0.1, -0.1, 0], [0.1, -0.1, 0], [0, 0, 0], [0, 0, 0]])
+    contact = np.array([1, 1, 1, 1, 0, 0], bool)
+    odo = LegOdometry(OdometryConfig(foot_sigma_m=0.003, gyro_sigma_rad_s=0.005, slip_gate_sigma=3.0))
+
+    def imu(yaw):
+        return ImuReading(quat_wxyz=np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]))
+    odo.update(0.0, body_feet(square, 0, 0, 0.1, 0), contact, imu(0.0))
+    e = odo.update(1.0, body_feet(square, 0, 0, 0.1, 0.10), contact, imu(0.20))
+    assert e.rpy[2] == pytest.approx(0.20)
+    assert e.pose_cov[5, 5] == pytest.approx(2.5e-5)
+
+
 def test_gyro_rate_alone_gives_the_yaw_when_no_foot_set_fits():
     odo = LegOdometry()
     none = np.zeros(6, bool)
