@@ -1,7 +1,9 @@
 """Gaits as data: support counts at every phase, phase offsets, validation."""
+import math
+
 import pytest
 
-from hexapod_locomotion.core.gait import DEFAULT_STRIDE_M, Gait, GaitError, get_gait, load_gaits
+from hexapod_locomotion.core.gait import DEFAULT_STRIDE_M, DEFAULT_TURN_RAD, Gait, GaitError, get_gait, load_gaits
 
 
 @pytest.mark.parametrize('name, down', [('tripod', 3), ('tetrapod', 4), ('pentapod', 5)])
@@ -64,6 +66,23 @@ def test_a_gait_has_its_stride_and_the_parameter_replaces_it():
     assert p.stride_m(get_gait('tripod')) == DEFAULT_STRIDE_M
     assert LocomotionParams(max_stride_m=0.05).stride_m(get_gait('pentapod')) == 0.05
     assert LocomotionParams(max_stride_m=0.10).stride_m(get_gait('tripod')) == 0.10
+
+
+def test_a_gait_has_its_turn_and_the_parameter_replaces_it(tmp_path):
+    """The pentapod's 5.9 s cycle turns up to 0.4 rad per cycle (0.25 capped its turn in place at
+    0.036 rad/s); the others keep 0.25; the controller's parameter, when set, replaces both."""
+    from hexapod_locomotion.core.controller import LocomotionParams
+    p = LocomotionParams()
+    assert p.turn_rad(get_gait('pentapod')) == 0.4
+    assert p.turn_rad(get_gait('tripod')) == p.turn_rad(get_gait('tetrapod')) == DEFAULT_TURN_RAD == 0.25
+    assert LocomotionParams(max_turn_rad=0.1).turn_rad(get_gait('pentapod')) == 0.1
+    assert p.saturating_velocity(get_gait('pentapod'))[1] == pytest.approx(0.4 / p.cycle_s(get_gait('pentapod')))
+    bad = tmp_path / 'g.yaml'
+    bad.write_text('wave:\n  groups: [[1], [2], [3], [4], [5], [6]]\n  max_turn_rad: true\n')
+    with pytest.raises(GaitError, match="gait 'wave': max_turn_rad must be a number"):
+        load_gaits(bad)
+    with pytest.raises(GaitError, match='max_turn_rad must be a finite positive'):
+        Gait('wave', ((1,), (2,), (3,), (4,), (5,), (6,)), 0.09, math.nan)
 
 
 def test_roll_pitch_yaw_of_known_rotations():

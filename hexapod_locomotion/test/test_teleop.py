@@ -92,7 +92,7 @@ def test_default_limits_are_where_the_controller_clamps():
     tripod = get_gait('tripod')                      # fewest phases: the shortest cycle
     lin, ang = controller_limits()
     assert lin == pytest.approx(p.stride_m(tripod) / p.cycle_s(tripod))
-    assert ang == pytest.approx(p.max_turn_rad / p.cycle_s(tripod))
+    assert ang == pytest.approx(p.turn_rad(tripod) / p.cycle_s(tripod))
     # a command at the limit is a full stride per cycle, not more
     assert lin * p.cycle_s(tripod) == pytest.approx(p.stride_m(tripod))
 

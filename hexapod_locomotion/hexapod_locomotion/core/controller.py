@@ -85,7 +85,7 @@ class LocomotionParams:
     max_stride_m: float = param(0.0, "largest foothold displacement per cycle [m]; 0 = the gait's own "
                                 '(gaits.yaml: tripod 0.09, tetrapod 0.10, pentapod 0.12); beyond reach is clamped',
                                 min=0.0)
-    max_turn_rad: float = param(0.25, 'largest yaw per cycle [rad]', min=0.0, exposed=False)
+    max_turn_rad: float = param(0.0, "largest yaw per cycle [rad]; 0 = the gait's own (gaits.yaml)", min=0.0, exposed=False)
     # theta_fin this far below the nominal ground. Eq. 15 moves the goal from theta_init to theta_fin
     # in t_des, so a deeper theta_fin means a faster swing-down at the same t_des: more free-swing lag
     # (the servo's back-EMF), a higher Eq. 17 threshold and a harder touchdown. 3 cm covers the
@@ -160,6 +160,9 @@ class LocomotionParams:
         """Longest foothold displacement per cycle for ``gait``: max_stride_m if set, else the gait's own."""
         return self.max_stride_m if self.max_stride_m > 0 else gait.max_stride_m
 
+    def turn_rad(self, gait: Gait) -> float:     # largest yaw per cycle: max_turn_rad if set, else the gait's
+        return self.max_turn_rad if self.max_turn_rad > 0 else gait.max_turn_rad
+
     def transfer_s(self) -> float:
         """Duration of one phase outside the settle and the swing-down: leveling plus the next swing-up and
         swing-forward, in sequence or overlapped (``overlap_transfer``)."""
@@ -179,7 +182,7 @@ class LocomotionParams:
     def saturating_velocity(self, gait: Gait) -> tuple[float, float]:
         """(|v| [m/s], |wz| [rad/s]) beyond which step_phase clamps the stride / turn per cycle."""
         c = self.cycle_s(gait)
-        return self.stride_m(gait) / c, self.max_turn_rad / c
+        return self.stride_m(gait) / c, self.turn_rad(gait) / c
 
 
 @dataclass(frozen=True)
@@ -363,7 +366,7 @@ class GaitController:
         stride = p.stride_m(self.gait) * self.start_ramp()
         if np.linalg.norm(d) > stride:
             d *= stride / np.linalg.norm(d)
-        yaw = float(np.clip(cmd.wz * cycle_s, -p.max_turn_rad, p.max_turn_rad))
+        yaw = float(np.clip(cmd.wz * cycle_s, -p.turn_rad(self.gait), p.turn_rad(self.gait)))
 
         # 1.-2. swing-up and swing-forward (with the pending leveling, if the transfer is overlapped):
         # the feet go to the neutral foothold advanced by half the stride (and turned)

@@ -73,8 +73,8 @@ def placed_turn_share(n_phases: int) -> float:
     neutral footholds (:meth:`GaitController._level_target`), which it leaves at zero. In the steady
     turn, with the body turning by r per phase, a foot sits yaw/2 - k r off neutral k phases after it
     landed (k = 1..n); their mean is zero when r = yaw / (n + 1), so the body turns n / (n + 1) of the
-    yaw per cycle (tripod 2/3, tetrapod 3/4, pentapod 6/7; measured turning in place on flat ground at
-    0.05 rad/s, the first cycle included: 0.62, 0.72, and the pentapod capped by max_turn_rad)."""
+    yaw per cycle (tripod 2/3, tetrapod 3/4, pentapod 6/7; measured open loop, turning in place on flat
+    ground at 0.05 rad/s for 30 s, the first cycle included: tripod 0.62, tetrapod 0.72)."""
     return n_phases / (n_phases + 1.0)
 
 

@@ -22,6 +22,8 @@ from hexapod_model.yaml_files import source_path, yaml_problem
 # real-time ROS graph at the first blocks of the mockup (docs/architecture.md); 9 cm is what tetrapod
 # needs for the paper's speed at t_des = 1 s.
 DEFAULT_STRIDE_M = 0.09
+# largest yaw per cycle of a gait whose definition gives none [rad]
+DEFAULT_TURN_RAD = 0.25
 
 
 class GaitError(ValueError):
@@ -35,10 +37,14 @@ class Gait:
     # the gait's stride: longest foothold displacement per cycle [m] with which it keeps its support
     # (LocomotionParams.max_stride_m, when set, replaces it)
     max_stride_m: float = DEFAULT_STRIDE_M
+    # the gait's largest yaw per cycle [rad] (LocomotionParams.max_turn_rad, when set, replaces it)
+    max_turn_rad: float = DEFAULT_TURN_RAD
 
     def __post_init__(self):
-        if not (isinstance(self.max_stride_m, (int, float)) and math.isfinite(self.max_stride_m) and self.max_stride_m > 0):
-            raise GaitError(f'gait {self.name!r}: max_stride_m must be a finite positive number, got {self.max_stride_m!r}')
+        for key in ('max_stride_m', 'max_turn_rad'):
+            v = getattr(self, key)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise GaitError(f'gait {self.name!r}: {key} must be a finite positive number, got {v!r}')
         flat = [leg for g in self.groups for leg in g]
         if not self.groups or any(not g for g in self.groups):
             raise GaitError(f'gait {self.name!r}: needs at least one non-empty group')
@@ -77,10 +83,13 @@ def gaits_from_mapping(data: Mapping) -> dict[str, Gait]:
             groups = tuple(tuple(int(x) for x in g) for g in spec['groups'])
         except (TypeError, ValueError):
             raise GaitError(f'gait {name!r}: groups must be lists of leg numbers, got {spec["groups"]!r}') from None
-        stride = spec.get('max_stride_m')
-        if stride is not None and (isinstance(stride, bool) or not isinstance(stride, (int, float))):
-            raise GaitError(f'gait {name!r}: max_stride_m must be a number, got {stride!r}')
-        out[str(name)] = Gait(str(name), groups, DEFAULT_STRIDE_M if stride is None else float(stride))
+        limits = {'max_stride_m': DEFAULT_STRIDE_M, 'max_turn_rad': DEFAULT_TURN_RAD}
+        for key in limits:
+            v = spec.get(key)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                raise GaitError(f'gait {name!r}: {key} must be a number, got {v!r}')
+            limits[key] = limits[key] if v is None else float(v)
+        out[str(name)] = Gait(str(name), groups, **limits)
     return out
 
 
