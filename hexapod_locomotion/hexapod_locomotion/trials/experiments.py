@@ -110,10 +110,12 @@ TABLE4_VX_MPS = 0.1
 
 
 def table4_configs(trials: int, duration_s: float, terrain: str, t_des=(0.5, 1.0),
-                   fixed_threshold_tick: float = 21.0) -> list[TrialConfig]:
+                   fixed_threshold_tick: float = 21.0, variants=VARIANTS,
+                   heading_correction: bool = False) -> list[TrialConfig]:
     return [TrialConfig(gait=g, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s, vx_mps=TABLE4_VX_MPS,
-                        course_end_m=MOCKUP_COURSE_END_M, fixed_threshold_tick=fixed_threshold_tick, **variant_fields(d))
-            for g in GAITS for t in t_des for d in VARIANTS for s in range(trials)]
+                        course_end_m=MOCKUP_COURSE_END_M, fixed_threshold_tick=fixed_threshold_tick,
+                        heading_correction=heading_correction, **variant_fields(d))
+            for g in GAITS for t in t_des for d in variants for s in range(trials)]
 
 
 def summarize_table4(results: list[dict]) -> list[dict]:
@@ -366,6 +368,10 @@ def main(argv=None) -> int:
     ap.add_argument('--approach-rate', type=positive_float, default=IMPROVED_APPROACH_RATE,
                     help='approach_rate of the improved touchdown cells (fraction of the Eq. 15 goal rate near the '
                          'expected ground, below 1)')
+    ap.add_argument('--variants', nargs='+', choices=VARIANTS, default=list(VARIANTS), metavar='VARIANT',
+                    help=f'the table cells per gait and t_des to run ({", ".join(VARIANTS)})')
+    ap.add_argument('--heading-correction', action='store_true',
+                    help="walk with the course correction from the odometry (default: the paper's open loop)")
     add_executor_options(ap)
     add_no_progress_option(ap)
     args = ap.parse_args(argv)
@@ -380,7 +386,8 @@ def main(argv=None) -> int:
     if out.exists() and not out.is_dir():
         ap.error(f'--out {out} exists and is not a directory')
     report: dict = {'which': args.which, 'trials': args.trials, 'duration_s': args.duration, 'terrain': args.terrain,
-                    'fixed_threshold_tick': args.fixed_threshold, 'approach_rate': args.approach_rate}
+                    'fixed_threshold_tick': args.fixed_threshold, 'approach_rate': args.approach_rate,
+                    'variants': args.variants, 'heading_correction': args.heading_correction}
     try:
         return _run(args, out, report)
     except ExecutorError as exc:
@@ -419,7 +426,8 @@ def _keep_interrupted(prog: str, args, out: Path, report: dict, exc: KeyboardInt
 def _run(args, out: Path, report: dict) -> int:
     if args.which in ('table4', 'fig11', 'quality', 'all'):
         t_des = (1.0,) if args.which == 'fig11' else (0.5, 1.0)
-        cfgs = table4_configs(args.trials, args.duration, args.terrain, t_des, args.fixed_threshold)
+        cfgs = table4_configs(args.trials, args.duration, args.terrain, t_des, args.fixed_threshold,
+                              args.variants, args.heading_correction)
         results = run_many(cfgs, args.jobs, 'mockup trials')
         report['trials_results'] = [{k: v for k, v in r.items() if k != 'events'} for r in results]
         if args.which in ('table4', 'all'):
