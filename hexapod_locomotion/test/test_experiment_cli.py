@@ -123,3 +123,15 @@ def test_ctrl_c_keeps_and_names_the_finished_trials(tmp_path):
     assert report['interrupted'] and 1 <= len(kept) < 18
     assert f'kept {len(kept)} finished trial(s) ({len(kept)} of 18 mockup trials)' in lines[0], lines
     assert all(r['config']['gait'] in ('tripod', 'tetrapod', 'pentapod') for r in kept)
+
+
+def test_table4_cells_and_the_course_correction_are_chosen():
+    """Table 4's trials walk the paper's open loop unless --heading-correction; --variants picks the cells."""
+    from hexapod_locomotion.trials.experiments import main, table4_configs
+    cfgs = table4_configs(2, 30.0, 'mockup')
+    assert len(cfgs) == 3 * 2 * 3 * 2 and not any(c.heading_correction for c in cfgs)
+    on = table4_configs(1, 30.0, 'mockup', variants=('adaptive',), heading_correction=True)
+    assert len(on) == 3 * 2 and all(c.heading_correction and c.detector == 'adaptive' and c.approach_rate == 1.0
+                                    for c in on)
+    with pytest.raises(SystemExit):
+        main(['table4', '--variants', 'best'])
