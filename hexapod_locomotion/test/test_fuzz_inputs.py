@@ -2,10 +2,13 @@
 from __future__ import annotations
 
 import random
+import shutil
 
+import numpy as np
 import pytest
 
 from hexapod_locomotion.bench import fuzz_inputs
+from hexapod_sim.discrepancy.cli import main as discrepancy_main
 
 
 @pytest.fixture(scope='module')
@@ -59,6 +62,40 @@ def test_the_tally_counts_cases_per_kind_and_endings_per_tool():
     assert 'slowest tool run: replay-reader on case 1, 3.00 s (CPU 2.50 s); most CPU time of a tool run 2.50 s' \
         in tally.report()
     assert O('discrepancy', 0, [], 10.5, cpu_s=4.0).problem() == 'discrepancy: took 10.5 s (CPU 4.0 s)'
+
+
+def _one_chunk_lost(base, dst, k):
+    """``base`` with its ``k``-th chunk broken (its CRC fails: the reader skips it)."""
+    shutil.copytree(base, dst)
+    mcap = next(dst.glob('*.mcap'))
+    data = bytearray(mcap.read_bytes())
+    off, _, length = [r for r in fuzz_inputs._records(bytes(data)) if r[1] == 0x06][k]
+    data[off + 9 + length - 50] ^= 0xFF
+    mcap.write_bytes(bytes(data))
+    return dst
+
+
+def test_a_walk_with_a_lost_chunk_is_not_read_as_a_stand(base, tmp_path):
+    """One chunk lost 0.61-0.80 s into the 2.5 s walk: discrepancy replayed the goals held across the gap,
+    took the walk for a stand and reported the stance legs' load as unexplained mismatches of 3-7 ticks."""
+    bag = _one_chunk_lost(base, tmp_path / 'bag', 4)
+    out = fuzz_inputs.run_tool('discrepancy', lambda: discrepancy_main([str(bag), '--no-progress']))
+    assert out.code == 2 and not out.trace, out
+    assert 'lost with damaged chunks (0.18 s of 2.5 s: 0.61-0.80 s)' in out.lines[-1], out.lines
+    assert 'does not tell a walk from a stand' in out.lines[-1] and len(out.lines) == 1
+
+
+def test_a_walk_with_a_lost_chunk_is_analysed_around_the_gap(tmp_path):
+    """One chunk lost 3.17-3.28 s into a 6 s walk: the swings clear of it are analysed, nothing across it."""
+    from hexapod_sim.discrepancy import analyse, load_recording
+    base6 = fuzz_inputs.make_base_bag(tmp_path / 'base', seconds=6.0)
+    rec = load_recording(_one_chunk_lost(base6, tmp_path / 'bag', 25))
+    assert [(round(a, 2), round(b, 2)) for a, b in rec.lost] == [(3.17, 3.28)]
+    result = analyse(rec, whole_walk=False)
+    assert result.mode == 'walk'
+    assert any('lost with damaged chunks' in n for n in result.notes)
+    for j, reads in result.replay.reads.items():       # no analysed swing comes near the lost span
+        assert not np.any((reads.t_s > 3.17 - 0.05) & (reads.t_s < 3.28 + 0.05)), j
 
 
 @pytest.mark.parametrize('case', [290, 409, 662, 721, 881, 961])
