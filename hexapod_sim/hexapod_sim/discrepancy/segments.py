@@ -283,9 +283,11 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
     return femur_votes(replay, residual, swings, load_ticks, min_reads)[0] >= 2
 
 
-def walk_across_lost(replay, residual: dict, swings: dict, all_swings: dict) -> bool | None:
-    """:func:`looks_like_walk` on a recording with lost spans, or None when it cannot tell. ``swings``: the
-    swing spans clear of the lost spans; ``all_swings``: every swing the commands show. Legs that swing
+def walk_across_lost(replay, residual: dict, swings: dict, all_swings: dict, lost, settle_s: float = 0.3
+                     ) -> bool | None:
+    """:func:`looks_like_walk` on a recording with lost spans (``lost``, [s]), or None when it cannot tell.
+    ``swings``: the swing spans clear of the lost spans; ``all_swings``: every swing the commands show;
+    ``settle_s``: reads this soon after a lost span are not counted. Legs that swing
     together are a stand routine and femurs that carry load on two legs a walk, as on a whole recording;
     but femurs that do not show the load on the few swings left are no stand: a lost span takes the
     swings of a tripod with it, and with them half of the evidence (a 2.5 s walk with one 0.2 s span lost
@@ -293,14 +295,17 @@ def walk_across_lost(replay, residual: dict, swings: dict, all_swings: dict) -> 
     a single swing, or on one leg only (which, as on a whole recording, is never taken for a walk)."""
     if _legs_swing_together(all_swings) or sum(1 for spans in all_swings.values() if spans) < 2:
         return False
-    if femur_votes(replay, residual, swings)[0] >= 2:
+    # the replay restarts after each gap from the reads there, a stance leg's included: its load shows
+    # only once the prediction has settled
+    if femur_votes(replay, residual, swings, exclude=[(a, b + settle_s) for a, b in lost])[0] >= 2:
         return True
     return None if any(all_swings.values()) else False
 
 
-def femur_votes(replay, residual: dict, swings: dict, load_ticks: float = 1.0, min_reads: int = 10) -> tuple[int, int]:
+def femur_votes(replay, residual: dict, swings: dict, load_ticks: float = 1.0, min_reads: int = 10,
+                exclude=()) -> tuple[int, int]:
     """(femurs pushed up outside their swings, femurs with enough reads inside and outside them to tell):
-    the evidence :func:`looks_like_walk` weighs."""
+    the evidence :func:`looks_like_walk` weighs; reads in the ``exclude`` spans [s] are not counted."""
     femurs = [j for j in replay.joints if j.role == 'femur']
     hits = judged = 0
     for j in femurs:
@@ -312,11 +317,15 @@ def femur_votes(replay, residual: dict, swings: dict, load_ticks: float = 1.0, m
         inside = np.zeros(len(t), dtype=bool)
         for a, b in spans:
             inside |= (t >= a) & (t <= b)
-        if np.count_nonzero(inside) < min_reads or np.count_nonzero(~inside) < min_reads:
+        counted = np.ones(len(t), dtype=bool)
+        for a, b in exclude:
+            counted &= (t < a) | (t > b)
+        inside, outside = inside & counted, ~inside & counted
+        if np.count_nonzero(inside) < min_reads or np.count_nonzero(outside) < min_reads:
             continue
         judged += 1
         r = residual[j]
-        if np.median(r[~inside]) - np.median(r[inside]) > load_ticks:
+        if np.median(r[outside]) - np.median(r[inside]) > load_ticks:
             hits += 1
     return hits, judged
 
