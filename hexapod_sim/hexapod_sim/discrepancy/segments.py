@@ -290,8 +290,8 @@ def walk_across_lost(replay, residual: dict, swings: dict, all_swings: dict, los
     ``settle_s``: reads this soon after a lost span are not counted. Legs that swing
     together are a stand routine and femurs that carry load on two legs a walk, as on a whole recording;
     but femurs that do not show the load on the few swings left are no stand: a lost span takes the
-    swings of a tripod with it, and with them half of the evidence (a 2.5 s walk with one 0.2 s span lost
-    was read as a stand and its stance legs as unexplained mismatches). A stand then needs commands without
+    swings of a tripod with it, and with them half of the evidence (taken as a stand, a 2.5 s walk with
+    0.18 s lost shows its stance legs' load as unexplained mismatches). A stand then needs commands without
     a single swing, or on one leg only (which, as on a whole recording, is never taken for a walk)."""
     if _legs_swing_together(all_swings) or sum(1 for spans in all_swings.values() if spans) < 2:
         return False
