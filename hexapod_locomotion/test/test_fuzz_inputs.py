@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import random
-import shutil
 
 import numpy as np
 import pytest
@@ -64,21 +63,10 @@ def test_the_tally_counts_cases_per_kind_and_endings_per_tool():
     assert O('discrepancy', 0, [], 10.5, cpu_s=4.0).problem() == 'discrepancy: took 10.5 s (CPU 4.0 s)'
 
 
-def _one_chunk_lost(base, dst, k):
-    """``base`` with its ``k``-th chunk broken (its CRC fails: the reader skips it)."""
-    shutil.copytree(base, dst)
-    mcap = next(dst.glob('*.mcap'))
-    data = bytearray(mcap.read_bytes())
-    off, _, length = [r for r in fuzz_inputs._records(bytes(data)) if r[1] == 0x06][k]
-    data[off + 9 + length - 50] ^= 0xFF
-    mcap.write_bytes(bytes(data))
-    return dst
-
-
 def test_a_walk_with_a_lost_chunk_is_not_read_as_a_stand(base, tmp_path):
     """One chunk lost 0.61-0.80 s into the 2.5 s walk: discrepancy replayed the goals held across the gap,
     took the walk for a stand and reported the stance legs' load as unexplained mismatches of 3-7 ticks."""
-    bag = _one_chunk_lost(base, tmp_path / 'bag', 4)
+    bag = fuzz_inputs.break_chunk(base, tmp_path / 'bag', 4)
     out = fuzz_inputs.run_tool('discrepancy', lambda: discrepancy_main([str(bag), '--no-progress']))
     assert out.code == 2 and not out.trace, out
     assert 'lost with damaged chunks (0.18 s of 2.5 s: 0.61-0.80 s)' in out.lines[-1], out.lines
@@ -89,7 +77,7 @@ def test_a_walk_with_a_lost_chunk_is_analysed_around_the_gap(tmp_path):
     """One chunk lost 3.17-3.28 s into a 6 s walk: the swings clear of it are analysed, nothing across it."""
     from hexapod_sim.discrepancy import analyse, load_recording
     base6 = fuzz_inputs.make_base_bag(tmp_path / 'base', seconds=6.0)
-    rec = load_recording(_one_chunk_lost(base6, tmp_path / 'bag', 25))
+    rec = load_recording(fuzz_inputs.break_chunk(base6, tmp_path / 'bag', 25))
     assert [(round(a, 2), round(b, 2)) for a, b in rec.lost] == [(3.17, 3.28)]
     result = analyse(rec, whole_walk=False)
     assert result.mode == 'walk'
