@@ -521,11 +521,15 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         jfit = _joint_fits(replay, split, res0, res1)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
         choose = None
-        # the whole walk is one replay of the trunk on the ground: it cannot cross a lost span
-        rec_ww = rec.before(rec.lost[0][0]) if rec.lost else rec
+        # the whole walk is one replay of the trunk on the ground: it cannot cross a lost span, so it is the
+        # whole walk of the recording up to the first, with that recording's gait phases
+        rec_ww, ww_phases = rec, phases
+        if rec.lost and mode_used == 'walk':
+            rec_ww = rec.before(rec.lost[0][0])
+            ww_phases = gait_phases(rec_ww, replay.legs)
         if mode_used == 'walk' and whole_walk:
             def choose(named, terms):
-                terms, more = choose_terms(rec_ww, robot, named, terms, ground, phases, replay.joints, progress=step)
+                terms, more = choose_terms(rec_ww, robot, named, terms, ground, ww_phases, replay.joints, progress=step)
                 notes.extend(more)
                 return terms
         terms, found, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, found,
@@ -537,8 +541,8 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             if whole_walk:
                 step('replaying the whole walk on the MuJoCo hexapod')
                 named = [f.effect for f in found] + [t.effect for t in terms]
-                whole, ww_notes, finds, wide = whole_walk_check(rec_ww, robot, named, ground, phases, replay.joints,
-                                                                progress=step)
+                whole, ww_notes, finds, wide = whole_walk_check(rec_ww, robot, named, ground, ww_phases,
+                                                                replay.joints, progress=step)
                 if rec.lost:
                     notes.append(f'whole walk: replayed up to the first lost span, {rec_ww.duration_s:.1f} s')
                 notes.extend(ww_notes)
