@@ -1,6 +1,6 @@
 """A seeded fuzzer over bags and robot descriptions: do the tools fail in one line, or read what they can?
 
-    ./hexapod run hexapod_locomotion fuzz_inputs [--cases 1000] [--seed 0] [--out DIR]
+    ./hexapod run hexapod_locomotion fuzz_inputs [--cases 1000] [--seed 0] [--out DIR] [--only I ...]
     ./hexapod run hexapod_locomotion fuzz_inputs --lost-chunk BAG [--at F ...] [--seconds S] [--chunk-kb K]
 
 Each case damages a small valid input and runs the tools on it in this process:
@@ -441,33 +441,39 @@ def main(args=None) -> int:
     ap.add_argument('--at', type=float, nargs='+', default=[0.5], metavar='F', help='with --lost-chunk')
     ap.add_argument('--seconds', type=float, default=None, help='with --lost-chunk: only the first S seconds')
     ap.add_argument('--chunk-kb', type=int, default=64, help='with --lost-chunk: chunk size of the copy [KiB]')
+    ap.add_argument('--only', type=int, nargs='+', metavar='I',
+                    help='run only these cases (of --seed), each tool\'s ending and time printed')
     opts = ap.parse_args(sys.argv[1:] if args is None else args)
     if opts.lost_chunk:
         return _lost_chunk_main(opts)
-    if opts.cases < 1:
-        print('fuzz_inputs: error: --cases must be at least 1', file=sys.stderr)
+    if opts.cases < 1 or any(i < 0 for i in opts.only or ()):
+        print('fuzz_inputs: error: --cases must be at least 1 and --only cases not negative', file=sys.stderr)
         return 2
+    cases = sorted(set(opts.only)) if opts.only else list(range(opts.cases))
     work = Path(opts.out) if opts.out else Path(tempfile.mkdtemp(prefix='fuzz_inputs_'))
     work.mkdir(parents=True, exist_ok=True)
     base = make_base_bag(work / 'base')
     size_kb = sum(f.stat().st_size for f in base.iterdir()) / 1024
-    print(f'fuzz_inputs: {opts.cases} cases (seed {opts.seed}) on a base bag of {size_kb:.0f} kB', flush=True)
+    print(f'fuzz_inputs: {len(cases)} cases (seed {opts.seed}) on a base bag of {size_kb:.0f} kB', flush=True)
     tally, t0 = Tally(), time.monotonic()
     try:
-        for i in range(opts.cases):
+        for n, i in enumerate(cases, 1):
             kind, what, outcomes = run_case(i, opts.seed, base, work)
             problems = tally.add(i, kind, outcomes)
             if problems:
                 print(f'case {i} (seed {opts.seed}): {what}: ' + '; '.join(problems), flush=True)
-            if (i + 1) % 10 == 0 or i + 1 == opts.cases:
-                print(f'fuzz_inputs: {i + 1}/{opts.cases} cases, {tally.failed} failing, '
+            if opts.only:
+                print(f'case {i}: {what}: ' + '; '.join(f'{o.tool} exit {o.code}, {o.seconds:.2f} s (CPU {o.cpu_s:.2f} s)'
+                                                        for o in outcomes), flush=True)
+            if n % 10 == 0 or n == len(cases):
+                print(f'fuzz_inputs: {n}/{len(cases)} cases, {tally.failed} failing, '
                       f'{time.monotonic() - t0:.0f} s, slowest tool run {tally.slowest[0]:.2f} s, '
                       f'peak memory {peak_memory_mb():.0f} MB', file=sys.stderr, flush=True)
     finally:
         if not opts.out:
             shutil.rmtree(work, ignore_errors=True)
     print('\n'.join(tally.report()))
-    print(f'fuzz_inputs: {opts.cases} cases (seed {opts.seed}): {opts.cases - tally.failed} passed, '
+    print(f'fuzz_inputs: {len(cases)} cases (seed {opts.seed}): {len(cases) - tally.failed} passed, '
           f'{tally.failed} failed; slowest tool run {tally.slowest[0]:.2f} s; peak memory of the run '
           f'{peak_memory_mb():.0f} MB; {time.monotonic() - t0:.0f} s')
     return 1 if tally.failed else 0
