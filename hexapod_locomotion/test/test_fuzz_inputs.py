@@ -106,3 +106,11 @@ def test_a_walk_with_broken_chunks_is_refused_fast(base, tmp_path, case):
     out = next(o for o in outcomes if o.tool == 'discrepancy')
     assert out.code == 2 and len(out.lines) == 1 and 'lost with damaged chunks' in out.lines[0], (what, out)
     assert out.cpu_s < 1.5, (what, out)
+
+
+def test_only_runs_the_given_cases_and_prints_each_tools_time(capsys):
+    assert fuzz_inputs.main(['--seed', '0', '--only', '409']) == 0
+    out = capsys.readouterr().out
+    assert 'fuzz_inputs: 1 cases (seed 0)' in out
+    assert 'case 409: bag bitflip: 32 bit flip(s): analyse exit 2, ' in out and 'discrepancy exit 2, ' in out
+    assert fuzz_inputs.main(['--only', '-1']) == 2
