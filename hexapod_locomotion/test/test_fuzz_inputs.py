@@ -3,9 +3,11 @@ from __future__ import annotations
 
 import random
 
+import numpy as np
 import pytest
 
 from hexapod_locomotion.bench import fuzz_inputs
+from hexapod_sim.discrepancy.cli import main as discrepancy_main
 
 
 @pytest.fixture(scope='module')
@@ -61,6 +63,29 @@ def test_the_tally_counts_cases_per_kind_and_endings_per_tool():
     assert O('discrepancy', 0, [], 10.5, cpu_s=4.0).problem() == 'discrepancy: took 10.5 s (CPU 4.0 s)'
 
 
+def test_a_walk_with_a_lost_chunk_is_not_read_as_a_stand(base, tmp_path):
+    """One chunk lost 0.61-0.80 s into the 2.5 s walk: discrepancy replayed the goals held across the gap,
+    took the walk for a stand and reported the stance legs' load as unexplained mismatches of 3-7 ticks."""
+    bag = fuzz_inputs.break_chunk(base, tmp_path / 'bag', 4)
+    out = fuzz_inputs.run_tool('discrepancy', lambda: discrepancy_main([str(bag), '--no-progress']))
+    assert out.code == 2 and not out.trace, out
+    assert 'lost with damaged chunks (0.18 s of 2.5 s: 0.61-0.80 s)' in out.lines[-1], out.lines
+    assert 'does not tell a walk from a stand' in out.lines[-1] and len(out.lines) == 1
+
+
+def test_a_walk_with_a_lost_chunk_is_analysed_around_the_gap(tmp_path):
+    """One chunk lost 3.17-3.28 s into a 6 s walk: the swings clear of it are analysed, nothing across it."""
+    from hexapod_sim.discrepancy import analyse, load_recording
+    base6 = fuzz_inputs.make_base_bag(tmp_path / 'base', seconds=6.0)
+    rec = load_recording(fuzz_inputs.break_chunk(base6, tmp_path / 'bag', 25))
+    assert [(round(a, 2), round(b, 2)) for a, b in rec.lost] == [(3.17, 3.28)]
+    result = analyse(rec, whole_walk=False)
+    assert result.mode == 'walk'
+    assert any('lost with damaged chunks' in n for n in result.notes)
+    for j, reads in result.replay.reads.items():       # no analysed swing comes near the lost span
+        assert not np.any((reads.t_s > 3.17 - 0.05) & (reads.t_s < 3.28 + 0.05)), j
+
+
 @pytest.mark.parametrize('case', [290, 409, 662, 721, 881, 961])
 def test_the_cases_the_1000_case_run_found_end_in_one_line(base, tmp_path, case):
     """Seed 0 of ``fuzz_inputs --cases 1000``: a leg number that is null or a list (load_robot and discrepancy
@@ -70,3 +95,22 @@ def test_the_cases_the_1000_case_run_found_end_in_one_line(base, tmp_path, case)
     assert not [o.problem() for o in outcomes if o.problem()], what
     refused = [o for o in outcomes if o.code == 2]
     assert refused and all(len(o.lines) == 1 for o in refused), (what, outcomes)
+
+
+@pytest.mark.parametrize('case', [245, 894])
+def test_a_walk_with_broken_chunks_is_refused_fast(base, tmp_path, case):
+    """Seed 0 of ``fuzz_inputs --cases 1000``: 4 bit flips broke 4 chunks (0.54 s of the 2.5 s walk lost);
+    discrepancy read the walk as a stand and searched for effects outside its library on the stance load:
+    5.3 s of CPU time, 10.8 s of wall time on a loaded machine."""
+    kind, what, outcomes = fuzz_inputs.run_case(case, 0, base, tmp_path)
+    out = next(o for o in outcomes if o.tool == 'discrepancy')
+    assert out.code == 2 and len(out.lines) == 1 and 'lost with damaged chunks' in out.lines[0], (what, out)
+    assert out.cpu_s < 1.5, (what, out)
+
+
+def test_only_runs_the_given_cases_and_prints_each_tools_time(capsys):
+    assert fuzz_inputs.main(['--seed', '0', '--only', '409']) == 0
+    out = capsys.readouterr().out
+    assert 'fuzz_inputs: 1 cases (seed 0)' in out
+    assert 'case 409: bag bitflip: 32 bit flip(s): analyse exit 2, ' in out and 'discrepancy exit 2, ' in out
+    assert fuzz_inputs.main(['--only', '-1']) == 2

@@ -86,6 +86,9 @@ def test_corrupt_chunk_is_skipped_with_warning(tmp_path):
     got = [int(m.msg.position[0]) for m in reader.messages()]
     lost_from = sum(n for _, n in chunks[:2])
     assert got == list(range(lost_from)) + list(range(lost_from + n2, 200))
+    # the log time it lost: from the last message before the chunk to the first after it
+    assert reader.lost_spans == [(T0 + lost_from - 1, T0 + lost_from + n2)]
+    assert BagReader(write_bag(tmp_path / 'whole', msgs)).lost_spans == []
 
 
 @pytest.mark.parametrize('content, match', [

@@ -1,6 +1,7 @@
 """A seeded fuzzer over bags and robot descriptions: do the tools fail in one line, or read what they can?
 
-    ./hexapod run hexapod_locomotion fuzz_inputs [--cases 1000] [--seed 0] [--out DIR]
+    ./hexapod run hexapod_locomotion fuzz_inputs [--cases 1000] [--seed 0] [--out DIR] [--only I ...]
+    ./hexapod run hexapod_locomotion fuzz_inputs --lost-chunk BAG [--at F ...] [--seconds S] [--chunk-kb K]
 
 Each case damages a small valid input and runs the tools on it in this process:
 
@@ -18,6 +19,9 @@ prints no traceback, and takes at most 10 s. A failing case prints its seed and 
 progress line every 10 cases; at the end, cases and failures per kind of damage, per tool its runs,
 how they ended and its slowest run, and the peak memory of the run (every case under 1 GB if the
 run's peak is). The exit code is 1 if any case failed.
+
+``--lost-chunk BAG`` breaks one chunk of a copy of BAG at a time and prints what ``discrepancy`` makes of
+each: the spans lost, walk or stand with the effects it names, or its one-line refusal.
 """
 from __future__ import annotations
 
@@ -55,17 +59,57 @@ def reference_bag() -> Path:
 
 def make_base_bag(dst: Path, seconds: float = BASE_SECONDS) -> Path:
     """The first ``seconds`` of the reference walk as a small complete bag."""
+    return copy_bag(reference_bag(), dst, seconds, 64)
+
+
+def copy_bag(src: Path, dst: Path, seconds: float | None, chunk_kb: int) -> Path:
+    """The first ``seconds`` (None: all) of the bag ``src`` written to ``dst`` in chunks of ``chunk_kb`` KiB."""
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', BagWarning)
-        r = BagReader(reference_bag())
-    end = r.start_ns + int(seconds * 1e9)
-    with BagWriter(dst, chunk_size=64 * 1024) as w:
+        r = BagReader(src)
+    end = None if seconds is None else r.start_ns + int(seconds * 1e9)
+    with BagWriter(dst, chunk_size=chunk_kb * 1024) as w:
         for topic, info in r.topic_info().items():
             w.add_topic(topic, info.msg_type, definition=r.schema_text(topic),
                         qos_profiles=list(info.offered_qos_profiles) or None)
         for topic, msg_type, t_ns, data in r.messages(raw=True, end_ns=end):
             w.write(topic, msg_type, data, t_ns)
     return dst
+
+
+def break_chunk(bag: Path, dst: Path, k: int) -> Path:
+    """A copy of ``bag`` at ``dst`` whose ``k``-th chunk fails its CRC (the reader skips it)."""
+    shutil.copytree(bag, dst)
+    mcap = next(dst.glob('*.mcap'))
+    data = bytearray(mcap.read_bytes())
+    off, _, length = [r for r in _records(bytes(data)) if r[1] == 0x06][k]
+    data[off + 9 + length - 50] ^= 0xFF
+    mcap.write_bytes(bytes(data))
+    return dst
+
+
+def lost_chunk_runs(src: Path, work: Path, seconds: float | None, chunk_kb: int, chunks: list[float]) -> list[str]:
+    """What ``discrepancy`` makes of ``src`` (its first ``seconds``, in ``chunk_kb`` KiB chunks) with one chunk
+    broken, for each chunk at the given fractions of the chunk count: the spans lost, and walk or stand
+    with the effects named, or its refusal."""
+    from hexapod_sim.discrepancy import RecordingError, analyse, load_recording
+    base = copy_bag(src, work / 'whole', seconds, chunk_kb)
+    n = len([r for r in _records(next(base.glob('*.mcap')).read_bytes()) if r[1] == 0x06])
+    out = []
+    for k in sorted({min(max(int(f * n), 1), n - 2) for f in chunks}):
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            rec = load_recording(break_chunk(base, work / f'chunk_{k}', k))
+            lost = ', '.join(f'{a:.2f}-{b:.2f} s' for a, b in rec.lost)
+            try:
+                res = analyse(rec)
+            except RecordingError as exc:
+                out.append(f'chunk {k} of {n} (lost {lost}): refused: {str(exc).split(": ")[-1]}')
+                continue
+        named = '; '.join(f'{f.effect.effect} on {f.scope}: ' + ', '.join(f'{p}={v:.3g}' for p, v in f.effect.params.items())
+                          for f in res.effects)
+        out.append(f'chunk {k} of {n} (lost {lost}): {res.mode}, {named or "no effect named"}')
+    return out
 
 
 def _records(data: bytes) -> list[tuple[int, int, int]]:
@@ -370,36 +414,66 @@ class Tally:
         return out
 
 
+def _lost_chunk_main(opts) -> int:
+    from hexapod_sim.discrepancy import RecordingError
+    if opts.chunk_kb < 1 or not all(0.0 <= f <= 1.0 for f in opts.at):
+        print('fuzz_inputs: error: --chunk-kb must be at least 1 and --at fractions within 0-1', file=sys.stderr)
+        return 2
+    work = Path(tempfile.mkdtemp(prefix='lost_chunk_'))
+    try:
+        for line in lost_chunk_runs(Path(opts.lost_chunk), work, opts.seconds, opts.chunk_kb, opts.at):
+            print(line, flush=True)
+    except (BagError, RecordingError) as exc:
+        print(f'fuzz_inputs: error: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return 0
+
+
 def main(args=None) -> int:
     ap = argparse.ArgumentParser(prog='fuzz_inputs', description=__doc__.split('\n\n')[0])
     ap.add_argument('--cases', type=int, default=1000)
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--out', default=None, help='work folder (default: a temporary one, removed at the end)')
+    ap.add_argument('--lost-chunk', metavar='BAG', help='instead: break one chunk of BAG at a time (at the '
+                    '--at fractions of its chunks) and say what discrepancy makes of it')
+    ap.add_argument('--at', type=float, nargs='+', default=[0.5], metavar='F', help='with --lost-chunk')
+    ap.add_argument('--seconds', type=float, default=None, help='with --lost-chunk: only the first S seconds')
+    ap.add_argument('--chunk-kb', type=int, default=64, help='with --lost-chunk: chunk size of the copy [KiB]')
+    ap.add_argument('--only', type=int, nargs='+', metavar='I',
+                    help='run only these cases (of --seed), each tool\'s ending and time printed')
     opts = ap.parse_args(sys.argv[1:] if args is None else args)
-    if opts.cases < 1:
-        print('fuzz_inputs: error: --cases must be at least 1', file=sys.stderr)
+    if opts.lost_chunk:
+        return _lost_chunk_main(opts)
+    if opts.cases < 1 or any(i < 0 for i in opts.only or ()):
+        print('fuzz_inputs: error: --cases must be at least 1 and --only cases not negative', file=sys.stderr)
         return 2
+    cases = sorted(set(opts.only)) if opts.only else list(range(opts.cases))
     work = Path(opts.out) if opts.out else Path(tempfile.mkdtemp(prefix='fuzz_inputs_'))
     work.mkdir(parents=True, exist_ok=True)
     base = make_base_bag(work / 'base')
     size_kb = sum(f.stat().st_size for f in base.iterdir()) / 1024
-    print(f'fuzz_inputs: {opts.cases} cases (seed {opts.seed}) on a base bag of {size_kb:.0f} kB', flush=True)
+    print(f'fuzz_inputs: {len(cases)} cases (seed {opts.seed}) on a base bag of {size_kb:.0f} kB', flush=True)
     tally, t0 = Tally(), time.monotonic()
     try:
-        for i in range(opts.cases):
+        for n, i in enumerate(cases, 1):
             kind, what, outcomes = run_case(i, opts.seed, base, work)
             problems = tally.add(i, kind, outcomes)
             if problems:
                 print(f'case {i} (seed {opts.seed}): {what}: ' + '; '.join(problems), flush=True)
-            if (i + 1) % 10 == 0 or i + 1 == opts.cases:
-                print(f'fuzz_inputs: {i + 1}/{opts.cases} cases, {tally.failed} failing, '
+            if opts.only:
+                print(f'case {i}: {what}: ' + '; '.join(f'{o.tool} exit {o.code}, {o.seconds:.2f} s (CPU {o.cpu_s:.2f} s)'
+                                                        for o in outcomes), flush=True)
+            if n % 10 == 0 or n == len(cases):
+                print(f'fuzz_inputs: {n}/{len(cases)} cases, {tally.failed} failing, '
                       f'{time.monotonic() - t0:.0f} s, slowest tool run {tally.slowest[0]:.2f} s, '
                       f'peak memory {peak_memory_mb():.0f} MB', file=sys.stderr, flush=True)
     finally:
         if not opts.out:
             shutil.rmtree(work, ignore_errors=True)
     print('\n'.join(tally.report()))
-    print(f'fuzz_inputs: {opts.cases} cases (seed {opts.seed}): {opts.cases - tally.failed} passed, '
+    print(f'fuzz_inputs: {len(cases)} cases (seed {opts.seed}): {len(cases) - tally.failed} passed, '
           f'{tally.failed} failed; slowest tool run {tally.slowest[0]:.2f} s; peak memory of the run '
           f'{peak_memory_mb():.0f} MB; {time.monotonic() - t0:.0f} s')
     return 1 if tally.failed else 0

@@ -93,6 +93,9 @@ def build_parser():
     ap.add_argument('--json', metavar='FILE', type=output_file(('.json',)), help='also write the full results as JSON')
     ap.add_argument('--video', metavar='GIF', type=output_file(VIDEO_EXTENSIONS),
                     help='also render an animated GIF of the walk (offscreen, CPU)')
+    ap.add_argument('--clock-file', metavar='PATH',
+                    help='keep the sim time reached in PATH (8 bytes, float64; hexapod_sim.bagio.clock_file): '
+                         'the clock by which bench_kills measures what a kill of the demo lost')
     add_no_progress_option(ap)
     return ap
 
@@ -196,8 +199,15 @@ def main(argv=None) -> int:
         bar.close()
         print(f'writing GIF {args.video} ({n_frames} frames)...', file=sys.stderr, flush=True)
 
+    clock = None
+    if args.clock_file:
+        from hexapod_sim.bagio.clock_file import ClockFile
+        try:
+            clock = ClockFile(args.clock_file)
+        except OSError as exc:
+            ap.error(f'--clock-file {args.clock_file}: {exc.strerror or exc}')
     try:
-        res = run_trial(cfg, progress=progress, on_video_write=on_video, live=live)
+        res = run_trial(cfg, progress=progress, on_video_write=on_video, live=live, clock=clock)
     except KeyboardInterrupt:         # the trial closed its bag (and wrote the GIF so far) on the way out
         bar.close()
         return _interrupted(ap, bag, args.video)

@@ -68,8 +68,10 @@ class ProbeBus(ServoBus):
 
     deadline_s: float = math.inf
 
-    def __init__(self, sim, probe_period_s: float = 0.05, recorder=None, on_probe=None, real_time: bool = False):
+    def __init__(self, sim, probe_period_s: float = 0.05, recorder=None, on_probe=None, real_time: bool = False,
+                 clock=None):
         self.sim = sim
+        self.clock = clock                 # a ClockFile kept at the sim time reached after every bus call, or None
         self._wall0 = (time.monotonic() - sim.now()) if real_time else None    # pace to wall time (live view)
         self.on_probe = on_probe
         self.t_com_s = sim.t_com_s
@@ -102,6 +104,8 @@ class ProbeBus(ServoBus):
     def sync_write(self, goals_rad) -> float:
         self._check_deadline()
         t = self.sim.sync_write(goals_rad)
+        if self.clock is not None:
+            self.clock.set(self.sim.now())
         if self.recorder is not None:
             self.recorder.write(JOINT_COMMANDS, MSG_TYPES[JOINT_COMMANDS],
                                 joint_state_msg(t, goals_rad.keys(), goals_rad.values()), t)
@@ -110,6 +114,8 @@ class ProbeBus(ServoBus):
     def read_position(self, joint: str):
         self._check_deadline()
         theta, stamp = self.sim.read_position(joint)
+        if self.clock is not None:
+            self.clock.set(self.sim.now())
         leg, role = parse_joint_name(joint)
         if role == 'femur':
             c = self.sim.foot_contacts()
@@ -127,6 +133,8 @@ class ProbeBus(ServoBus):
             self._check_deadline()
             step_to = min(t, self._next_probe) if self._next_probe > self.sim.now() else t
             self.sim.wait_until(min(step_to, self.deadline_s))
+            if self.clock is not None:
+                self.clock.set(self.sim.now())
             self._maybe_probe()
         self._check_deadline()
 
@@ -381,13 +389,15 @@ def _walk(cfg: TrialConfig, sim, probe: ProbeBus, controller: GaitController, od
             return
 
 
-def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, recorder=None) -> TrialResult:
+def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, recorder=None,
+              clock=None) -> TrialResult:
     """Walk one trial; ``progress(sim_time_s, distance_m)`` is called after every phase,
     ``on_video_write(n_frames)`` before the GIF is written. ``live``: a
     :class:`hexapod_sim.node.live.LiveView` that gets every recorded topic as it happens (the walk is
     then paced to real time). ``recorder``: an object with the methods of
     :class:`hexapod_sim.bagio.recorder.Recorder` that gets every recorded topic in process instead of a bag
-    (``cfg.record`` and ``live`` then unused).
+    (``cfg.record`` and ``live`` then unused). ``clock``: a :class:`hexapod_sim.bagio.clock_file.ClockFile`
+    kept at the sim time reached (the kill bench's clock for the demo).
 
     The walk ends at ``cfg.duration_s`` of simulated walking time within one control period (the
     phase in progress is cut off and not counted), at the course end, or when the robot falls."""
@@ -399,7 +409,8 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, r
                      start_xy_m=ground.start_xy_m)
     recorder = _open_recorder(cfg, robot, ground, live, recorder)
     video = _Video(cfg, sim) if cfg.video else None
-    probe = ProbeBus(sim, cfg.probe_period_s, recorder, video.on_probe if video else None, real_time=live is not None)
+    probe = ProbeBus(sim, cfg.probe_period_s, recorder, video.on_probe if video else None, real_time=live is not None,
+                     clock=clock)
     swing_downs: list[SwingDownPhase] = []
 
     def on_swing_start(phase):

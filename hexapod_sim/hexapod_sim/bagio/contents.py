@@ -114,6 +114,7 @@ class BagContents:
     scene: str | None = None                                  # the first /sim/scene text
     topics: frozenset = frozenset()                           # the contract topics the bag has
     warnings: tuple[str, ...] = ()                            # what the reader found damaged
+    lost_spans: tuple[tuple[int, int], ...] = ()              # log time [ns] of corrupt chunks (BagReader.lost_spans)
 
 
 def _ns(stamp) -> int:
@@ -171,7 +172,7 @@ class _Acc:
         elif topic == contract.SIM_SCENE and self.scene is None:
             self.scene = str(msg.data)
 
-    def contents(self, path: str, topics: frozenset, warnings: list) -> BagContents:
+    def contents(self, path: str, topics: frozenset, warnings: list, lost_spans=()) -> BagContents:
         power = np.asarray(self.power, dtype=float).reshape(-1, 2)
         pose = np.asarray(self.pose, dtype=float).reshape(-1, 4)
         imu = np.asarray(self.imu, dtype=float).reshape(-1, 11)
@@ -183,7 +184,7 @@ class _Acc:
             power=TimeSeries(power[:, 0].copy(), power[:, 1].copy()),
             truth_pose=TimeSeries(pose[:, 0].copy(), pose[:, 1:].copy()),
             imu=ImuSeries(imu[:, 0].copy(), imu[:, 1:4].copy(), imu[:, 4:7].copy(), imu[:, 7:11].copy()),
-            scene=self.scene, topics=topics, warnings=tuple(warnings))
+            scene=self.scene, topics=topics, warnings=tuple(warnings), lost_spans=tuple(lost_spans))
 
 
 def load_bag(path: str | Path, topics: Iterable[str] = TOPICS, required: Mapping[str, str] | None = None
@@ -214,7 +215,7 @@ def load_bag(path: str | Path, topics: Iterable[str] = TOPICS, required: Mapping
             raise BagError(f'{path}: {bag_name} message at t={t_ns} ns does not read as the contract\'s {msg_type} '
                            f'({exc}): the definition the bag stores for {msg_type} is not the installed one') from None
     in_bag = frozenset(contract.topic_key(t) for t in reader.topics())
-    return acc.contents(str(path), in_bag, reader.warnings)
+    return acc.contents(str(path), in_bag, reader.warnings, reader.lost_spans)
 
 
 __all__ = ['BagContents', 'Detection', 'JointMessages', 'SwingDown', 'TimeSeries', 'TOPICS', 'load_bag']

@@ -49,6 +49,9 @@ class _FileScan:
     complete: bool = False                           # footer + trailing magic present
     readable_bytes: int = 0                          # end of the last complete record
     problems: list = field(default_factory=list)     # human-readable warnings
+    # every chunk in file order: a readable one's _ChunkRef, or (start_ns, end_ns) of a corrupt one as its
+    # header states them (the header lies outside the compressed data, but may be damaged too)
+    order: list = field(default_factory=list)
 
 
 def _opname(op: int) -> str:
@@ -112,10 +115,12 @@ def _scan_chunk(scan: _FileScan, stream, file_idx: int, pos: int, length: int) -
     except Exception as exc:      # bad compression / CRC / inner framing
         scan.problems.append(f'corrupt chunk at byte {pos} ({exc}); its messages are '
                              'skipped')
+        scan.order.append((chunk.message_start_time, chunk.message_end_time))
     else:
         if n:
             scan.chunks.append(_ChunkRef(file_idx, pos, 9 + length,
                                          chunk.message_start_time, chunk.message_end_time, n))
+            scan.order.append(scan.chunks[-1])
             for m in msgs:
                 scan.counts[m.channel_id] = scan.counts.get(m.channel_id, 0) + 1
 
@@ -183,6 +188,27 @@ def _scan_file(path: Path, file_idx: int) -> _FileScan:
 
 _RECORD = struct.Struct('<BQ')           # opcode, length
 _MESSAGE = struct.Struct('<HIQQ')        # channel id, sequence, log time, publish time
+
+
+def _lost_spans(order: list) -> list[tuple[int, int]]:
+    """(start_ns, end_ns) of log time whose messages went with each corrupt chunk of one file: from the end
+    of the readable chunk before it to the start of the one after it (chunks are written in log-time
+    order); the chunk's own header bounds the side without a readable neighbour."""
+    out = []
+    for i, item in enumerate(order):
+        if isinstance(item, _ChunkRef):
+            continue
+        before = next((c.end_ns for c in reversed(order[:i]) if isinstance(c, _ChunkRef)), None)
+        after = next((c.start_ns for c in order[i + 1:] if isinstance(c, _ChunkRef)), None)
+        lo = item[0] if before is None else before
+        hi = item[1] if after is None else after
+        if before is not None and after is None:
+            hi = max(hi, lo)
+        if after is not None and before is None:
+            lo = min(lo, hi)
+        if lo < hi:
+            out.append((lo, hi))
+    return out
 
 
 def _load_chunk(fh, ref: _ChunkRef) -> list[Message]:
@@ -381,6 +407,19 @@ class BagReader:
     def complete(self) -> bool:
         """True if every file ended with a valid footer and nothing had to be skipped."""
         return all(s.complete for s in self._scans) and not self.warnings
+
+    @property
+    def lost_spans(self) -> list[tuple[int, int]]:
+        """(start_ns, end_ns) of the log-time spans whose messages were in corrupt chunks (skipped), merged and
+        sorted; empty if no chunk was lost (a truncated tail is not a span: the bag just ends earlier)."""
+        spans = sorted(sp for s in self._scans for sp in _lost_spans(s.order))
+        out: list[list[int]] = []
+        for a, b in spans:
+            if out and a <= out[-1][1]:
+                out[-1][1] = max(out[-1][1], b)
+            else:
+                out.append([a, b])
+        return [(a, b) for a, b in out]
 
     @property
     def start_ns(self) -> int:

@@ -15,9 +15,10 @@ robot, ``-p record:=BAG``, walking on a ``/cmd_vel`` this command publishes) or 
 The nodes run on their own ROS domain (``--domain``, loopback only). The sim time at the kill comes
 from ``/clock`` (sim and robot): the processes to be killed are stopped (SIGSTOP) first, the last
 ``/clock`` received is then the sim time they had reached, and data lost = that time minus the
-bag's last log time (both sim time). The demo publishes no clock: its bag is compared with the bag
-of an uncut run of the same demo (deterministic): it must hold exactly the uncut run's messages up
-to its end (:func:`prefix_check`).
+bag's last log time (both sim time). The demo, which publishes no ``/clock``, keeps the sim time it has
+reached in a file (``--clock-file``, :mod:`hexapod_sim.bagio.clock_file`), read the same way once it is
+stopped; its bag is also compared with the bag of an uncut run of the same demo (deterministic): it must
+hold exactly the uncut run's messages up to its end (:func:`prefix_check`).
 
 Per bag: whether this project's reader and ``rosbags`` open it (as left behind, and after
 ``reindex`` if it was needed), its sim time span, the data lost, and with ``--tools`` whether
@@ -40,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hexapod_sim.bagio import BagError, BagReader, BagWarning
+from hexapod_sim.bagio.clock_file import read_clock_file
 from hexapod_sim.bagio.repair import reindex_bag
 
 TARGETS = ('sim', 'robot', 'demo')
@@ -60,7 +62,13 @@ def command(target: str, bag: Path) -> list[str]:
         return [executable('hexapod_sim', 'sim_node'), '--ros-args', '-p', f'record:={bag}']
     if target == 'robot':
         return [executable('hexapod_locomotion', 'robot'), '--ros-args', '-p', f'record:={bag}']
-    return [executable('hexapod_locomotion', 'demo'), '--duration', '60', '--record', str(bag), '--no-progress']
+    return [executable('hexapod_locomotion', 'demo'), '--duration', '60', '--record', str(bag), '--no-progress',
+            '--clock-file', str(demo_clock(bag))]
+
+
+def demo_clock(bag: Path) -> Path:
+    """Where the demo recording ``bag`` keeps the sim time it has reached (hexapod_sim.bagio.clock_file)."""
+    return bag.with_name(bag.name + '.clock')
 
 
 def pids_under(sid: int) -> list[int]:
@@ -130,7 +138,7 @@ class KillResult:
     mode: str
     delay_s: float
     bag: Path
-    t_kill_s: float | None = None         # sim time reached at the kill (/clock), None for the demo
+    t_kill_s: float | None = None         # sim time reached at the kill (/clock; the demo's clock file)
     project_ok: bool = False              # this project's reader opens the bag as left behind
     rosbags_ok: bool = False              # rosbags opens and reads it as left behind
     reindexed: bool = False               # reindex had to rebuild it
@@ -237,6 +245,8 @@ def kill_one(i: int, target: str, mode: str, delay_s: float, bag: Path, env: dic
         if clock is not None:
             time.sleep(0.5)
             res.t_kill_s = clock.t_s
+        elif target == 'demo':
+            res.t_kill_s = read_clock_file(demo_clock(bag))
         for p in victims:
             _signal(p, signal.SIGKILL)
         proc.wait()

@@ -22,13 +22,17 @@ from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatc
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, make_split, unobservable
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
 from hexapod_sim.discrepancy.segments import (
+    LOST_MARGIN_S,
     PHASES,
     body_motion_share,
+    clear_of_lost,
     gait_phases,
     looks_like_walk,
     median_swing_up_s,
     obstructed_swings,
+    spans_between_lost,
     swing_segments,
+    walk_across_lost,
 )
 from hexapod_sim.discrepancy.simulate import Replay
 from hexapod_sim.discrepancy.whole_walk_search import choose_terms, follows_to_rounding, whole_walk_check
@@ -317,6 +321,8 @@ def _residuals(replay: Replay, pred: dict) -> dict:
 def _walk_swings(rec: Recording, robot: Robot, joints, phases: dict, segs: dict, notes: list, step):
     """The replay of a walk's swings with the obstructed ones left out, its nominal prediction and residuals."""
     n_spans = sum(len(v) for v in segs.values())
+    if n_spans == 0 and rec.lost:
+        raise RecordingError(f'{rec.source}: {_lost_text(rec)}: no swing of the walk is left clear of them')
     if n_spans == 0:
         raise RecordingError(f'{rec.source}: looks like a walk (legs carry load) but no swing phase '
                              'was found in the femur commands; pass --time windows where the legs '
@@ -352,36 +358,56 @@ def _walk_swings(rec: Recording, robot: Robot, joints, phases: dict, segs: dict,
     return replay, pred0, res0
 
 
+def _lost_text(rec: Recording) -> str:
+    """What a damaged bag lost, in a few words."""
+    spans = ', '.join(f'{a:.2f}-{b:.2f} s' for a, b in rec.lost[:4]) + (', ...' if len(rec.lost) > 4 else '')
+    return (f'{len(rec.lost)} span(s) of the recording lost with damaged chunks ({rec.lost_s:.2f} s of '
+            f'{rec.duration_s:.1f} s: {spans})')
+
+
 def _replay_analysed(rec: Recording, robot: Robot, joints, windows, mode: str, settings: FitSettings,
                      notes: list, step):
     """The replay the analysis judges: the given windows, a walk's swings or the whole stand.
     -> (replay, nominal prediction, residuals, gait phases or None, mode used, reads skipped at a segment's
     start [s], settings: a walk's with its larger held-out drop)."""
-    segments = None
+    segments, mode_used = None, mode
     if windows:
         legs_all = sorted({j.leg for j in rec.joints})
         segments = {leg: list(windows) for leg in legs_all}
         mode_used = 'windows'
         notes.append('analysed only the given time windows: '
                      + ', '.join(f'{a:g}-{b:g} s' for a, b in windows))
+    elif rec.lost:                     # a damaged bag: nothing is replayed across a lost span
+        segments = spans_between_lost(rec, sorted({j.leg for j in rec.joints}))
     step('replaying the recorded goals')
     replay = Replay(robot, rec, joints=joints, segments=segments)
     pred0 = replay.predict(robot)
     res0 = _residuals(replay, pred0)
     phases = None
     skip_start_s = 0.3
-    if segments is None:
-        phases = gait_phases(rec, replay.legs)
+    if mode_used != 'windows':
+        every = gait_phases(rec, replay.legs)
+        phases = clear_of_lost(every, rec.lost)
         segs = swing_segments(rec, replay.legs, phases=phases)
-        walk = mode == 'walk' or (mode == 'auto' and looks_like_walk(replay, res0, segs))
-        if walk:
+        verdict = mode == 'walk'
+        if mode == 'auto':
+            verdict = walk_across_lost(replay, res0, segs, swing_segments(rec, replay.legs, phases=every), rec.lost,
+                                       skip_start_s) if rec.lost else looks_like_walk(replay, res0, segs)
+        if verdict is None and rec.lost:
+            raise RecordingError(f'{rec.source}: {_lost_text(rec)}: what is left does not tell a walk from a '
+                                 'stand (--mode walk or --mode stand decides)')
+        if verdict:
             replay, pred0, res0 = _walk_swings(rec, robot, joints, phases, segs, notes, step)
             skip_start_s = WALK_SETTLE_S
             mode_used = 'walk'
             settings = replace(settings, min_drop_ticks=max(settings.min_drop_ticks, settings.walk_min_drop_ticks))
         else:
             mode_used = 'stand'
-            notes.append('stand recording: every leg treated as hanging free for the whole recording')
+            notes.append('stand recording: every leg treated as hanging free for the whole recording'
+                         + (' (apart from the lost spans)' if rec.lost else ''))
+    if rec.lost:
+        notes.append(f'{_lost_text(rec)}: left out' + (', with every swing within '
+                                                        f'{LOST_MARGIN_S:g} s of one' if mode_used == 'walk' else ''))
     return replay, pred0, res0, phases, mode_used, skip_start_s, settings
 
 
@@ -495,9 +521,15 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         jfit = _joint_fits(replay, split, res0, res1)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
         choose = None
+        # the whole walk is one replay of the trunk on the ground: it cannot cross a lost span, so it is the
+        # whole walk of the recording up to the first, with that recording's gait phases
+        rec_ww, ww_phases = rec, phases
+        if rec.lost and mode_used == 'walk':
+            rec_ww = rec.before(rec.lost[0][0])
+            ww_phases = gait_phases(rec_ww, replay.legs)
         if mode_used == 'walk' and whole_walk:
             def choose(named, terms):
-                terms, more = choose_terms(rec, robot, named, terms, ground, phases, replay.joints, progress=step)
+                terms, more = choose_terms(rec_ww, robot, named, terms, ground, ww_phases, replay.joints, progress=step)
                 notes.extend(more)
                 return terms
         terms, found, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, found,
@@ -509,11 +541,13 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             if whole_walk:
                 step('replaying the whole walk on the MuJoCo hexapod')
                 named = [f.effect for f in found] + [t.effect for t in terms]
-                whole, ww_notes, finds, wide = whole_walk_check(rec, robot, named, ground, phases, replay.joints,
-                                                                progress=step)
+                whole, ww_notes, finds, wide = whole_walk_check(rec_ww, robot, named, ground, ww_phases,
+                                                                replay.joints, progress=step)
+                if rec.lost:
+                    notes.append(f'whole walk: replayed up to the first lost span, {rec_ww.duration_s:.1f} s')
                 notes.extend(ww_notes)
                 found, unexplained = _widened(found, unexplained, wide, whole, replay.joints)
-                unexplained = _whole_walk_agrees(unexplained, whole, rec.duration_s)
+                unexplained = _whole_walk_agrees(unexplained, whole, rec_ww.duration_s)
                 found, blind = _add_loaded(found, blind, finds, replay.joints)
         notes.append(_split_note(split, by_swing))
         return Analysis(source=rec.source, mode=mode_used, robot=robot, replay=replay, split=split,

@@ -93,9 +93,8 @@ def _main(ap, args) -> int:
         with warnings.catch_warnings(record=True) as caught:      # a damaged bag: read what is there, say so
             warnings.simplefilter('always', BagWarning)
             rec = load_recording(args.bag, robot)
+        # said once the analysis stands: a refusal of the damaged recording is one line that names the damage
         line = one_warning([w.message for w in caught if issubclass(w.category, BagWarning)])
-        if line:
-            print(f'{ap.prog}: warning: {line}', file=sys.stderr)
         for w in caught:
             if not issubclass(w.category, BagWarning):
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -109,6 +108,8 @@ def _main(ap, args) -> int:
     except (RecordingError, DescriptionError, ValueError) as exc:
         print(f'{ap.prog}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         return 2
+    if line:
+        print(f'{ap.prog}: warning: {line}', file=sys.stderr)
     from hexapod_sim.discrepancy.report import overlay_yaml, text_report, to_json
     print(text_report(result))
     if args.json:

@@ -12,7 +12,7 @@ to a whole millisecond, so the 1 kHz firmware grid of the sim stays aligned).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Mapping
 
@@ -58,6 +58,9 @@ class Recording:
     imu: ImuSeries | None = None
     # what a simulated robot walked on (hexapod_sim.physics.terrain.Ground), from the bag's /sim/scene
     ground: object | None = None
+    # (start_s, end_s) spans whose messages a damaged bag lost (corrupt chunks skipped by the reader): no goal
+    # and no read is known there, so nothing may be replayed across one
+    lost: tuple = ()
 
     @property
     def joints(self) -> tuple[Joint, ...]:
@@ -68,6 +71,20 @@ class Recording:
     def duration_s(self) -> float:
         ends = [s.t_s[-1] for s in list(self.commands.values()) + list(self.states.values()) if len(s)]
         return float(max(ends)) if ends else 0.0
+
+    @property
+    def lost_s(self) -> float:
+        """The time the lost spans cover [s]."""
+        return float(sum(b - a for a, b in self.lost))
+
+    def before(self, t_end_s: float) -> 'Recording':
+        """This recording up to ``t_end_s`` [s] (the samples before it), without lost spans after it."""
+        def cut(d):
+            return {j: Series(s.t_s[s.t_s < t_end_s], s.theta_rad[s.t_s < t_end_s]) for j, s in d.items()}
+        imu = None if self.imu is None else self.imu.take(self.imu.t_s < t_end_s)
+        return replace(self, commands=cut(self.commands), states=cut(self.states), imu=imu,
+                       glitches=tuple(g for g in self.glitches if g.t_s < t_end_s),
+                       lost=tuple((a, b) for a, b in self.lost if b <= t_end_s))
 
     @classmethod
     def from_samples(cls, commands: Iterable[tuple[float, Mapping[Joint | str, float]]],
@@ -218,5 +235,7 @@ def load_recording(path: str | Path, robot=None) -> Recording:
     glitches = tuple(sorted((Glitch(topic, j, t - t0, kind, detail)
                              for topic, found in (('command', bad_c), ('read', bad_r))
                              for j, t, kind, detail in found), key=lambda g: (g.t_s, g.joint))) + imu_glitches
+    lost = tuple((max(a / 1e9 - t0, 0.0), min(b / 1e9 - t0, duration)) for a, b in bag.lost_spans
+                 if b / 1e9 - t0 > 0.0 and a / 1e9 - t0 < duration)
     return Recording(commands=conv(cmds, 'command'), states=conv(reads, 'read'), t0_ns=t0_ms * 1_000_000,
-                     source=str(p), glitches=glitches, imu=imu, ground=ground)
+                     source=str(p), glitches=glitches, imu=imu, ground=ground, lost=lost)

@@ -156,6 +156,47 @@ def gait_phases(rec: Recording, legs, min_lift_rad: float = 0.08, gap_s: float =
     return out
 
 
+LOST_MARGIN_S = 0.05     # a phase this close to a lost span may have been misread from the goals held across it
+
+
+def _touches(a: float, b: float, lost, margin_s: float) -> bool:
+    return any(a < d + margin_s and c - margin_s < b for c, d in lost)
+
+
+def clear_of_lost(phases: dict, lost, margin_s: float = LOST_MARGIN_S) -> dict[int, LegPhases]:
+    """``phases`` without the swings and leveling runs that come within ``margin_s`` of a lost span
+    (:attr:`Recording.lost`): across one the goals are held at their last recorded value, so a run may be
+    cut in two or two joined, and the reads that would show the motion are gone."""
+    if not lost:
+        return phases
+    return {leg: LegPhases(tuple(sw for sw in ph.swings if not _touches(sw.t_up, sw.t_stop, lost, margin_s)),
+                           tuple((a, b) for a, b in ph.leveling if not _touches(a, b, lost, margin_s)))
+            for leg, ph in phases.items()}
+
+
+READ_AGAIN_S = 0.1
+
+
+def spans_between_lost(rec: Recording, legs) -> dict[int, list[tuple[float, float]]]:
+    """Per leg, the spans of a stand recording between its lost spans: each starts once the joints of the
+    leg read within ``READ_AGAIN_S`` of the gap's end have been read again (a replay starts from the latest
+    read, which should not predate the gap); a joint read only later (a routine that moves one joint at a
+    time) starts from its read before the gap, which the reads skipped at a segment's start cover)."""
+    out = {}
+    for leg in legs:
+        reads = [rec.states[j].t_s for j in rec.states if j.leg == leg and len(rec.states[j])]
+        cuts = [(0.0, 0.0)] + list(rec.lost) + [(rec.duration_s + 1.0, rec.duration_s + 1.0)]
+        spans = []
+        for (_, start), (end, _) in zip(cuts[:-1], cuts[1:]):
+            firsts = [t[k] for t in reads for k in [np.searchsorted(t, start)] if k < len(t) and t[k] < end]
+            soon = [t for t in firsts if t <= start + READ_AGAIN_S]
+            a = max(soon) if soon else min(firsts, default=end)
+            if end - a > 0.0:
+                spans.append((float(a), min(end, rec.duration_s + 0.01)))
+        out[leg] = spans
+    return out
+
+
 def swing_segments(rec: Recording, legs, lift_off_s: float = 0.08, before_stop_s: float = 0.1,
                    phases: dict | None = None, **kw) -> dict[int, list[tuple[float, float]]]:
     """Free-leg spans of every leg in a walk: from ``lift_off_s`` after the swing-up starts (the foot
@@ -239,8 +280,34 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
     """
     if _legs_swing_together(swings):
         return False
+    return femur_votes(replay, residual, swings, load_ticks, min_reads)[0] >= 2
+
+
+def walk_across_lost(replay, residual: dict, swings: dict, all_swings: dict, lost, settle_s: float = 0.3
+                     ) -> bool | None:
+    """:func:`looks_like_walk` on a recording with lost spans (``lost``, [s]), or None when it cannot tell.
+    ``swings``: the swing spans clear of the lost spans; ``all_swings``: every swing the commands show;
+    ``settle_s``: reads this soon after a lost span are not counted. Legs that swing
+    together are a stand routine and femurs that carry load on two legs a walk, as on a whole recording;
+    but femurs that do not show the load on the few swings left are no stand: a lost span takes the
+    swings of a tripod with it, and with them half of the evidence (taken as a stand, a 2.5 s walk with
+    0.18 s lost shows its stance legs' load as unexplained mismatches). A stand then needs commands without
+    a single swing, or on one leg only (which, as on a whole recording, is never taken for a walk)."""
+    if _legs_swing_together(all_swings) or sum(1 for spans in all_swings.values() if spans) < 2:
+        return False
+    # the replay restarts after each gap from the reads there, a stance leg's included: its load shows
+    # only once the prediction has settled
+    if femur_votes(replay, residual, swings, exclude=[(a, b + settle_s) for a, b in lost])[0] >= 2:
+        return True
+    return None if any(all_swings.values()) else False
+
+
+def femur_votes(replay, residual: dict, swings: dict, load_ticks: float = 1.0, min_reads: int = 10,
+                exclude=()) -> tuple[int, int]:
+    """(femurs pushed up outside their swings, femurs with enough reads inside and outside them to tell):
+    the evidence :func:`looks_like_walk` weighs; reads in the ``exclude`` spans [s] are not counted."""
     femurs = [j for j in replay.joints if j.role == 'femur']
-    hits = 0
+    hits = judged = 0
     for j in femurs:
         leg = j.leg
         spans = swings.get(leg) or []
@@ -250,12 +317,17 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
         inside = np.zeros(len(t), dtype=bool)
         for a, b in spans:
             inside |= (t >= a) & (t <= b)
-        if np.count_nonzero(inside) < min_reads or np.count_nonzero(~inside) < min_reads:
+        counted = np.ones(len(t), dtype=bool)
+        for a, b in exclude:
+            counted &= (t < a) | (t > b)
+        inside, outside = inside & counted, ~inside & counted
+        if np.count_nonzero(inside) < min_reads or np.count_nonzero(outside) < min_reads:
             continue
+        judged += 1
         r = residual[j]
-        if np.median(r[~inside]) - np.median(r[inside]) > load_ticks:
+        if np.median(r[outside]) - np.median(r[inside]) > load_ticks:
             hits += 1
-    return hits >= 2
+    return hits, judged
 
 
 def obstructed_swings(replay, residual: dict, settle_s: float = 0.1, factor: float = 3.0,
