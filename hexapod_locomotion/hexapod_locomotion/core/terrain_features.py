@@ -15,8 +15,10 @@ What a foot feels, and where it shows:
   not above the nominal ground - the body's pose is what the previous ground left, so a foot on flat
   ground after soft or slippery ground finds it as far below the nominal as the body sank, but level
   with the other feet - how many reads the error stood above the model's (err - err_est
-  > ``CONTACT_RESIDUAL_TICK``) before the stop and how fast it grew (a soft floor gives way, so the
-  error grows slowly over more reads), legs that found no ground;
+  > ``CONTACT_RESIDUAL_TICK``) before the stop (a soft floor gives way, so the error stands above it
+  over more reads) and by how much at the stop, legs that found no ground. How fast the error grew
+  before the stop is left out: it made legs on flat ground right after another class look rough
+  (docs/terrain.md);
 * *stance* (per joint role, the reads of legs not swinging): position error goal - read in ticks,
   its mean, spread and drift over the phase (a foot that slides or sinks changes the load);
 * *leveling*: the plane through the commanded feet at each swing-down start (its tilt and the
@@ -43,11 +45,10 @@ from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, join
 from hexapod_model.kinematics import forward, stance_feet
 from hexapod_model.servo import tick_to_theta
 
-FEATURES_VERSION = 4
+FEATURES_VERSION = 5
 CONTACT_RESIDUAL_TICK = 2.0     # err - err_est above this counts as the leg being held by something [N]
-SLOPE_READS = 3                 # the residual's growth is taken over the last reads before the stop [N]
 
-_SWING = ('t_stop_frac', 'contact_step_mm', 'contact_reads', 'residual_slope_tick', 'stop_residual_tick',
+_SWING = ('t_stop_frac', 'contact_step_mm', 'contact_reads', 'stop_residual_tick',
           'stop_margin_tick', 'init_lag_tick')
 _STANCE = tuple(f'stance_{r}_{s}' for r in JOINT_ROLES for s in ('mean_tick', 'std_tick', 'drift_tick'))
 CYCLE_FEATURE_NAMES = (
@@ -190,8 +191,6 @@ class CycleFeatureExtractor:
             if not v:
                 break
             n_contact += 1
-        k = min(SLOPE_READS, stop)
-        slope = (res[-1] - res[-1 - k]) / k if k > 0 else math.nan
         f = ph.fields
         fem = float(tick_to_theta(r[2], self.servo))
         f0, f1 = f['femur_init_rad'][slot], f['femur_fin_rad'][slot]
@@ -200,7 +199,7 @@ class CycleFeatureExtractor:
         foot = forward(self.robot, ph.legs[slot], [f['coxa_rad'][slot], fem, tib])
         plane = ph.support.get(ph.legs[slot])
         step = foot[2] - (plane[0] * foot[0] + plane[1] * foot[1] + plane[2]) if plane is not None else math.nan
-        return [r[0] / ph.t_des_s, 1000.0 * step, float(n_contact), float(slope), float(res[-1]), r[3] - r[5],
+        return [r[0] / ph.t_des_s, 1000.0 * step, float(n_contact), float(res[-1]), r[3] - r[5],
                 reads[0][3] - reads[0][4], 1.0 if r[7] == 2 else 0.0]
 
     def _close(self, t_end: float) -> CycleFeatures:
