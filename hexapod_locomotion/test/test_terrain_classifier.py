@@ -188,3 +188,45 @@ def test_each_leg_takes_the_class_under_its_foot_on_a_course():
     # legs 1, 2 front (0.225 m ahead of the trunk), 3, 4 rear, 5, 6 middle: on the boundary
     assert got[0] == (second, second, first, first, '-', '-')
     assert got[1] == (first,) * 6
+
+
+def _swing_step_mm(body_drop_m: float, foot_above_m: float) -> float:
+    """Leg 1's swing-down step feature of one synthetic tripod cycle: every commanded foot of the
+    stance ``body_drop_m`` higher in the body frame (the body sank that much), leg 1 stopping with its
+    foot ``foot_above_m`` above the others."""
+    from hexapod_locomotion.core.terrain_features import CycleFeatureExtractor
+    from hexapod_model.description import JOINT_ROLES, LEGS, joint_name
+    from hexapod_model.kinematics import inverse, stance_feet
+    from hexapod_model.servo import theta_to_tick
+    robot = load_robot()
+    feet = stance_feet(robot) + [0.0, 0.0, body_drop_m]
+    angles = {leg: inverse(robot, leg, feet[i]) for i, leg in enumerate(LEGS)}
+    ex = CycleFeatureExtractor(robot)
+    ex.command([joint_name(leg, r) for leg in LEGS for r in JOINT_ROLES],
+               [float(a) for leg in LEGS for a in angles[leg]])
+    for t, group in enumerate(((1, 4, 5), (2, 3, 6), (1, 4, 5))):
+        ends = [inverse(robot, leg, feet[LEGS.index(leg)] + [0.0, 0.0, foot_above_m if leg == 1 else 0.0])
+                for leg in group]
+        msg = {'legs': list(group), 't_des_s': 1.0, 'coxa_rad': [e[0] for e in ends],
+               'femur_init_rad': [e[1] for e in ends], 'femur_fin_rad': [e[1] for e in ends],
+               'tibia_init_rad': [e[2] for e in ends], 'tibia_fin_rad': [e[2] for e in ends]}
+        cycle = ex.swing_start(float(t), msg)
+        if cycle is not None:
+            return float(cycle.values[FEATURE_NAMES.index('leg1_contact_step_mm')])
+        for leg, end in zip(group, ends):
+            tick = float(theta_to_tick(end[1], robot.servo))
+            for k, stop in enumerate((False, False, True)):
+                ex.detection({'leg': leg, 't_swing_s': 0.2 * (k + 1), 'theta_des_tick': tick, 'theta_real_tick': tick,
+                              'err_tick': 1.0 + 4.0 * k, 'err_est_tick': 1.0, 'threshold_tick': 3.0,
+                              'stopped': stop, 'stop_reason': 1 if stop else 0})
+    raise AssertionError('the cycle did not close')
+
+
+def test_a_swing_down_step_is_measured_against_the_other_feet_not_the_nominal_ground():
+    """After soft or slippery ground the body stands lower or tilted for a few cycles: a foot that finds
+    the ground level with the other feet is a level step whatever the body's height, so flat ground
+    right after another class does not look like a step down or up."""
+    level = _swing_step_mm(0.0, 0.0)
+    assert abs(_swing_step_mm(0.015, 0.0) - level) < 0.5
+    assert abs(_swing_step_mm(-0.01, 0.0) - level) < 0.5
+    assert abs(_swing_step_mm(0.0, 0.02) - level - 20.0) < 0.5

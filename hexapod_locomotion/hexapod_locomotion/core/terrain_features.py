@@ -10,10 +10,15 @@ is read. The same object runs in the trial runner (in process), on a bag and in 
 What a foot feels, and where it shows:
 
 * *swing-down* (per leg, from the detector's reads): when the leg stopped (``t_stop / t_des``),
-  the foot height there (forward kinematics of the measured femur and the tibia on the Eq. 15 path,
-  relative to the nominal ground), how many reads the error stood above the model's (err - err_est
-  > ``CONTACT_RESIDUAL_TICK``) before the stop and how fast it grew (a soft floor gives way, so the
-  error grows slowly over more reads), legs that found no ground;
+  the step the foot met there: its height (forward kinematics of the measured femur and the tibia on
+  the Eq. 15 path) above the plane through the commanded feet of the legs that stood at that read,
+  not above the nominal ground - the body's pose is what the previous ground left, so a foot on flat
+  ground after soft or slippery ground finds it as far below the nominal as the body sank, but level
+  with the other feet - how many reads the error stood above the model's (err - err_est
+  > ``CONTACT_RESIDUAL_TICK``) before the stop (a soft floor gives way, so the error stands above it
+  over more reads) and by how much at the stop, legs that found no ground. How fast the error grew
+  before the stop is left out: it made legs on flat ground right after another class look rough
+  (docs/terrain.md);
 * *stance* (per joint role, the reads of legs not swinging): position error goal - read in ticks,
   its mean, spread and drift over the phase (a foot that slides or sinks changes the load);
 * *leveling*: the plane through the commanded feet at each swing-down start (its tilt and the
@@ -40,11 +45,10 @@ from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, join
 from hexapod_model.kinematics import forward, stance_feet
 from hexapod_model.servo import tick_to_theta
 
-FEATURES_VERSION = 3
+FEATURES_VERSION = 5
 CONTACT_RESIDUAL_TICK = 2.0     # err - err_est above this counts as the leg being held by something [N]
-SLOPE_READS = 3                 # the residual's growth is taken over the last reads before the stop [N]
 
-_SWING = ('t_stop_frac', 'contact_z_mm', 'contact_reads', 'residual_slope_tick', 'stop_residual_tick',
+_SWING = ('t_stop_frac', 'contact_step_mm', 'contact_reads', 'stop_residual_tick',
           'stop_margin_tick', 'init_lag_tick')
 _STANCE = tuple(f'stance_{r}_{s}' for r in JOINT_ROLES for s in ('mean_tick', 'std_tick', 'drift_tick'))
 CYCLE_FEATURE_NAMES = (
@@ -76,6 +80,7 @@ class _Phase:
     t_des_s: float
     fields: dict
     det: dict = field(default_factory=dict)            # leg -> list of detector reads (tuples)
+    support: dict = field(default_factory=dict)        # leg -> the support feet's plane at its stop (a, b, c)
     stance: dict = field(default_factory=dict)         # role -> list of (t, error tick)
     leg_stance: dict = field(default_factory=dict)     # (leg, role) -> list of error tick
     level: tuple = (math.nan, math.nan, math.nan)      # (tilt rad, scatter m, height m) at the start
@@ -138,6 +143,8 @@ class CycleFeatureExtractor:
                       float(_get(msg, 'theta_real_tick')), float(_get(msg, 'err_tick')),
                       float(_get(msg, 'err_est_tick')), float(_get(msg, 'threshold_tick')),
                       bool(_get(msg, 'stopped')), int(_get(msg, 'stop_reason'))))
+        if reads[-1][6]:
+            ph.support[leg] = self._plane([lg for lg in LEGS if lg not in ph.legs])[0]
 
     def swing_start(self, t_s: float, msg) -> CycleFeatures | None:
         """A swing-down began at ``t_s``; returns the features of the gait cycle it closes, if any."""
@@ -154,16 +161,23 @@ class CycleFeatureExtractor:
         return out
 
     # -- features
-    def _leveling(self, support) -> tuple[float, float, float]:
-        """The plane through the commanded feet of the legs that carry the body (``support``)."""
+    def _plane(self, support) -> tuple[np.ndarray | None, float]:
+        """The plane ``z = a x + b y + c`` (body frame) through the commanded feet of the legs that carry
+        the body (``support``) and the feet's scatter about it; (None, NaN) with fewer than three."""
         if len(support) < 3:
-            return (math.nan, math.nan, math.nan)
+            return None, math.nan
         feet = np.array([forward(self.robot, leg, [self._goal[joint_name(leg, r)] for r in JOINT_ROLES])
                          for leg in support])
         a = np.c_[feet[:, :2], np.ones(len(feet))]
         coef, *_ = np.linalg.lstsq(a, feet[:, 2], rcond=None)
-        resid = feet[:, 2] - a @ coef
-        return float(math.atan(math.hypot(coef[0], coef[1]))), float(np.std(resid)), float(coef[2] - self.ground_z)
+        return coef, float(np.std(feet[:, 2] - a @ coef))
+
+    def _leveling(self, support) -> tuple[float, float, float]:
+        """(tilt, scatter, height above the nominal ground) of the support feet's plane."""
+        coef, scatter = self._plane(support)
+        if coef is None:
+            return (math.nan, math.nan, math.nan)
+        return float(math.atan(math.hypot(coef[0], coef[1]))), scatter, float(coef[2] - self.ground_z)
 
     def _swing_leg(self, ph: _Phase, slot: int, reads) -> list[float] | None:
         stop = next((i for i, r in enumerate(reads) if r[6]), None)
@@ -177,15 +191,15 @@ class CycleFeatureExtractor:
             if not v:
                 break
             n_contact += 1
-        k = min(SLOPE_READS, stop)
-        slope = (res[-1] - res[-1 - k]) / k if k > 0 else math.nan
         f = ph.fields
         fem = float(tick_to_theta(r[2], self.servo))
         f0, f1 = f['femur_init_rad'][slot], f['femur_fin_rad'][slot]
         frac = (fem - f0) / (f1 - f0) if abs(f1 - f0) > 1e-9 else 1.0
         tib = f['tibia_init_rad'][slot] + frac * (f['tibia_fin_rad'][slot] - f['tibia_init_rad'][slot])
-        z = forward(self.robot, ph.legs[slot], [f['coxa_rad'][slot], fem, tib])[2] - self.ground_z
-        return [r[0] / ph.t_des_s, 1000.0 * z, float(n_contact), float(slope), float(res[-1]), r[3] - r[5],
+        foot = forward(self.robot, ph.legs[slot], [f['coxa_rad'][slot], fem, tib])
+        plane = ph.support.get(ph.legs[slot])
+        step = foot[2] - (plane[0] * foot[0] + plane[1] * foot[1] + plane[2]) if plane is not None else math.nan
+        return [r[0] / ph.t_des_s, 1000.0 * step, float(n_contact), float(res[-1]), r[3] - r[5],
                 reads[0][3] - reads[0][4], 1.0 if r[7] == 2 else 0.0]
 
     def _close(self, t_end: float) -> CycleFeatures:
