@@ -25,7 +25,10 @@ every leg (its three joints) and the whole robot (every analysed joint); a paylo
    range. The accepted hypothesis with the largest held-out gain wins; a smaller
    scope that achieves nearly the same gain (``parsimony``) is preferred, unless the joints only
    the larger scope reaches confirm the effect on their own held-out reads by the same test
-   (a joint with few reads adds little gain however clearly it shows the effect). Repeat with the effect
+   (a joint with few reads adds little gain however clearly it shows the effect). A joint effect on
+   several joints that makes one of them clearly worse held out (``WORSE_TICKS``) is not that scope; an
+   effect screened best on several joints is also fitted on its best single joint, since the screen credits
+   a larger scope with whatever its extra joints share with the signature. Repeat with the effect
    added to the model, until nothing passes (``max_effects``).
 4. With several effects, every parameter is refitted once with the others in place.
 
