@@ -25,7 +25,10 @@ every leg (its three joints) and the whole robot (every analysed joint); a paylo
    range. The accepted hypothesis with the largest held-out gain wins; a smaller
    scope that achieves nearly the same gain (``parsimony``) is preferred, unless the joints only
    the larger scope reaches confirm the effect on their own held-out reads by the same test
-   (a joint with few reads adds little gain however clearly it shows the effect). Repeat with the effect
+   (a joint with few reads adds little gain however clearly it shows the effect). A joint effect on
+   several joints that makes one of them clearly worse held out (``WORSE_TICKS``) is not that scope; an
+   effect screened best on several joints is also fitted on its best single joint, since the screen credits
+   a larger scope with whatever its extra joints share with the signature. Repeat with the effect
    added to the model, until nothing passes (``max_effects``).
 4. With several effects, every parameter is refitted once with the others in place.
 
@@ -61,6 +64,9 @@ NONLINEAR = ('static_friction', 'backlash', 'compliance_deadband', 'torque_satur
 # whole robot the servo law's candidate stands for it (the replay cannot tell them apart).
 ROBOT_WIDE_AS = {'viscous_damping': 'motor_damping', 'readout_delay': 'goal_latency'}
 TWIN_OF = {law: joint_effect for joint_effect, law in ROBOT_WIDE_AS.items()}
+# A joint effect on several joints that raises one joint's held-out RMS error by more than this [ticks]
+# is not on that joint (a leg-wide dead-band that takes a coxa at rounding, 0.32, to 0.83 ticks).
+WORSE_TICKS = 0.2
 
 
 @dataclass
@@ -394,6 +400,15 @@ class Namer:
         return (after > 0 and before / after >= self.s.min_ratio and before - after >= self.s.min_drop_ticks
                 and explained >= self.s.min_explained and sse_before - sse_after >= self.s.min_gain_ticks2)
 
+    def _worsens_a_joint(self, h: Hypothesis) -> bool:
+        """Whether a joint effect on several joints makes one of them clearly worse on its held-out
+        reads: the effect is not on that joint, so this is not its scope (the servo law's terms are on
+        every servo whatever a joint shows, and are not judged so)."""
+        if h.candidate.servo_law or len(h.joints) < 2:
+            return False
+        return any(n and math.sqrt(a / n) - math.sqrt(b / n) > WORSE_TICKS
+                   for b, a, n in h.hold_by_joint.values())
+
     def _extra_joints_confirm(self, big: Hypothesis, small: Hypothesis) -> bool:
         """Whether the joints only the larger scope ``big`` reaches (those whose predictions ``small``
         leaves unchanged) confirm the effect on their own held-out reads, by the acceptance test.
@@ -425,7 +440,7 @@ class Namer:
                                    h.hold_rmse_after, h.screen_gain, self.passes(h)))
                 if self.progress is not None:
                     self.progress(f'round {round_ + 1}: {h.candidate.effect} on {len(h.joints)} joint(s)')
-            ok = [h for h in fitted if self.passes(h)]
+            ok = [h for h in fitted if self.passes(h) and not self._worsens_a_joint(h)]
             bundle, bundle_gain = self._servo_law_bundle(effects, base_pred, fitted)
             best = max(ok, key=lambda h: h.hold_gain) if ok else None
             if best is not None and best.candidate.servo_law:
@@ -535,14 +550,20 @@ class Namer:
         return h
 
     def _pick_for_fit(self, hyps: list[Hypothesis]) -> list[Hypothesis]:
-        """The best screened hypotheses, at most two per effect, ``n_fit`` in all."""
-        per_effect: dict[str, int] = {}
+        """The best screened hypotheses, at most two per effect, ``n_fit`` in all. Where an effect's best
+        is on several joints, its second is the best on one of those joints: the screen credits a larger
+        scope with whatever its extra joints' residuals share with the signature (a tibia's readout
+        delay with a dead-band beside it on the femur), and only the exact fit tells them apart."""
+        per_effect: dict[str, list[Hypothesis]] = {}
         out = []
         for h in hyps:
-            n = per_effect.get(h.candidate.effect, 0)
-            if n >= 2:
+            mine = per_effect.setdefault(h.candidate.effect, [])
+            if len(mine) >= 2:
                 continue
-            per_effect[h.candidate.effect] = n + 1
+            if len(mine) == 1 and len(mine[0].joints) > 1:
+                h = next((s for s in hyps if s.candidate.effect == h.candidate.effect and len(s.joints) == 1
+                          and s.joints[0] in mine[0].joints), h)
+            mine.append(h)
             out.append(h)
             if len(out) >= self.s.n_fit:
                 break
