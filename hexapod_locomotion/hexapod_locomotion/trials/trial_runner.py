@@ -101,11 +101,15 @@ class ProbeBus(ServoBus):
         if self.sim.now() >= self.deadline_s - 1e-12:
             raise TimeLimitReached(self.deadline_s)
 
+    def _clock_reached(self) -> None:
+        """Keep the clock file (if any) at the sim time reached."""
+        if self.clock is not None:
+            self.clock.set(self.sim.now())
+
     def sync_write(self, goals_rad) -> float:
         self._check_deadline()
         t = self.sim.sync_write(goals_rad)
-        if self.clock is not None:
-            self.clock.set(self.sim.now())
+        self._clock_reached()
         if self.recorder is not None:
             self.recorder.write(JOINT_COMMANDS, MSG_TYPES[JOINT_COMMANDS],
                                 joint_state_msg(t, goals_rad.keys(), goals_rad.values()), t)
@@ -114,8 +118,7 @@ class ProbeBus(ServoBus):
     def read_position(self, joint: str):
         self._check_deadline()
         theta, stamp = self.sim.read_position(joint)
-        if self.clock is not None:
-            self.clock.set(self.sim.now())
+        self._clock_reached()
         leg, role = parse_joint_name(joint)
         if role == 'femur':
             c = self.sim.foot_contacts()
@@ -133,8 +136,7 @@ class ProbeBus(ServoBus):
             self._check_deadline()
             step_to = min(t, self._next_probe) if self._next_probe > self.sim.now() else t
             self.sim.wait_until(min(step_to, self.deadline_s))
-            if self.clock is not None:
-                self.clock.set(self.sim.now())
+            self._clock_reached()
             self._maybe_probe()
         self._check_deadline()
 
