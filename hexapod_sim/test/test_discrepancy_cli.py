@@ -2,6 +2,7 @@
 and the choice of free-leg spans (stand, walk, --time)."""
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -140,7 +141,8 @@ def _walk_like(robot, stance_offset_ticks):
 def _looks_like_walk(robot, rec):
     rep = Replay(robot, rec)
     pred = rep.predict(robot)
-    return looks_like_walk(rep, {j: rep.reads[j].tick - pred[j] for j in rep.joints}, swing_segments(rec, rep.legs))
+    return looks_like_walk(rep, {j: rep.reads[j].tick - pred[j] for j in rep.joints}, swing_segments(rec, rep.legs),
+                           imu=rec.imu)
 
 
 def test_walk_is_recognised_from_legs_pushed_up_outside_their_swings(robot):
@@ -154,6 +156,31 @@ def test_walk_is_recognised_from_legs_pushed_up_outside_their_swings(robot):
         cycle = np.floor(a / 3.0) * 3.0
         assert a == pytest.approx(cycle + 0.5 + 0.08, abs=0.02)     # lift start + settle
         assert b == pytest.approx(cycle + 2.0 - 0.1, abs=0.02)      # swing-down stop - margin
+
+
+def _imu(rec, rate_rms_rad_s, seed=0):
+    """/imu at 400 Hz over ``rec``: gravity, and a body rocking about x at 1.5 Hz with the given RMS rate
+    plus a gyro's noise (0.002 rad/s RMS) and bias."""
+    from hexapod_model.imu import ImuSeries
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 6.0, 0.0025)
+    gyro = rng.normal(0.0, 0.002 / np.sqrt(3), (len(t), 3)) + np.array([0.01, -0.02, 0.005])
+    gyro[:, 0] += rate_rms_rad_s * np.sqrt(2) * np.sin(2 * np.pi * 1.5 * t)
+    accel = np.tile([0.0, 0.0, 9.81], (len(t), 1))
+    return replace(rec, imu=ImuSeries(t, accel, gyro))
+
+
+def test_walk_whose_femurs_hide_the_load_is_recognised_from_the_body_rocking_on_imu(robot):
+    """A servo law far from the model's moves a swinging femur off the prediction as much as a stance
+    femur's load; the body's motion on /imu then tells the walk (the slowest simulated walks rock it
+    0.033 rad/s RMS), and a body at rest, gyro noise and bias only, does not."""
+    hidden = _walk_like(robot, stance_offset_ticks=-2)
+    assert not _looks_like_walk(robot, hidden)
+    assert _looks_like_walk(robot, _imu(hidden, 0.03))
+    assert not _looks_like_walk(robot, _imu(hidden, 0.0))
+    one_leg = replace(hidden, commands={j: s for j, s in hidden.commands.items() if j.leg == 1},
+                      states={j: s for j, s in hidden.states.items() if j.leg == 1})
+    assert not _looks_like_walk(robot, _imu(one_leg, 0.1))      # one leg moving is never a walk
 
 
 def test_parse_windows():

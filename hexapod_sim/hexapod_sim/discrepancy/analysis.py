@@ -392,7 +392,8 @@ def _replay_analysed(rec: Recording, robot: Robot, joints, windows, mode: str, s
         verdict = mode == 'walk'
         if mode == 'auto':
             verdict = walk_across_lost(replay, res0, segs, swing_segments(rec, replay.legs, phases=every), rec.lost,
-                                       skip_start_s) if rec.lost else looks_like_walk(replay, res0, segs)
+                                       skip_start_s, imu=rec.imu) if rec.lost else looks_like_walk(
+                                           replay, res0, segs, imu=rec.imu)
         if verdict is None and rec.lost:
             raise RecordingError(f'{rec.source}: {_lost_text(rec)}: what is left does not tell a walk from a '
                                  'stand (--mode walk or --mode stand decides)')

@@ -263,7 +263,8 @@ def _legs_swing_together(swings: dict, step_s: float = 0.01, share: float = 0.8)
     return anyone > 0 and np.count_nonzero(up.all(axis=0)) > share * anyone
 
 
-def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.0, min_reads: int = 10) -> bool:
+def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.0, min_reads: int = 10,
+                    imu=None) -> bool:
     """True if femurs are pushed up outside their swing phases: the stance legs carry the body (and
     the legs do not all swing at once, :func:`_legs_swing_together`).
 
@@ -277,14 +278,32 @@ def looks_like_walk(replay, residual: dict, swings: dict, load_ticks: float = 1.
     a recording of one leg is never taken for a walk (a femur that cannot hold its goal, e.g. a
     torque limit on a stand, also sits off the prediction between its motions; ``--mode walk``
     forces the choice).
+
+    Where the recording has ``/imu``, a body that rocks under the gait (:func:`body_moves`) is a walk as
+    well: a servo law unlike the model's (much more damping, friction on every joint) moves a swinging
+    femur off the prediction as much as a stance femur's load, and such walks failed the femur test.
     """
-    if _legs_swing_together(swings):
+    if _legs_swing_together(swings) or sum(1 for spans in swings.values() if spans) < 2:
         return False
-    return femur_votes(replay, residual, swings, load_ticks, min_reads)[0] >= 2
+    return femur_votes(replay, residual, swings, load_ticks, min_reads)[0] >= 2 or body_moves(imu)
 
 
-def walk_across_lost(replay, residual: dict, swings: dict, all_swings: dict, lost, settle_s: float = 0.3
-                     ) -> bool | None:
+BODY_GYRO_RMS = 0.01     # [rad/s]: a body rocking faster than this (bias taken off) moves; see body_moves
+
+
+def body_moves(imu) -> bool:
+    """True if ``/imu`` shows the body rocking: the angular rate, its mean (the gyro's bias) taken off, at
+    least ``BODY_GYRO_RMS`` RMS. The simulated walks of every gait and cycle rock it 0.033-0.21 rad/s RMS;
+    a body at rest on a stand shows the gyro's noise (a MEMS gyro's is about 0.002 rad/s RMS at a 100 Hz
+    bandwidth). False without an IMU (None) or with fewer than two samples."""
+    if imu is None or len(imu) < 2:
+        return False
+    w = imu.gyro - imu.gyro.mean(axis=0)
+    return float(np.sqrt(np.mean(np.sum(w * w, axis=1)))) >= BODY_GYRO_RMS
+
+
+def walk_across_lost(replay, residual: dict, swings: dict, all_swings: dict, lost, settle_s: float = 0.3,
+                     imu=None) -> bool | None:
     """:func:`looks_like_walk` on a recording with lost spans (``lost``, [s]), or None when it cannot tell.
     ``swings``: the swing spans clear of the lost spans; ``all_swings``: every swing the commands show;
     ``settle_s``: reads this soon after a lost span are not counted. Legs that swing
@@ -297,7 +316,7 @@ def walk_across_lost(replay, residual: dict, swings: dict, all_swings: dict, los
         return False
     # the replay restarts after each gap from the reads there, a stance leg's included: its load shows
     # only once the prediction has settled
-    if femur_votes(replay, residual, swings, exclude=[(a, b + settle_s) for a, b in lost])[0] >= 2:
+    if femur_votes(replay, residual, swings, exclude=[(a, b + settle_s) for a, b in lost])[0] >= 2 or body_moves(imu):
         return True
     return None if any(all_swings.values()) else False
 
