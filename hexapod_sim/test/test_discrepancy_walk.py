@@ -253,7 +253,7 @@ def test_an_unexplained_free_leg_mismatch_that_the_whole_walk_follows_is_not_rep
     rounding in every phase, so nothing is claimed. A joint the replay does not follow stays; so does
     everything when the replay went out of step early or judged a joint on too few reads."""
     from hexapod_sim.discrepancy.analysis import Unexplained, _whole_walk_agrees
-    from hexapod_sim.discrepancy.whole_walk import PhaseRow, WholeWalk
+    from hexapod_sim.discrepancy.whole_walk_search import PhaseRow, WholeWalk
 
     def walk(in_step_s, femur_touchdown=0.36, reads=200):
         rows = {Joint(2, 'femur'): {'swing_forward': PhaseRow(reads, 0.32, 0.32), 'touchdown': PhaseRow(reads, 0.36, femur_touchdown),

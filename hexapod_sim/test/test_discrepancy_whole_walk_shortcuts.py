@@ -79,9 +79,9 @@ def test_a_replay_stopped_once_out_of_step_gives_the_whole_replays_verdict(rec, 
     joints = list(rec.joints)
     whole = ww.replay_walk(rec, robot, rec.ground, joints)
     res_whole = {j: ww.rec_ticks(rec, robot, j) - p for j, p in whole.items()}
-    until = ww.in_step_until(rec, res_whole)
+    until = wws.in_step_until(rec, res_whole)
     assert until < rec.duration_s - 5.0                 # the nominal replay leaves this walk early
-    replays = ww.Replays(rec, robot, rec.ground)
+    replays = wws.Replays(rec, robot, rec.ground)
     res, got = replays.in_step(robot, joints)
     assert got == until
     r = replays.get(robot, joints)
@@ -105,7 +105,7 @@ def test_candidates_compared_lazily_give_the_minimum_of_the_whole_comparisons(re
     for v in values:
         pred = ww.replay_walk(rec, robot.with_effects([cand.make(SCOPE, v)]), rec.ground, SCOPE, t_end_s=until)
         full.append(wws._rms(rec, robot, pred, SCOPE, fit))
-    replays = ww.Replays(rec, robot, rec.ground)
+    replays = wws.Replays(rec, robot, rec.ground)
     trials = [wws._Trial(replays, robot.with_effects([cand.make(SCOPE, v)]), SCOPE, until, fit) for v in values]
     lazy = wws._settle(trials)
     k = int(np.argmin(full))

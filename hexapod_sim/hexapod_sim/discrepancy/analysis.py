@@ -153,7 +153,7 @@ class Analysis:
     min_drop_ticks: float = 0.0      # held-out RMS drop an effect had to reach (the "cannot show" bound)
     min_gain_ticks2: float = 0.0     # and held-out squared-error gain (predict.can_confirm)
     unexplained: list = field(default_factory=list)   # Unexplained: what no candidate explains
-    # walks: the whole walk replayed on the MuJoCo hexapod, nominal and with the effects (whole_walk.WholeWalk)
+    # walks: the whole walk replayed on the MuJoCo hexapod, nominal and with the effects (whole_walk_search.WholeWalk)
     whole_walk: object | None = None
     terms: list = field(default_factory=list)         # structure.FoundTerm: dictionary terms outside the list
 

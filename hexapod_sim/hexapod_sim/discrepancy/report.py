@@ -15,7 +15,7 @@ from hexapod_sim.discrepancy.glitches import summary_line
 from hexapod_sim.discrepancy.locate import CONDITION_WORDS, REVEALED_BY, WINDOW_S
 from hexapod_sim.discrepancy.predict import least_confirmable_change
 from hexapod_sim.discrepancy.segments import PHASES
-from hexapod_sim.discrepancy.whole_walk import LIFT_OFF_S, ROUNDING_TICKS, TOUCHDOWN_S, WHOLE_PHASES
+from hexapod_sim.discrepancy.whole_walk_search import LIFT_OFF_S, ROUNDING_TICKS, TOUCHDOWN_S, WHOLE_PHASES
 
 
 def _f(x: float) -> float:

@@ -1,37 +1,212 @@
-"""What the whole walk adds to the swings' findings, and the check :func:`~.analysis.analyse` runs on a walk.
+"""The whole walk judged: its replay against the recording phase by phase, what it adds to the swings'
+findings, and the check :func:`~.analysis.analyse` runs on a walk.
+
+The replays of one analysis (:class:`Replays`, each a :class:`~.whole_walk.WalkReplay`) run until they leave
+the recording: :func:`in_step_until` finds that moment, and only reads before it are judged
+(:func:`compare`). Phases (:data:`WHOLE_PHASES`): the gait phases of :mod:`.segments`, with the first
+``TOUCHDOWN_S`` of a stance after a swing-down (the leg takes its share of the body's weight) and the first
+``LIFT_OFF_S`` of a swing-up (it gives the share up) told apart.
 
 Effects the swings found on part of the robot that the whole walk wants on every joint (:func:`widen`), and
 effects the loaded phases show (:func:`search_loaded`: backlash, break-away friction and the dead-band fitted
-on the whole walk's replay, :mod:`.whole_walk`); :func:`whole_walk_check` runs the comparison and both and
-writes the report's notes.
+on the whole walk's replay); :func:`whole_walk_check` runs the comparison and both and writes the report's
+notes.
 """
 from __future__ import annotations
 
 import math
+import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from hexapod_model.description import Robot
 from hexapod_model.dictionary import BY_TERM
+from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy.recording import Recording
-from hexapod_sim.discrepancy.whole_walk import (
-    LOADED_PHASES,
-    ROUNDING_TICKS,
-    START_S,
-    WHOLE_PHASES,
-    Replays,
-    WalkReplay,
-    WholeWalk,
-    compare,
-    rec_ticks,
-    whole_labels,
-)
+from hexapod_sim.discrepancy.segments import PHASES, LegPhases
+from hexapod_sim.discrepancy.whole_walk import WalkReplay, rec_ticks, sorted_writes
 from hexapod_sim.physics.terrain import Ground
 
+WHOLE_PHASES = ('swing_up', 'swing_forward', 'swing_down', 'stance', 'touchdown', 'lift_off', 'leveling')
+TOUCHDOWN_S = 0.1          # [s] of stance after a swing-down stops: the leg takes up the body's weight
+LIFT_OFF_S = 0.1           # [s] of swing-up after it starts: the leg gives up its share
+STEP_WINDOW_S = 0.5        # [s] windows in which the replay is judged in step with the recording
+OUT_OF_STEP_TICKS = 1.0    # the median joint's RMS over a window above this: the trunk went elsewhere
+START_S = 0.2              # [s] at the start left out (the first reads settle the pose)
+LOADED_PHASES = ('stance', 'touchdown', 'lift_off', 'leveling')   # where the legs carry the body
+ROUNDING_TICKS = 0.5       # a phase's RMS error at most this is tick rounding (uniform rounding: 0.29)
 WIDEN_MIN_GAIN_S = 2.0        # [s] longer in step for an effect found on some joints to be put on all
 AGREES_SHARE = 0.8            # the whole-walk replay in step over this share of a walk can clear a joint
 AGREES_MIN_READS = 20         # a phase judged on fewer reads says nothing either way
+
+
+def whole_labels(phases: LegPhases, t: np.ndarray) -> np.ndarray:
+    """Index into :data:`WHOLE_PHASES` for every time in ``t`` [s]."""
+    t = np.asarray(t, dtype=float)
+    out = phases.label(t)                       # PHASES indices; the first five names are the same
+    assert WHOLE_PHASES[:3] == PHASES[:3] and PHASES[3] == 'stance' and PHASES[4] == 'leveling'
+    out = np.where(out == PHASES.index('leveling'), WHOLE_PHASES.index('leveling'), out)
+    for sw in phases.swings:
+        out[(t >= sw.t_up) & (t < min(sw.t_up + LIFT_OFF_S, sw.t_forward))] = WHOLE_PHASES.index('lift_off')
+        after = (t >= sw.t_stop) & (t < sw.t_stop + TOUCHDOWN_S) & (out == WHOLE_PHASES.index('stance'))
+        out[after] = WHOLE_PHASES.index('touchdown')
+    return out
+
+
+class Replays:
+    """The whole-walk replays of one analysis (one recording, robot description and ground), each made once
+    and run only as far as a caller needs: the nominal replay is compared against every set of effects
+    tried, and the replay with the effects found is the search's starting point. A replay serves any span
+    up to its own (the first steps of a longer replay are the shorter one's, write for write)."""
+
+    def __init__(self, rec: Recording, robot: Robot, ground: Ground):
+        self.rec, self.robot, self.ground = rec, robot, ground
+        self._made: list[tuple[Robot, tuple, WalkReplay]] = []
+        self._meas: dict[Joint, np.ndarray] = {}
+        self._writes: dict[float, list] = {}          # physics step -> the writes by tick (the same for every model)
+
+    def _sorted_writes(self, rec: Recording, dt: float) -> list:
+        if dt not in self._writes:
+            self._writes[dt] = sorted_writes(rec, dt)
+        return self._writes[dt]
+
+    def meas(self, joint: Joint) -> np.ndarray:
+        """The recorded reads of ``joint`` in ticks."""
+        if joint not in self._meas:
+            self._meas[joint] = rec_ticks(self.rec, self.robot, joint)
+        return self._meas[joint]
+
+    def get(self, model: Robot, joints, t_end_s: float | None = None, keep: bool = True) -> WalkReplay:
+        """A replay of ``model`` that predicts ``joints`` up to ``t_end_s`` (None: the whole walk), not yet
+        run further than before; ``keep``: hold it for later calls."""
+        end = self.rec.duration_s if t_end_s is None else min(t_end_s, self.rec.duration_s)
+        for m, js, r in self._made:
+            if set(joints) <= set(js) and r.t_end >= end and m == model:
+                return r
+        r = WalkReplay(self.rec, model, self.ground, joints, t_end_s, self._sorted_writes)
+        if keep:
+            self._made.append((model, tuple(r.joints), r))
+        return r
+
+    def residuals(self, r: WalkReplay, joints=None, t_end_s: float | None = None) -> dict[Joint, np.ndarray]:
+        """Recorded minus predicted ticks of ``joints`` (default the replay's) at the reads up to ``t_end_s``
+        (default the replay's end); NaN where the replay has not yet come."""
+        out = {}
+        for j in (joints or r.joints):
+            p = r.pred[j]
+            if t_end_s is not None and t_end_s < r.t_end:
+                p = p[:int(np.searchsorted(self.rec.states[j].t_s, t_end_s, side='right'))]
+            out[j] = self.meas(j)[:len(p)] - p
+        return out
+
+    def in_step(self, model: Robot, joints, need_s: float = 0.0) -> tuple[dict[Joint, np.ndarray], float]:
+        """(residuals, :func:`in_step_until`) of the whole-walk replay of ``model``, replayed until it leaves
+        the recording (the first window whose median joint is above ``OUT_OF_STEP_TICKS``, as soon as every
+        read of that window is replayed) but at least up to ``need_s``: the same verdict as the whole replay,
+        and the same residuals before it."""
+        r = self.get(model, joints)
+        t = STEP_WINDOW_S
+        while True:
+            covered = r.run_to(t)
+            res = self.residuals(r, joints)
+            if r.finished:
+                return res, in_step_until(self.rec, res)
+            win = _window_rms(self.rec, res)
+            done = int(np.count_nonzero((np.arange(len(win)) + 1) * STEP_WINDOW_S < covered))
+            bad = np.flatnonzero(win[:done] > OUT_OF_STEP_TICKS)
+            if len(bad) and covered >= need_s:
+                return res, float(bad[0] * STEP_WINDOW_S)
+            t = max(t, covered) + STEP_WINDOW_S
+
+
+def _window_rms(rec: Recording, res: dict[str, np.ndarray]) -> np.ndarray:
+    """The median joint's RMS residual [ticks] in every ``STEP_WINDOW_S`` window of the walk (NaN where no
+    joint has a read with a residual)."""
+    end = rec.duration_s
+    n_win = int(math.ceil(end / STEP_WINDOW_S))
+    per = np.full((len(res), n_win), np.nan)
+    for r, (j, v) in enumerate(res.items()):
+        t = rec.states[j].t_s[:len(v)]
+        w = np.minimum((t / STEP_WINDOW_S).astype(np.int64), n_win - 1)
+        sq = np.bincount(w, weights=v ** 2, minlength=n_win)
+        cnt = np.bincount(w, minlength=n_win)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            per[r] = np.sqrt(sq / cnt)
+    with np.errstate(all='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)          # a window no joint has a read in yet
+        return np.nanmedian(per, axis=0) if len(res) else np.zeros(n_win)
+
+
+def in_step_until(rec: Recording, res: dict[str, np.ndarray]) -> float:
+    """The end of the last window [s] before the replay first leaves the recording: the median joint's
+    RMS residual over a ``STEP_WINDOW_S`` window above ``OUT_OF_STEP_TICKS`` (physics left out of one
+    joint raises that joint; the trunk going elsewhere raises every joint). The recording's end if never."""
+    bad = np.flatnonzero(_window_rms(rec, res) > OUT_OF_STEP_TICKS)
+    return rec.duration_s if not len(bad) else float(bad[0] * STEP_WINDOW_S)
+
+
+@dataclass(frozen=True)
+class PhaseRow:
+    """RMS error of one joint in one phase over the reads judged [ticks]: the nominal replay, and the
+    replay with the effects the tool found."""
+
+    n_reads: int
+    rmse_ticks_nominal: float
+    rmse_ticks_fitted: float
+
+
+@dataclass(frozen=True)
+class WholeWalk:
+    """The whole-walk comparison: the ground, the span judged (the replay in step with the recording
+    with the effects found), and per joint and phase the RMS errors."""
+
+    ground: Ground
+    in_step_until_s: float
+    nominal_in_step_until_s: float
+    phases: dict                 # joint -> {phase name: PhaseRow}
+    runtime_s: float
+
+    def worst(self, phase_names=WHOLE_PHASES) -> tuple[Joint | str, str, float]:
+        """(joint, phase, RMS) of the largest fitted RMS error over ``phase_names`` ('' where none is judged)."""
+        best = ('', '', 0.0)
+        for j, row in self.phases.items():
+            for ph, v in row.items():
+                if ph in phase_names and v.rmse_ticks_fitted > best[2]:
+                    best = (j, ph, v.rmse_ticks_fitted)
+        return best
+
+
+def compare(rec: Recording, robot: Robot, fitted: Robot | None, ground: Ground, phases: dict,
+            joints=None, replays: Replays | None = None) -> WholeWalk:
+    """Replay the whole walk nominally and with the effects found (``fitted``; None: none found) and
+    tabulate the error per joint and phase over the reads in step (``phases``: leg -> LegPhases).
+    Each replay runs until it leaves the recording (:meth:`Replays.in_step`), the nominal one at least as
+    far as the one with the effects is judged. ``replays``: the analysis's replays, reused."""
+    t0 = time.perf_counter()
+    joints = [j for j in (joints or rec.states) if j in rec.states]
+    replays = replays or Replays(rec, robot, ground)
+    if fitted is None:
+        res0, until0 = replays.in_step(robot, joints)
+        res1, until1 = res0, until0
+    else:
+        res1, until1 = replays.in_step(fitted, joints)
+        res0, until0 = replays.in_step(robot, joints, need_s=until1)
+    table = {}
+    for j in joints:
+        t = rec.states[j].t_s
+        lab = whole_labels(phases[j.leg], t)
+        judged = (t >= START_S) & (t < until1)
+        row = {}
+        for k, name in enumerate(WHOLE_PHASES):
+            sel = judged & (lab == k)
+            n = int(np.count_nonzero(sel))
+            if n:
+                row[name] = PhaseRow(n, float(np.sqrt(np.mean(res0[j][sel] ** 2))),
+                                     float(np.sqrt(np.mean(res1[j][sel] ** 2))))
+        table[j] = row
+    return WholeWalk(ground, until1, until0, table, time.perf_counter() - t0)
 
 
 def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, joints, ww: WholeWalk,
@@ -413,4 +588,5 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
     return found
 
 
-__all__ = ['LoadedFind', 'choose_terms', 'follows', 'follows_to_rounding', 'search_loaded', 'walk_ground', 'whole_walk_check', 'widen']
+__all__ = ['LoadedFind', 'PhaseRow', 'Replays', 'WHOLE_PHASES', 'WholeWalk', 'choose_terms', 'compare', 'follows',
+           'follows_to_rounding', 'in_step_until', 'search_loaded', 'walk_ground', 'whole_labels', 'whole_walk_check', 'widen']
