@@ -106,8 +106,7 @@ def test_a_walk_of_the_fast_overlapped_cycle_is_named_as_such():
     calibration walk; a walk in sequence with unhurried swing-ups gets no such note."""
     from types import SimpleNamespace
 
-    from hexapod_sim.discrepancy.analysis import walk_cycle_notes
-    from hexapod_sim.discrepancy.segments import LegPhases, Swing, body_motion_share
+    from hexapod_sim.discrepancy.segments import LegPhases, Swing, body_motion_share, walk_cycle_notes
 
     def walk(up_s, overlapped):
         phases, segs = {}, {}

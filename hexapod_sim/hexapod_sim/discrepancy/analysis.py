@@ -15,80 +15,16 @@ import numpy as np
 from hexapod_model.description import Effect, Robot, load_robot
 from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy import structure
-from hexapod_sim.discrepancy.body_motion import body_motion_correction
 from hexapod_sim.discrepancy.effects import scope_name
 from hexapod_sim.discrepancy.fit import FitSettings, Hypothesis, Namer
 from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, make_split, unobservable
-from hexapod_sim.discrepancy.recording import Recording, RecordingError
-from hexapod_sim.discrepancy.segments import (
-    LOST_MARGIN_S,
-    PHASES,
-    body_motion_share,
-    clear_of_lost,
-    gait_phases,
-    looks_like_walk,
-    median_swing_up_s,
-    obstructed_swings,
-    spans_between_lost,
-    swing_segments,
-    walk_across_lost,
-)
+from hexapod_sim.discrepancy.recording import Recording
+from hexapod_sim.discrepancy.segments import PHASES, gait_phases, replay_analysed
 from hexapod_sim.discrepancy.simulate import Replay
 from hexapod_sim.discrepancy.whole_walk_search import choose_terms, follows_to_rounding, whole_walk_check
 
 MODES = ('auto', 'stand', 'walk')
-# A walk's swing starts in motion from the reads around lift-off; reads in the first 0.1 s are left
-# out of fit and judgement (on clean sim walks the nominal replay is at the rounding floor from there,
-# docs/discrepancy.md).
-WALK_SETTLE_S = 0.1
-
-
-# What the walk analysis was measured on (docs/discrepancy.md, "Which walks"): a calibration walk,
-# hexapod_locomotion/config/calibration_walk.yaml. Beyond these the nominal replay of a clean walk
-# leaves more than tick rounding, and the report says why.
-CALIBRATION_BODY_MOTION_SHARE = 0.1    # of the analysed swing time with the body moved by other legs
-CALIBRATION_SWING_UP_S = 0.15          # swing-up duration [s]; the faster cycle in sequence left up to 0.96 ticks
-
-
-def _body_motion_share(phases: dict, replay: Replay) -> float:
-    """:func:`.segments.body_motion_share` over the replay's analysed swings (firmware periods -> s)."""
-    return body_motion_share(phases, {leg: [(a * replay.dt, b * replay.dt) for a, b in v]
-                                      for leg, v in replay.segments.items()})
-
-
-def walk_replay(robot: Robot, rec: Recording, joints, segments, phases, step=lambda msg: None) -> Replay:
-    """The swings of a walk, from lift-off, started in motion; where the body moves under them (other legs
-    leveling) and the recording has ``/imu``, corrected by a replay with the body's motion
-    (:mod:`.body_motion`). Not otherwise: the correction is a nominal replay added to every hypothesis, and
-    on a calibration walk, where the body holds still, it took the coxa backlash of the walk bench from 20 %
-    to 25 % off without lowering any clean walk's worst joint below 0.5 tick that was above it."""
-    replay = Replay(robot, rec, joints=joints, segments=segments, moving_start=True)
-    if rec.imu is not None and _body_motion_share(phases, replay) > CALIBRATION_BODY_MOTION_SHARE:
-        step('replaying the swings with the body motion')
-        replay.correction = body_motion_correction(replay, rec, robot)
-    return replay
-
-
-def walk_cycle_notes(phases: dict, replay: Replay) -> list[str]:
-    """Notes on a walk whose gait cycle the free-leg replay is not measured for (without ``/imu``)."""
-    if replay.correction is not None:
-        return []
-    out = []
-    share = _body_motion_share(phases, replay)
-    up = median_swing_up_s(phases)
-    if share > CALIBRATION_BODY_MOTION_SHARE:
-        out.append(f'the body moved under the swinging legs for {100 * share:.0f} % of the analysed swing time '
-                   '(other legs leveling: the overlapped gait cycle); the free-leg model holds the body still, so '
-                   'part of the mismatch may be body motion, not missing physics')
-    if up < CALIBRATION_SWING_UP_S - 0.01:
-        out.append(f'swing-ups of {1000 * up:.0f} ms, faster than the replay is measured for '
-                   f'({1000 * CALIBRATION_SWING_UP_S:.0f} ms): fast swings shake the body on its stance legs')
-    if out:
-        out.append('for a walk this tool can judge to tick rounding, record a calibration walk: locomotion '
-                   'parameters from hexapod_locomotion/config/calibration_walk.yaml (docs/discrepancy.md)')
-    return out
-
 
 @dataclass(frozen=True)
 class JointFit:
@@ -218,7 +154,7 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
     if choose is not None:
         terms = choose(effects, terms)
     pred = Predictor(replay, robot, workers=1).predict(tuple(effects) + tuple(t.effect for t in terms), replay.joints)
-    res1 = {j: replay.reads[j].tick - pred[j] for j in replay.joints}
+    res1 = replay.residuals(pred)
     jfit = {j: JointFit(v.heldout_rmse_ticks_before, _rmse(res1, split.hold, [j])[0], v.n_heldout)
             for j, v in jfit.items()}
     return terms, found, _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
@@ -312,103 +248,6 @@ def _progress_bar(progress: bool):
             bar.set_postfix_str(msg[:60])
             bar.update(1)
     return bar, step
-
-
-def _residuals(replay: Replay, pred: dict) -> dict:
-    return {j: replay.reads[j].tick - pred[j] for j in replay.joints}
-
-
-def _walk_swings(rec: Recording, robot: Robot, joints, phases: dict, segs: dict, notes: list, step):
-    """The replay of a walk's swings with the obstructed ones left out, its nominal prediction and residuals."""
-    n_spans = sum(len(v) for v in segs.values())
-    if n_spans == 0 and rec.lost:
-        raise RecordingError(f'{rec.source}: {_lost_text(rec)}: no swing of the walk is left clear of them')
-    if n_spans == 0:
-        raise RecordingError(f'{rec.source}: looks like a walk (legs carry load) but no swing phase '
-                             'was found in the femur commands; pass --time windows where the legs '
-                             'hang free')
-    step('replaying the swings')
-    replay = walk_replay(robot, rec, joints, segs, phases, step)
-    pred0 = replay.predict(robot)
-    res0 = _residuals(replay, pred0)
-    blocked = obstructed_swings(replay, res0, settle_s=WALK_SETTLE_S)
-    n_blocked = sum(len(v) for v in blocked.values())
-    if n_blocked:
-        spans = {leg: [(replay.segments[leg][i][0] * replay.dt, replay.segments[leg][i][1] * replay.dt)
-                       for i in range(len(replay.segments[leg])) if i not in blocked.get(leg, ())]
-                 for leg in replay.legs}
-        where = '; '.join(f'leg {leg} at ' + ', '.join(f'{replay.segments[leg][i][0] * replay.dt:.1f} s'
-                                                        for i in v)
-                          for leg, v in blocked.items() if v)
-        notes.append(f'{n_blocked} swing(s) left out as obstructed (the leg departs from the free-leg '
-                     f'model in that swing only, e.g. a foot touching a block edge): {where}')
-        replay = walk_replay(robot, rec, joints, spans, phases, step)
-        pred0 = replay.predict(robot)
-        res0 = _residuals(replay, pred0)
-    n_spans = sum(len(v) for v in replay.segments.values())
-    total = sum(b - a for v in replay.segments.values() for a, b in v) * replay.dt
-    notes.append(f'walk recording: stance legs carry the body, so only swing phases were analysed '
-                 f'({n_spans} swings, {total:.1f} s of leg time, from lift-off to just before the '
-                 f'swing-down stops, each started from the recorded position and speed)')
-    if replay.correction is not None:
-        notes.append('the body moved under the swinging legs: the swings were also replayed on the '
-                     "MuJoCo hexapod with the trunk's acceleration and tilt from /imu, and the free-leg "
-                     'model is corrected by that replay')
-    notes.extend(walk_cycle_notes(phases, replay))
-    return replay, pred0, res0
-
-
-def _lost_text(rec: Recording) -> str:
-    """What a damaged bag lost, in a few words."""
-    spans = ', '.join(f'{a:.2f}-{b:.2f} s' for a, b in rec.lost[:4]) + (', ...' if len(rec.lost) > 4 else '')
-    return (f'{len(rec.lost)} span(s) of the recording lost with damaged chunks ({rec.lost_s:.2f} s of '
-            f'{rec.duration_s:.1f} s: {spans})')
-
-
-def _replay_analysed(rec: Recording, robot: Robot, joints, windows, mode: str, settings: FitSettings,
-                     notes: list, step):
-    """The replay the analysis judges: the given windows, a walk's swings or the whole stand.
-    -> (replay, nominal prediction, residuals, gait phases or None, mode used, reads skipped at a segment's
-    start [s], settings: a walk's with its larger held-out drop)."""
-    segments, mode_used = None, mode
-    if windows:
-        legs_all = sorted({j.leg for j in rec.joints})
-        segments = {leg: list(windows) for leg in legs_all}
-        mode_used = 'windows'
-        notes.append('analysed only the given time windows: '
-                     + ', '.join(f'{a:g}-{b:g} s' for a, b in windows))
-    elif rec.lost:                     # a damaged bag: nothing is replayed across a lost span
-        segments = spans_between_lost(rec, sorted({j.leg for j in rec.joints}))
-    step('replaying the recorded goals')
-    replay = Replay(robot, rec, joints=joints, segments=segments)
-    pred0 = replay.predict(robot)
-    res0 = _residuals(replay, pred0)
-    phases = None
-    skip_start_s = 0.3
-    if mode_used != 'windows':
-        every = gait_phases(rec, replay.legs)
-        phases = clear_of_lost(every, rec.lost)
-        segs = swing_segments(rec, replay.legs, phases=phases)
-        verdict = mode == 'walk'
-        if mode == 'auto':
-            verdict = walk_across_lost(replay, res0, segs, swing_segments(rec, replay.legs, phases=every), rec.lost,
-                                       skip_start_s) if rec.lost else looks_like_walk(replay, res0, segs)
-        if verdict is None and rec.lost:
-            raise RecordingError(f'{rec.source}: {_lost_text(rec)}: what is left does not tell a walk from a '
-                                 'stand (--mode walk or --mode stand decides)')
-        if verdict:
-            replay, pred0, res0 = _walk_swings(rec, robot, joints, phases, segs, notes, step)
-            skip_start_s = WALK_SETTLE_S
-            mode_used = 'walk'
-            settings = replace(settings, min_drop_ticks=max(settings.min_drop_ticks, settings.walk_min_drop_ticks))
-        else:
-            mode_used = 'stand'
-            notes.append('stand recording: every leg treated as hanging free for the whole recording'
-                         + (' (apart from the lost spans)' if rec.lost else ''))
-    if rec.lost:
-        notes.append(f'{_lost_text(rec)}: left out' + (', with every swing within '
-                                                        f'{LOST_MARGIN_S:g} s of one' if mode_used == 'walk' else ''))
-    return replay, pred0, res0, phases, mode_used, skip_start_s, settings
 
 
 def _found_effects(pred: Predictor, replay: Replay, split, cond: dict, effects: list, accepted: list,
@@ -506,8 +345,10 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
     notes: list[str] = []
     bar, step = _progress_bar(progress)
     try:
-        replay, pred0, res0, phases, mode_used, skip_start_s, settings = _replay_analysed(
-            rec, robot, joints, windows, mode, settings, notes, step)
+        replay, pred0, res0, phases, mode_used, skip_start_s = replay_analysed(rec, robot, joints, windows, mode, notes,
+                                                                               step)
+        if mode_used == 'walk':          # a walk's larger held-out drop
+            settings = replace(settings, min_drop_ticks=max(settings.min_drop_ticks, settings.walk_min_drop_ticks))
         by_swing = block_s is None and mode_used == 'walk'
         split = make_split(replay, block_s=block_s or 2.0, skip_start_s=skip_start_s, by_segment=by_swing)
         step('motion conditions')
@@ -517,7 +358,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         step('naming and fitting effects')
         effects, found, nearest, blind, pred1 = _name_effects(replay, robot, split, settings, pred0, cond, step,
                                                               workers)
-        res1 = _residuals(replay, pred1)
+        res1 = replay.residuals(pred1)
         jfit = _joint_fits(replay, split, res0, res1)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
         choose = None
