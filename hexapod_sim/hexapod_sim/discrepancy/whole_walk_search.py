@@ -178,15 +178,15 @@ class WholeWalk:
         return best
 
 
-def compare(rec: Recording, robot: Robot, fitted: Robot | None, ground: Ground, phases: dict,
-            joints=None, replays: Replays | None = None) -> WholeWalk:
+def compare(replays: Replays, fitted: Robot | None, phases: dict, joints=None) -> WholeWalk:
     """Replay the whole walk nominally and with the effects found (``fitted``; None: none found) and
     tabulate the error per joint and phase over the reads in step (``phases``: leg -> LegPhases).
     Each replay runs until it leaves the recording (:meth:`Replays.in_step`), the nominal one at least as
-    far as the one with the effects is judged. ``replays``: the analysis's replays, reused."""
+    far as the one with the effects is judged. ``replays``: the analysis's replays (its recording, nominal
+    robot and ground), reused."""
     t0 = time.perf_counter()
+    rec, robot = replays.rec, replays.robot
     joints = [j for j in (joints or rec.states) if j in rec.states]
-    replays = replays or Replays(rec, robot, ground)
     if fitted is None:
         res0, until0 = replays.in_step(robot, joints)
         res1, until1 = res0, until0
@@ -206,20 +206,20 @@ def compare(rec: Recording, robot: Robot, fitted: Robot | None, ground: Ground, 
                 row[name] = PhaseRow(n, float(np.sqrt(np.mean(res0[j][sel] ** 2))),
                                      float(np.sqrt(np.mean(res1[j][sel] ** 2))))
         table[j] = row
-    return WholeWalk(ground, until1, until0, table, time.perf_counter() - t0)
+    return WholeWalk(replays.ground, until1, until0, table, time.perf_counter() - t0)
 
 
-def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, joints, ww: WholeWalk,
-          progress=lambda msg: None, replays: Replays | None = None) -> tuple[list, dict, WholeWalk]:
+def widen(replays: Replays, effects: list, phases: dict, joints, ww: WholeWalk,
+          progress=lambda msg: None) -> tuple[list, dict, WholeWalk]:
     """Effects the swings found on some joints that the whole walk wants on every joint: where the replay
     with the effects leaves the recording, each kind found on part of the robot (not the servo law, not a
     payload) is tried on every analysed joint at the mean of its fitted values; kept when the replay then
     stays in step ``WIDEN_MIN_GAIN_S`` longer. -> (effects, {kind: the robot-wide effect}, comparison)."""
     from hexapod_sim.discrepancy.effects import BY_NAME
+    rec, robot = replays.rec, replays.robot
     wide: dict = {}
     if ww.in_step_until_s >= rec.duration_s:
         return list(effects), wide, ww
-    replays = replays or Replays(rec, robot, ground)
     out = list(effects)
     for kind in dict.fromkeys(e.effect for e in effects):
         same = [e for e in out if e.effect == kind]
@@ -230,17 +230,16 @@ def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: d
         mean = float(np.mean([e.params[key] for e in same]))
         rest = [e for e in out if e.effect != kind]
         progress(f'whole walk: {kind} on every joint')
-        ww2 = compare(rec, robot, robot.with_effects(rest + [BY_NAME[kind].make(joints, mean)]), ground, phases, joints,
-                      replays)
+        ww2 = compare(replays, robot.with_effects(rest + [BY_NAME[kind].make(joints, mean)]), phases, joints)
         if ww2.in_step_until_s < ww.in_step_until_s + WIDEN_MIN_GAIN_S:
             continue
         until = min(ww2.in_step_until_s, START_S + SEARCH_HORIZON_S)       # the value, refitted on the whole walk
         fit, _ = _masks(rec, joints, until)
-        v, _, _ = _search_one(rec, robot, rest, BY_NAME[kind], tuple(joints), ground, until, fit, progress,
-                              bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)), replays=replays)
+        v, _, _ = _search_one(replays, rest, BY_NAME[kind], tuple(joints), until, fit, progress,
+                              bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)))
         trial_e = BY_NAME[kind].make(joints, v)
         out, wide[kind] = rest + [trial_e], trial_e
-        ww = compare(rec, robot, robot.with_effects(out), ground, phases, joints, replays)
+        ww = compare(replays, robot.with_effects(out), phases, joints)
     return out, wide, ww
 
 
@@ -358,12 +357,11 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     ground, origin = walk_ground(rec, ground)
     fitted = robot.with_effects(effects) if effects else None
     replays = Replays(rec, robot, ground)
-    ww = compare(rec, robot, fitted, ground, phases, joints, replays)
-    effects, wide, ww = widen(rec, robot, list(effects), ground, phases, joints, ww, progress, replays)
-    finds = search_loaded(rec, robot, list(effects), ground, phases, ww, progress, replays) if search else []
+    ww = compare(replays, fitted, phases, joints)
+    effects, wide, ww = widen(replays, list(effects), phases, joints, ww, progress)
+    finds = search_loaded(replays, list(effects), ww, progress) if search else []
     if finds:
-        ww = compare(rec, robot, robot.with_effects(list(effects) + [f.effect for f in finds]), ground, phases, joints,
-                     replays)
+        ww = compare(replays, robot.with_effects(list(effects) + [f.effect for f in finds]), phases, joints)
     notes = [f'whole walk: the recorded goals replayed through the MuJoCo hexapod on {ground.describe()} '
              f'({origin}), {ww.runtime_s:.1f} s']
     if ww.in_step_until_s < rec.duration_s:
@@ -434,10 +432,10 @@ def _masks(rec: Recording, joints, until_s: float):
     return fit, hold
 
 
-def _rms(rec, robot, pred: dict, joints, masks) -> float:
+def _rms(replays: Replays, pred: dict, joints, masks) -> float:
     sq, n = 0.0, 0
     for j in joints:
-        r = (rec_ticks(rec, robot, j)[:len(pred[j])] - pred[j])[masks[j][:len(pred[j])]]
+        r = (replays.meas(j)[:len(pred[j])] - pred[j])[masks[j][:len(pred[j])]]
         sq += float(np.sum(r ** 2))
         n += len(r)
     return math.sqrt(sq / n) if n else math.nan
@@ -465,7 +463,7 @@ class _Trial:
         self.t += SEARCH_CHECK_S
         self.replay.run_to(self.t)
         if self.replay.finished:
-            self.value = _rms(self.replays.rec, self.replays.robot, self.replay.pred, self.scope, self.fit)
+            self.value = _rms(self.replays, self.replay.pred, self.scope, self.fit)
             return
         res = self.replays.residuals(self.replay, self.scope)
         self.sq = sum(float(np.nansum(res[j][self.masks[j]] ** 2)) for j in self.scope)
@@ -492,16 +490,15 @@ def _settle(trials: list[_Trial]) -> list[float]:
         min(open_, key=_Trial.bound).advance()
 
 
-def _search_one(rec, robot, base: list, cand, scope, ground, until_s, fit, progress,
-                bracket: tuple[float, float] | None = None, replays: Replays | None = None
-                ) -> tuple[float, float, WalkReplay]:
+def _search_one(replays: Replays, base: list, cand, scope, until_s, fit, progress,
+                bracket: tuple[float, float] | None = None) -> tuple[float, float, WalkReplay]:
     """(value, fit RMS, its replay) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole
     walk, over the candidate's range (or ``bracket``): a log-spaced grid, then golden-section steps between
     the best point's neighbours. Each comparison replays its candidates only as far as it needs
     (:func:`_settle`), and a golden-section step reuses the interior point it keeps where the logarithms give
     it exactly again (about every other step; a value one rounding away is replayed, as the walk's replay
     is that sensitive)."""
-    replays = replays or Replays(rec, robot, ground)
+    robot = replays.robot
     made: list[tuple[float, _Trial]] = []
 
     def trial(v):
@@ -547,12 +544,12 @@ def _least_measured(cand, robot: Robot) -> float:
     return least
 
 
-def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, ww: WholeWalk,
-                  progress=lambda msg: None, replays: Replays | None = None) -> list[LoadedFind]:
+def search_loaded(replays: Replays, effects: list, ww: WholeWalk, progress=lambda msg: None) -> list[LoadedFind]:
     """Effects of :data:`LOADED_CANDIDATES` that explain what the whole walk's loaded phases leave, on the
     joints that leave more than tick rounding (each alone; and the whole robot when many do), fitted on
     alternate 2 s blocks of the whole walk and judged on the others. At most one effect per joint."""
     from hexapod_sim.discrepancy.effects import BY_NAME
+    rec, robot = replays.rec, replays.robot
     excess = _loaded_excess(ww)
     if not excess or ww.in_step_until_s < START_S + SEARCH_MIN_IN_STEP_S:
         return []
@@ -562,7 +559,6 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
     scopes = [(j,) for j, _ in excess[:MAX_JOINT_SCOPES]]
     scopes += [tuple(joints)] if len(excess) >= ROBOT_WIDE_MIN_JOINTS else []
     base = list(effects)
-    replays = replays or Replays(rec, robot, ground)
     r0 = replays.get(robot.with_effects(base), joints, until)
     r0.run_to(until)
     base_pred = {j: r0.pred[j][:int(np.searchsorted(rec.states[j].t_s, until, side='right'))] for j in joints}
@@ -570,12 +566,12 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
     for scope in sorted(scopes, key=len, reverse=True):
         if any(j in f.effect.joints for f in found for j in scope):
             continue
-        before = _rms(rec, robot, base_pred, scope, hold)
+        before = _rms(replays, base_pred, scope, hold)
         trials = []
         for name in LOADED_CANDIDATES:
             cand = BY_NAME[name]
-            v, _, r = _search_one(rec, robot, base, cand, scope, ground, until, fit, progress, replays=replays)
-            trials.append((_rms(rec, robot, r.pred, scope, hold), cand.make(scope, v)))
+            v, _, r = _search_one(replays, base, cand, scope, until, fit, progress)
+            trials.append((_rms(replays, r.pred, scope, hold), cand.make(scope, v)))
         after, eff = min(trials, key=lambda x: x[0])
         explained = (before ** 2 - after ** 2) / max(before ** 2 - ROUNDING_RMS ** 2, 1e-9)
         c = BY_NAME[eff.effect]
