@@ -16,53 +16,16 @@ from hexapod_model.description import Effect, Robot, load_robot
 from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy import structure
 from hexapod_sim.discrepancy.effects import scope_name
+from hexapod_sim.discrepancy.findings import UNEXPLAINED_TICKS, FoundEffect, JointFit, PhaseFit, Unexplained
 from hexapod_sim.discrepancy.fit import FitSettings, Hypothesis, Namer
 from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, make_split, unobservable
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.segments import PHASES, gait_phases, replay_analysed
 from hexapod_sim.discrepancy.simulate import Replay
-from hexapod_sim.discrepancy.whole_walk_search import choose_terms, follows_to_rounding, whole_walk_check
+from hexapod_sim.discrepancy.whole_walk_search import add_loaded, whole_walk_agrees, whole_walk_check, widened
 
 MODES = ('auto', 'stand', 'walk')
-
-@dataclass(frozen=True)
-class JointFit:
-    heldout_rmse_ticks_before: float
-    heldout_rmse_ticks_after: float
-    n_heldout: int
-
-
-@dataclass(frozen=True)
-class PhaseFit:
-    n_reads: int
-    rmse_ticks_before: float
-    rmse_ticks_after: float
-
-
-@dataclass(frozen=True)
-class FoundEffect:
-    effect: Effect
-    scope: str                       # 'leg 3 tibia', 'leg 2', 'the whole robot'
-    condition: str                   # where it shows (locate.CONDITIONS)
-    heldout_rmse_ticks_before: float  # on the effect's joints, final model without this effect
-    heldout_rmse_ticks_after: float   # final model
-
-
-UNEXPLAINED_TICKS = 0.6     # held-out RMS error [ticks] above which a joint's mismatch is reported as unexplained
-
-
-@dataclass(frozen=True)
-class Unexplained:
-    """A mismatch no candidate explains: joints, where it shows, its held-out RMS error [ticks] with the
-    named effects in place, and the nearest candidate that was tried and not named (None: none passed)."""
-
-    joints: tuple[Joint, ...]
-    condition: str
-    heldout_rmse_ticks: float
-    nearest: Effect | None = None
-    nearest_rmse_ticks: float = math.nan     # held-out RMS error on these joints with the nearest candidate
-
 
 @dataclass
 class Analysis:
@@ -141,7 +104,7 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
     """The dictionary's structure search (:mod:`.structure`) on the joints the named effects leave
     unexplained; returns the terms found, the named effects they leave (a list effect a term displaced is
     dropped), and the unexplained list, residuals and joint fits with them. ``choose(effects, terms)``
-    (a walk: :func:`~.whole_walk_search.choose_terms`) picks between terms the swings fit alike."""
+    (a walk: :func:`~.structure.choose_terms`) picks between terms the swings fit alike."""
     if not unexplained or not settings.dictionary:
         return [], found, unexplained, res1, jfit
     step('searching the dictionary of physical terms')
@@ -180,60 +143,6 @@ def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: d
                                      float(np.sqrt(np.mean(res1[j][sel] ** 2))))
         table[j] = row
     return out, table
-
-
-def _widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple[list, list]:
-    """Found effects of a kind the whole walk put on every joint (whole_walk_search.widen) become one effect of the
-    whole robot, judged on the whole walk (all joints and phases, nominal -> fitted); what was left
-    unexplained on joints the whole walk now fits leaves the list."""
-    if not wide:
-        return found, unexplained
-    rows = [v for row in whole.phases.values() for v in row.values()]
-    n = sum(v.n_reads for v in rows)
-    before = math.sqrt(sum(v.n_reads * v.rmse_ticks_nominal ** 2 for v in rows) / n) if n else math.nan
-    after = math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in rows) / n) if n else math.nan
-    out = [f for f in found if f.effect.effect not in wide]
-    out += [FoundEffect(e, scope_name(e.joints, joints), 'in the whole walk (it keeps the replay in step)', before, after)
-            for e in wide.values()]
-
-    def fitted_rms(j):
-        row = whole.phases.get(j, {})
-        m = sum(v.n_reads for v in row.values())
-        return math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in row.values()) / m) if m else math.inf
-
-    kept = [u for u in unexplained if max(fitted_rms(j) for j in u.joints) > UNEXPLAINED_TICKS]
-    return out, kept
-
-
-def _whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
-    """Drop what the free-leg model leaves unexplained on joints that the MuJoCo hexapod, replaying the
-    whole walk with the effects found, follows to tick rounding in every phase over most of the walk:
-    the free leg is then the model that falls short (a swing that starts while the leg still sheds the
-    body's weight), not the robot's physics. A joint the replay judged on too few reads stays."""
-    if whole is None:
-        return unexplained
-
-    def at_rounding(j):
-        rows = [(v.n_reads, v.rmse_ticks_fitted) for v in whole.phases.get(j, {}).values()]
-        return follows_to_rounding(whole.in_step_until_s, duration_s, rows)
-
-    return [u for u in unexplained if not all(at_rounding(j) for j in u.joints)]
-
-
-def _add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
-    """The effects the whole walk's loaded phases show (whole_walk_search.search_loaded) join the found ones and
-    leave the "cannot show" list on their joints."""
-    found = list(found)
-    for f in finds:
-        e = f.effect
-        found.append(FoundEffect(e, scope_name(e.joints, joints), f'in the whole walk ({f.phase.replace("_", "-")})',
-                                 f.heldout_rmse_ticks_before, f.heldout_rmse_ticks_after))
-        if e.effect in blind:
-            rest = tuple(j for j in blind[e.effect] if j not in e.joints)
-            blind = {k: v for k, v in blind.items() if k != e.effect}
-            if rest:
-                blind[e.effect] = rest
-    return found, blind
 
 
 def _progress_bar(progress: bool):
@@ -370,7 +279,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             ww_phases = gait_phases(rec_ww, replay.legs)
         if mode_used == 'walk' and whole_walk:
             def choose(named, terms):
-                terms, more = choose_terms(rec_ww, robot, named, terms, ground, ww_phases, replay.joints, progress=step)
+                terms, more = structure.choose_terms(rec_ww, robot, named, terms, ground, ww_phases, replay.joints, progress=step)
                 notes.extend(more)
                 return terms
         terms, found, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, found,
@@ -387,9 +296,9 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                 if rec.lost:
                     notes.append(f'whole walk: replayed up to the first lost span, {rec_ww.duration_s:.1f} s')
                 notes.extend(ww_notes)
-                found, unexplained = _widened(found, unexplained, wide, whole, replay.joints)
-                unexplained = _whole_walk_agrees(unexplained, whole, rec_ww.duration_s)
-                found, blind = _add_loaded(found, blind, finds, replay.joints)
+                found, unexplained = widened(found, unexplained, wide, whole, replay.joints)
+                unexplained = whole_walk_agrees(unexplained, whole, rec_ww.duration_s)
+                found, blind = add_loaded(found, blind, finds, replay.joints)
         notes.append(_split_note(split, by_swing))
         return Analysis(source=rec.source, mode=mode_used, robot=robot, replay=replay, split=split,
                         duration_s=rec.duration_s, residual_before=res0, residual_after=res1, conditions=cond,

@@ -10,7 +10,8 @@ the recording: :func:`in_step_until` finds that moment, and only reads before it
 Effects the swings found on part of the robot that the whole walk wants on every joint (:func:`widen`), and
 effects the loaded phases show (:func:`search_loaded`: backlash, break-away friction and the dead-band fitted
 on the whole walk's replay); :func:`whole_walk_check` runs the comparison and both and writes the report's
-notes.
+notes, and :func:`widened`, :func:`whole_walk_agrees` and :func:`add_loaded` carry what it found into the
+analysis's findings (:mod:`.findings`).
 """
 from __future__ import annotations
 
@@ -22,8 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexapod_model.description import Robot
-from hexapod_model.dictionary import BY_TERM
 from hexapod_model.joints import Joint
+from hexapod_sim.discrepancy.effects import scope_name
+from hexapod_sim.discrepancy.findings import UNEXPLAINED_TICKS, FoundEffect
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.segments import PHASES, LegPhases
 from hexapod_sim.discrepancy.whole_walk import WalkReplay, rec_ticks, sorted_writes
@@ -253,54 +255,6 @@ def walk_ground(rec: Recording, ground: Ground | None) -> tuple[Ground, str]:
     return Ground(), 'assumed: a flat floor, as for a calibration walk; --terrain sets it'
 
 
-def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground: Ground | None, phases: dict,
-                 joints, progress=lambda msg: None) -> tuple[list, list[str]]:
-    """The dictionary terms of a walk's swings, judged on the whole walk (the named effects and the other
-    terms in place). A joint term the whole walk does not need (without it the replay follows its joints
-    to tick rounding in every phase over most of the walk: what the free leg missed there is the free-leg
-    model's, as in :func:`follows`) is dropped. A term found where others passed as well
-    (:attr:`.structure.FoundTerm.alternatives`; a weaker motor and friction that grows with the gear load
-    slow a swinging leg alike, but only the friction holds a leg that carries the body) is replayed with
-    each of them, and the one whose joints follow the recording best, over the span the best replay stays
-    in step, is kept. -> (terms, notes)."""
-    from dataclasses import replace
-    joint_terms = [t for t in terms if not BY_TERM[t.effect.effect].robot_wide]
-    if not joint_terms:
-        return list(terms), []
-    ground, _ = walk_ground(rec, ground)
-    replays = Replays(rec, robot, ground)
-    joints = [j for j in joints if j in rec.states]
-    out, notes = list(terms), []
-    for t in joint_terms:
-        k = next(i for i, u in enumerate(out) if u is t)
-        others = list(named) + [u.effect for u in out if u is not t]
-        progress(f'whole walk: without {t.effect.effect} on {", ".join(map(str, t.effect.joints))}')
-        res, until = replays.in_step(robot.with_effects(others), joints)
-        if follows(rec, res, until, phases, t.effect.joints):
-            notes.append(f'whole walk: without {t.words} on {", ".join(map(str, t.effect.joints))} the replay follows '
-                         'the recording there to tick rounding in every phase: the free leg missed it, not the robot')
-            out.pop(k)
-            continue
-        if not t.alternatives:
-            continue
-        options = [(t.effect, t.heldout_rmse_ticks_after)] + list(t.alternatives)
-        runs = []
-        for e, _ra in options:
-            progress(f'whole walk: {e.effect} on {", ".join(map(str, e.joints))}')
-            runs.append(replays.in_step(robot.with_effects(others + [e]), joints))
-        until = max(u for _, u in runs)
-        scores = [_joint_rms(rec, res, t.effect.joints, until) for res, _ in runs]
-        best = int(np.argmin(scores))
-        if best:
-            e, ra = options[best]
-            out[k] = replace(t, effect=e, words=BY_TERM[e.effect].describe(e.params), heldout_rmse_ticks_after=ra,
-                             alternatives=tuple(o for i, o in enumerate(options) if i != best))
-            notes.append(f'whole walk: {e.effect.replace("_", " ")} and {t.effect.effect.replace("_", " ")} fit the '
-                         f'swings of {", ".join(map(str, e.joints))} alike; the whole walk follows the recording with '
-                         f'{e.effect.replace("_", " ")} ({scores[best]:.2f} ticks RMS against {scores[0]:.2f})')
-    return out, notes
-
-
 def follows_to_rounding(in_step_until_s: float, duration_s: float, rows) -> bool:
     """The rule by which the whole walk clears a joint: a replay in step over at least ``AGREES_SHARE`` of the
     walk, and on that joint every phase judged on at least ``AGREES_MIN_READS`` reads (``rows``: (reads,
@@ -330,7 +284,7 @@ def follows(rec: Recording, res: dict, until_s: float, phases: dict, joints) -> 
     return True
 
 
-def _joint_rms(rec: Recording, res: dict, joints, until_s: float) -> float:
+def joint_rms(rec: Recording, res: dict, joints, until_s: float) -> float:
     """RMS residual [ticks] of ``joints`` over the reads from ``START_S`` to ``until_s`` (a read the replay
     has not reached counts as out of step: inf)."""
     sq, n = 0.0, 0
@@ -345,6 +299,60 @@ def _joint_rms(rec: Recording, res: dict, joints, until_s: float) -> float:
         sq += float(np.sum(v ** 2))
         n += len(v)
     return math.sqrt(sq / n) if n else math.inf
+
+
+def widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple[list, list]:
+    """Found effects of a kind the whole walk put on every joint (:func:`widen`) become one effect of the
+    whole robot, judged on the whole walk (all joints and phases, nominal -> fitted); what was left
+    unexplained on joints the whole walk now fits leaves the list."""
+    if not wide:
+        return found, unexplained
+    rows = [v for row in whole.phases.values() for v in row.values()]
+    n = sum(v.n_reads for v in rows)
+    before = math.sqrt(sum(v.n_reads * v.rmse_ticks_nominal ** 2 for v in rows) / n) if n else math.nan
+    after = math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in rows) / n) if n else math.nan
+    out = [f for f in found if f.effect.effect not in wide]
+    out += [FoundEffect(e, scope_name(e.joints, joints), 'in the whole walk (it keeps the replay in step)', before, after)
+            for e in wide.values()]
+
+    def fitted_rms(j):
+        row = whole.phases.get(j, {})
+        m = sum(v.n_reads for v in row.values())
+        return math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in row.values()) / m) if m else math.inf
+
+    kept = [u for u in unexplained if max(fitted_rms(j) for j in u.joints) > UNEXPLAINED_TICKS]
+    return out, kept
+
+
+def whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
+    """Drop what the free-leg model leaves unexplained on joints that the MuJoCo hexapod, replaying the
+    whole walk with the effects found, follows to tick rounding in every phase over most of the walk:
+    the free leg is then the model that falls short (a swing that starts while the leg still sheds the
+    body's weight), not the robot's physics. A joint the replay judged on too few reads stays."""
+    if whole is None:
+        return unexplained
+
+    def at_rounding(j):
+        rows = [(v.n_reads, v.rmse_ticks_fitted) for v in whole.phases.get(j, {}).values()]
+        return follows_to_rounding(whole.in_step_until_s, duration_s, rows)
+
+    return [u for u in unexplained if not all(at_rounding(j) for j in u.joints)]
+
+
+def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
+    """The effects the whole walk's loaded phases show (:func:`search_loaded`) join the found ones and
+    leave the "cannot show" list on their joints."""
+    found = list(found)
+    for f in finds:
+        e = f.effect
+        found.append(FoundEffect(e, scope_name(e.joints, joints), f'in the whole walk ({f.phase.replace("_", "-")})',
+                                 f.heldout_rmse_ticks_before, f.heldout_rmse_ticks_after))
+        if e.effect in blind:
+            rest = tuple(j for j in blind[e.effect] if j not in e.joints)
+            blind = {k: v for k, v in blind.items() if k != e.effect}
+            if rest:
+                blind[e.effect] = rest
+    return found, blind
 
 
 def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
@@ -584,5 +592,6 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk, progress=lambd
     return found
 
 
-__all__ = ['LoadedFind', 'PhaseRow', 'Replays', 'WHOLE_PHASES', 'WholeWalk', 'choose_terms', 'compare', 'follows',
-           'follows_to_rounding', 'in_step_until', 'search_loaded', 'walk_ground', 'whole_labels', 'whole_walk_check', 'widen']
+__all__ = ['LoadedFind', 'PhaseRow', 'Replays', 'WHOLE_PHASES', 'WholeWalk', 'add_loaded', 'compare', 'follows',
+           'follows_to_rounding', 'in_step_until', 'joint_rms', 'search_loaded', 'walk_ground', 'whole_labels',
+           'whole_walk_agrees', 'whole_walk_check', 'widen', 'widened']
