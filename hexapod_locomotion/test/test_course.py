@@ -1,10 +1,14 @@
 """Course correction (hexapod_locomotion.core.course) on poses whose errors are known."""
 import math
+import re
+from pathlib import Path
 
 import pytest
 
+import hexapod_locomotion
 from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
 from hexapod_locomotion.core.course import CourseConfig, CourseKeeper, placed_turn_share
+from hexapod_locomotion.core.gait import load_gaits
 
 CYCLE = 2.0
 
@@ -106,6 +110,32 @@ def test_the_yaw_rate_is_divided_by_the_share_of_the_placed_turn():
     assert k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE).wz == pytest.approx(0.1 / 0.75)
     with pytest.raises(LocomotionError, match='turn_share'):
         CourseKeeper(turn_share=0.0)
+
+
+@pytest.mark.parametrize('name', sorted(load_gaits()))
+def test_the_keeper_of_each_gait_divides_by_its_own_turn_share(name):
+    """Each gait of gaits.yaml: the keeper built for it turns in place at the commanded rate divided by
+    n / (n + 1) of its groups (tripod 2/3, tetrapod 3/4, pentapod 6/7)."""
+    gait = load_gaits()[name]
+    n = len(gait.groups)
+    k = CourseKeeper.for_gait(gait)
+    assert k.turn_share == pytest.approx(n / (n + 1))
+    assert k.config == CourseConfig()
+    cmd = VelocityCommand(0.0, 0.0, 0.1)
+    assert k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE).wz == pytest.approx(0.1 * (n + 1) / n)
+    tuned = CourseConfig(heading_gain=0.2)
+    assert CourseKeeper.for_gait(gait, tuned).config is tuned
+
+
+def test_every_walker_builds_its_keeper_from_the_gait():
+    """locomotion_node and the trial runner walk with the same keeper for the same gait: no module but
+    the course's own constructs CourseKeeper directly, and both walkers call CourseKeeper.for_gait."""
+    root = Path(hexapod_locomotion.__file__).parent
+    direct = [f'{p.relative_to(root)}:{i}' for p in sorted(root.rglob('*.py')) if p.name != 'course.py'
+              for i, line in enumerate(p.read_text().splitlines(), 1) if re.search(r'\bCourseKeeper\(', line)]
+    assert direct == []
+    for walker in ('nodes/locomotion_node.py', 'trials/trial_runner.py'):
+        assert 'CourseKeeper.for_gait(' in (root / walker).read_text(), walker
 
 
 def test_the_heading_error_is_carried_on_by_its_trend():

@@ -13,7 +13,7 @@ from hexapod_sim.discrepancy.analysis import analyse
 from hexapod_sim.discrepancy.recording import load_recording
 from hexapod_sim.discrepancy.report import text_report, to_json
 from hexapod_sim.discrepancy.segments import LegPhases, Swing
-from hexapod_sim.discrepancy.whole_walk import LOADED_PHASES, WHOLE_PHASES, whole_labels
+from hexapod_sim.discrepancy.whole_walk_search import LOADED_PHASES, WHOLE_PHASES, whole_labels
 from hexapod_sim.physics.terrain import Ground, TerrainError
 
 TICK_RAD = math.radians(300.0 / 1023.0)

@@ -106,8 +106,7 @@ def test_a_walk_of_the_fast_overlapped_cycle_is_named_as_such():
     calibration walk; a walk in sequence with unhurried swing-ups gets no such note."""
     from types import SimpleNamespace
 
-    from hexapod_sim.discrepancy.analysis import walk_cycle_notes
-    from hexapod_sim.discrepancy.segments import LegPhases, Swing, body_motion_share
+    from hexapod_sim.discrepancy.segments import LegPhases, Swing, body_motion_share, walk_cycle_notes
 
     def walk(up_s, overlapped):
         phases, segs = {}, {}
@@ -252,8 +251,8 @@ def test_an_unexplained_free_leg_mismatch_that_the_whole_walk_follows_is_not_rep
     still sheds the body's weight); the MuJoCo replay of the whole walk follows that joint to tick
     rounding in every phase, so nothing is claimed. A joint the replay does not follow stays; so does
     everything when the replay went out of step early or judged a joint on too few reads."""
-    from hexapod_sim.discrepancy.analysis import Unexplained, _whole_walk_agrees
-    from hexapod_sim.discrepancy.whole_walk import PhaseRow, WholeWalk
+    from hexapod_sim.discrepancy.findings import Unexplained
+    from hexapod_sim.discrepancy.whole_walk_search import PhaseRow, WholeWalk, whole_walk_agrees
 
     def walk(in_step_s, femur_touchdown=0.36, reads=200):
         rows = {Joint(2, 'femur'): {'swing_forward': PhaseRow(reads, 0.32, 0.32), 'touchdown': PhaseRow(reads, 0.36, femur_touchdown),
@@ -263,8 +262,8 @@ def test_an_unexplained_free_leg_mismatch_that_the_whole_walk_follows_is_not_rep
 
     femur = Unexplained((Joint(2, 'femur'),), 'start_from_rest', 0.94)
     tibia = Unexplained((Joint(5, 'tibia'),), 'gravity_load_high', 1.29)
-    assert _whole_walk_agrees([femur, tibia], walk(12.5), 12.5) == [tibia]
-    assert _whole_walk_agrees([femur, tibia], walk(12.5, femur_touchdown=0.8), 12.5) == [femur, tibia]
-    assert _whole_walk_agrees([femur, tibia], walk(5.0), 12.5) == [femur, tibia]       # out of step early
-    assert _whole_walk_agrees([femur], walk(12.5, reads=10), 12.5) == [femur]          # no phase judged
-    assert _whole_walk_agrees([femur], None, 12.5) == [femur]                          # no whole-walk replay
+    assert whole_walk_agrees([femur, tibia], walk(12.5), 12.5) == [tibia]
+    assert whole_walk_agrees([femur, tibia], walk(12.5, femur_touchdown=0.8), 12.5) == [femur, tibia]
+    assert whole_walk_agrees([femur, tibia], walk(5.0), 12.5) == [femur, tibia]       # out of step early
+    assert whole_walk_agrees([femur], walk(12.5, reads=10), 12.5) == [femur]          # no phase judged
+    assert whole_walk_agrees([femur], None, 12.5) == [femur]                          # no whole-walk replay

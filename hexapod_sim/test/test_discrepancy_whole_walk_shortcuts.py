@@ -79,9 +79,9 @@ def test_a_replay_stopped_once_out_of_step_gives_the_whole_replays_verdict(rec, 
     joints = list(rec.joints)
     whole = ww.replay_walk(rec, robot, rec.ground, joints)
     res_whole = {j: ww.rec_ticks(rec, robot, j) - p for j, p in whole.items()}
-    until = ww.in_step_until(rec, res_whole)
+    until = wws.in_step_until(rec, res_whole)
     assert until < rec.duration_s - 5.0                 # the nominal replay leaves this walk early
-    replays = ww.Replays(rec, robot, rec.ground)
+    replays = wws.Replays(rec, robot, rec.ground)
     res, got = replays.in_step(robot, joints)
     assert got == until
     r = replays.get(robot, joints)
@@ -102,10 +102,10 @@ def test_candidates_compared_lazily_give_the_minimum_of_the_whole_comparisons(re
     cand = BY_NAME['viscous_damping']
     values = [0.01, 0.1, 0.3, 1.5]
     full = []
+    replays = wws.Replays(rec, robot, rec.ground)
     for v in values:
         pred = ww.replay_walk(rec, robot.with_effects([cand.make(SCOPE, v)]), rec.ground, SCOPE, t_end_s=until)
-        full.append(wws._rms(rec, robot, pred, SCOPE, fit))
-    replays = ww.Replays(rec, robot, rec.ground)
+        full.append(wws._rms(replays, pred, SCOPE, fit))
     trials = [wws._Trial(replays, robot.with_effects([cand.make(SCOPE, v)]), SCOPE, until, fit) for v in values]
     lazy = wws._settle(trials)
     k = int(np.argmin(full))
@@ -118,9 +118,11 @@ def test_candidates_compared_lazily_give_the_minimum_of_the_whole_comparisons(re
 def _search_whole(rec, robot, cand, scope, until_s, fit):
     """The search replaying every candidate value whole: the grid, then golden-section steps that
     evaluate both interior points afresh."""
+    replays = wws.Replays(rec, robot, rec.ground)
+
     def cost(v):
         pred = ww.replay_walk(rec, robot.with_effects([cand.make(scope, v)]), rec.ground, scope, t_end_s=until_s)
-        return wws._rms(rec, robot, pred, scope, fit)
+        return wws._rms(replays, pred, scope, fit)
     grid = np.geomspace(cand.lo, cand.hi, wws.SEARCH_GRID)
     costs = [cost(float(v)) for v in grid]
     k = int(np.nanargmin(costs))
@@ -143,7 +145,7 @@ def test_the_search_with_its_shortcuts_finds_the_value_of_the_whole_search(rec, 
     fit, hold = wws._masks(rec, SCOPE, until)
     cand = BY_NAME['viscous_damping']
     want_v, want_c = _search_whole(rec, robot, cand, SCOPE, until, fit)
-    v, c, r = wws._search_one(rec, robot, [], cand, SCOPE, rec.ground, until, fit, lambda msg: None)
+    v, c, r = wws._search_one(wws.Replays(rec, robot, rec.ground), [], cand, SCOPE, until, fit, lambda msg: None)
     assert (v, c) == (want_v, want_c)
     pred = ww.replay_walk(rec, robot.with_effects([cand.make(SCOPE, v)]), rec.ground, SCOPE, t_end_s=until)
     assert np.array_equal(r.pred[SCOPE[0]], pred[SCOPE[0]])      # its replay is the best value's

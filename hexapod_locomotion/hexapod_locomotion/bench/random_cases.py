@@ -272,9 +272,10 @@ def stand_residual(rec, other) -> dict[str, np.ndarray]:
 
 def walk_phase_rms(rec, robot) -> dict:
     """Per joint and whole-walk phase: the RMS of the recording against the open-loop replay of its own
-    goals through ``robot`` on its ground (reads from ``whole_walk.START_S`` on)."""
+    goals through ``robot`` on its ground (reads from ``whole_walk_search.START_S`` on)."""
     from hexapod_sim.discrepancy.segments import gait_phases
-    from hexapod_sim.discrepancy.whole_walk import START_S, WHOLE_PHASES, rec_ticks, replay_walk, whole_labels
+    from hexapod_sim.discrepancy.whole_walk import rec_ticks, replay_walk
+    from hexapod_sim.discrepancy.whole_walk_search import START_S, WHOLE_PHASES, whole_labels
     from hexapod_sim.physics.terrain import Ground
     nominal = load_robot()
     pred = replay_walk(rec, robot, rec.ground or Ground())

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
+from hexapod_locomotion.core.gait import Gait
 from hexapod_locomotion.core.odometry import wrap_angle
 from hexapod_model.param_schema import param
 
@@ -85,6 +86,11 @@ class CourseKeeper:
 
     config: CourseConfig = CourseConfig()
     turn_share: float = 1.0
+
+    @classmethod
+    def for_gait(cls, gait: Gait, config: CourseConfig = CourseConfig()) -> CourseKeeper:
+        """The keeper of a walk in ``gait``: every walker (locomotion_node, the trial runner) builds it here."""
+        return cls(config, turn_share=placed_turn_share(gait.n_phases))
 
     def __post_init__(self):
         if not (math.isfinite(self.turn_share) and 0.0 < self.turn_share <= 1.0):

@@ -37,7 +37,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
-from hexapod_locomotion.core.course import CourseChoice, CourseKeeper, placed_turn_share
+from hexapod_locomotion.core.course import CourseChoice, CourseKeeper
 from hexapod_locomotion.core.detector import DetectorConfig, DetectorError, swing_start_fields
 from hexapod_locomotion.core.gait import GaitChoice, GaitError, get_gait
 from hexapod_locomotion.core.odometry import OdometryError
@@ -120,7 +120,7 @@ class LocomotionNode(Node):
         self.tf_pub = self.create_publisher(TFMessage, TF, 100) if TFMessage is not None else None
         self.tap = OdometryTap(self.bus, self.robot, self.controller.contact_legs, [(LegOdometry(), True)],
                                imu=lambda: self._imu, on_estimate=self._publish_odom)
-        self.keeper = CourseKeeper(turn_share=placed_turn_share(self.controller.gait.n_phases)) if heading_correction else None
+        self.keeper = CourseKeeper.for_gait(self.controller.gait) if heading_correction else None
         self.create_subscription(Imu, IMU, self._on_imu, 50)
         self.create_subscription(JointState, JOINT_STATES, self._on_joint_states, 500)
 

@@ -352,8 +352,8 @@ class _Walk:
 def _walk(cfg: TrialConfig, sim, probe: ProbeBus, controller: GaitController, odo, swing_downs, walk: _Walk,
           progress=None) -> None:
     """Stand up, then step gait phases until the time limit, the course end or a fall (into ``walk``)."""
-    from hexapod_locomotion.core.course import CourseKeeper, placed_turn_share
-    keeper = CourseKeeper(turn_share=placed_turn_share(controller.gait.n_phases)) if cfg.heading_correction else None
+    from hexapod_locomotion.core.course import CourseKeeper
+    keeper = CourseKeeper.for_gait(controller.gait) if cfg.heading_correction else None
     warnings = walk.warnings
     controller.startup(probe)
     x0 = walk.x0_m = float(probe.pose_xyz[-1][0])

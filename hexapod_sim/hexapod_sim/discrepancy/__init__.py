@@ -12,7 +12,8 @@
 Command line: :mod:`.cli` (``discrepancy``); benchmark on concealed sim data: :mod:`.bench`.
 Pure numpy/scipy (plus matplotlib for the plot); no rclpy.
 """
-from hexapod_sim.discrepancy.analysis import Analysis, FoundEffect, analyse
+from hexapod_sim.discrepancy.analysis import Analysis, analyse
+from hexapod_sim.discrepancy.findings import FoundEffect
 from hexapod_sim.discrepancy.recording import Recording, RecordingError, load_recording
 
 __all__ = ['Analysis', 'FoundEffect', 'Recording', 'RecordingError', 'analyse', 'load_recording']

@@ -15,118 +15,17 @@ import numpy as np
 from hexapod_model.description import Effect, Robot, load_robot
 from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy import structure
-from hexapod_sim.discrepancy.body_motion import body_motion_correction
 from hexapod_sim.discrepancy.effects import scope_name
+from hexapod_sim.discrepancy.findings import UNEXPLAINED_TICKS, FoundEffect, JointFit, PhaseFit, Unexplained
 from hexapod_sim.discrepancy.fit import FitSettings, Hypothesis, Namer
 from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, make_split, unobservable
-from hexapod_sim.discrepancy.recording import Recording, RecordingError
-from hexapod_sim.discrepancy.segments import (
-    LOST_MARGIN_S,
-    PHASES,
-    body_motion_share,
-    clear_of_lost,
-    gait_phases,
-    looks_like_walk,
-    median_swing_up_s,
-    obstructed_swings,
-    spans_between_lost,
-    swing_segments,
-    walk_across_lost,
-)
+from hexapod_sim.discrepancy.recording import Recording
+from hexapod_sim.discrepancy.segments import PHASES, gait_phases, replay_analysed
 from hexapod_sim.discrepancy.simulate import Replay
-from hexapod_sim.discrepancy.whole_walk_search import choose_terms, follows_to_rounding, whole_walk_check
+from hexapod_sim.discrepancy.whole_walk_search import add_loaded, whole_walk_agrees, whole_walk_check, widened
 
 MODES = ('auto', 'stand', 'walk')
-# A walk's swing starts in motion from the reads around lift-off; reads in the first 0.1 s are left
-# out of fit and judgement (on clean sim walks the nominal replay is at the rounding floor from there,
-# docs/discrepancy.md).
-WALK_SETTLE_S = 0.1
-
-
-# What the walk analysis was measured on (docs/discrepancy.md, "Which walks"): a calibration walk,
-# hexapod_locomotion/config/calibration_walk.yaml. Beyond these the nominal replay of a clean walk
-# leaves more than tick rounding, and the report says why.
-CALIBRATION_BODY_MOTION_SHARE = 0.1    # of the analysed swing time with the body moved by other legs
-CALIBRATION_SWING_UP_S = 0.15          # swing-up duration [s]; the faster cycle in sequence left up to 0.96 ticks
-
-
-def _body_motion_share(phases: dict, replay: Replay) -> float:
-    """:func:`.segments.body_motion_share` over the replay's analysed swings (firmware periods -> s)."""
-    return body_motion_share(phases, {leg: [(a * replay.dt, b * replay.dt) for a, b in v]
-                                      for leg, v in replay.segments.items()})
-
-
-def walk_replay(robot: Robot, rec: Recording, joints, segments, phases, step=lambda msg: None) -> Replay:
-    """The swings of a walk, from lift-off, started in motion; where the body moves under them (other legs
-    leveling) and the recording has ``/imu``, corrected by a replay with the body's motion
-    (:mod:`.body_motion`). Not otherwise: the correction is a nominal replay added to every hypothesis, and
-    on a calibration walk, where the body holds still, it took the coxa backlash of the walk bench from 20 %
-    to 25 % off without lowering any clean walk's worst joint below 0.5 tick that was above it."""
-    replay = Replay(robot, rec, joints=joints, segments=segments, moving_start=True)
-    if rec.imu is not None and _body_motion_share(phases, replay) > CALIBRATION_BODY_MOTION_SHARE:
-        step('replaying the swings with the body motion')
-        replay.correction = body_motion_correction(replay, rec, robot)
-    return replay
-
-
-def walk_cycle_notes(phases: dict, replay: Replay) -> list[str]:
-    """Notes on a walk whose gait cycle the free-leg replay is not measured for (without ``/imu``)."""
-    if replay.correction is not None:
-        return []
-    out = []
-    share = _body_motion_share(phases, replay)
-    up = median_swing_up_s(phases)
-    if share > CALIBRATION_BODY_MOTION_SHARE:
-        out.append(f'the body moved under the swinging legs for {100 * share:.0f} % of the analysed swing time '
-                   '(other legs leveling: the overlapped gait cycle); the free-leg model holds the body still, so '
-                   'part of the mismatch may be body motion, not missing physics')
-    if up < CALIBRATION_SWING_UP_S - 0.01:
-        out.append(f'swing-ups of {1000 * up:.0f} ms, faster than the replay is measured for '
-                   f'({1000 * CALIBRATION_SWING_UP_S:.0f} ms): fast swings shake the body on its stance legs')
-    if out:
-        out.append('for a walk this tool can judge to tick rounding, record a calibration walk: locomotion '
-                   'parameters from hexapod_locomotion/config/calibration_walk.yaml (docs/discrepancy.md)')
-    return out
-
-
-@dataclass(frozen=True)
-class JointFit:
-    heldout_rmse_ticks_before: float
-    heldout_rmse_ticks_after: float
-    n_heldout: int
-
-
-@dataclass(frozen=True)
-class PhaseFit:
-    n_reads: int
-    rmse_ticks_before: float
-    rmse_ticks_after: float
-
-
-@dataclass(frozen=True)
-class FoundEffect:
-    effect: Effect
-    scope: str                       # 'leg 3 tibia', 'leg 2', 'the whole robot'
-    condition: str                   # where it shows (locate.CONDITIONS)
-    heldout_rmse_ticks_before: float  # on the effect's joints, final model without this effect
-    heldout_rmse_ticks_after: float   # final model
-
-
-UNEXPLAINED_TICKS = 0.6     # held-out RMS error [ticks] above which a joint's mismatch is reported as unexplained
-
-
-@dataclass(frozen=True)
-class Unexplained:
-    """A mismatch no candidate explains: joints, where it shows, its held-out RMS error [ticks] with the
-    named effects in place, and the nearest candidate that was tried and not named (None: none passed)."""
-
-    joints: tuple[Joint, ...]
-    condition: str
-    heldout_rmse_ticks: float
-    nearest: Effect | None = None
-    nearest_rmse_ticks: float = math.nan     # held-out RMS error on these joints with the nearest candidate
-
 
 @dataclass
 class Analysis:
@@ -153,7 +52,7 @@ class Analysis:
     min_drop_ticks: float = 0.0      # held-out RMS drop an effect had to reach (the "cannot show" bound)
     min_gain_ticks2: float = 0.0     # and held-out squared-error gain (predict.can_confirm)
     unexplained: list = field(default_factory=list)   # Unexplained: what no candidate explains
-    # walks: the whole walk replayed on the MuJoCo hexapod, nominal and with the effects (whole_walk.WholeWalk)
+    # walks: the whole walk replayed on the MuJoCo hexapod, nominal and with the effects (whole_walk_search.WholeWalk)
     whole_walk: object | None = None
     terms: list = field(default_factory=list)         # structure.FoundTerm: dictionary terms outside the list
 
@@ -205,7 +104,7 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
     """The dictionary's structure search (:mod:`.structure`) on the joints the named effects leave
     unexplained; returns the terms found, the named effects they leave (a list effect a term displaced is
     dropped), and the unexplained list, residuals and joint fits with them. ``choose(effects, terms)``
-    (a walk: :func:`~.whole_walk_search.choose_terms`) picks between terms the swings fit alike."""
+    (a walk: :func:`~.structure.choose_terms`) picks between terms the swings fit alike."""
     if not unexplained or not settings.dictionary:
         return [], found, unexplained, res1, jfit
     step('searching the dictionary of physical terms')
@@ -218,7 +117,7 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
     if choose is not None:
         terms = choose(effects, terms)
     pred = Predictor(replay, robot, workers=1).predict(tuple(effects) + tuple(t.effect for t in terms), replay.joints)
-    res1 = {j: replay.reads[j].tick - pred[j] for j in replay.joints}
+    res1 = replay.residuals(pred)
     jfit = {j: JointFit(v.heldout_rmse_ticks_before, _rmse(res1, split.hold, [j])[0], v.n_heldout)
             for j, v in jfit.items()}
     return terms, found, _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
@@ -246,60 +145,6 @@ def _locate_phases(replay: Replay, phases: dict, mism: list, res0: dict, res1: d
     return out, table
 
 
-def _widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple[list, list]:
-    """Found effects of a kind the whole walk put on every joint (whole_walk_search.widen) become one effect of the
-    whole robot, judged on the whole walk (all joints and phases, nominal -> fitted); what was left
-    unexplained on joints the whole walk now fits leaves the list."""
-    if not wide:
-        return found, unexplained
-    rows = [v for row in whole.phases.values() for v in row.values()]
-    n = sum(v.n_reads for v in rows)
-    before = math.sqrt(sum(v.n_reads * v.rmse_ticks_nominal ** 2 for v in rows) / n) if n else math.nan
-    after = math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in rows) / n) if n else math.nan
-    out = [f for f in found if f.effect.effect not in wide]
-    out += [FoundEffect(e, scope_name(e.joints, joints), 'in the whole walk (it keeps the replay in step)', before, after)
-            for e in wide.values()]
-
-    def fitted_rms(j):
-        row = whole.phases.get(j, {})
-        m = sum(v.n_reads for v in row.values())
-        return math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in row.values()) / m) if m else math.inf
-
-    kept = [u for u in unexplained if max(fitted_rms(j) for j in u.joints) > UNEXPLAINED_TICKS]
-    return out, kept
-
-
-def _whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
-    """Drop what the free-leg model leaves unexplained on joints that the MuJoCo hexapod, replaying the
-    whole walk with the effects found, follows to tick rounding in every phase over most of the walk:
-    the free leg is then the model that falls short (a swing that starts while the leg still sheds the
-    body's weight), not the robot's physics. A joint the replay judged on too few reads stays."""
-    if whole is None:
-        return unexplained
-
-    def at_rounding(j):
-        rows = [(v.n_reads, v.rmse_ticks_fitted) for v in whole.phases.get(j, {}).values()]
-        return follows_to_rounding(whole.in_step_until_s, duration_s, rows)
-
-    return [u for u in unexplained if not all(at_rounding(j) for j in u.joints)]
-
-
-def _add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
-    """The effects the whole walk's loaded phases show (whole_walk_search.search_loaded) join the found ones and
-    leave the "cannot show" list on their joints."""
-    found = list(found)
-    for f in finds:
-        e = f.effect
-        found.append(FoundEffect(e, scope_name(e.joints, joints), f'in the whole walk ({f.phase.replace("_", "-")})',
-                                 f.heldout_rmse_ticks_before, f.heldout_rmse_ticks_after))
-        if e.effect in blind:
-            rest = tuple(j for j in blind[e.effect] if j not in e.joints)
-            blind = {k: v for k, v in blind.items() if k != e.effect}
-            if rest:
-                blind[e.effect] = rest
-    return found, blind
-
-
 def _progress_bar(progress: bool):
     """(bar or None, step(msg)): a tqdm bar advanced by each step of the analysis, when asked for."""
     bar = None
@@ -312,104 +157,6 @@ def _progress_bar(progress: bool):
             bar.set_postfix_str(msg[:60])
             bar.update(1)
     return bar, step
-
-
-def _residuals(replay: Replay, pred: dict) -> dict:
-    return {j: replay.reads[j].tick - pred[j] for j in replay.joints}
-
-
-def _walk_swings(rec: Recording, robot: Robot, joints, phases: dict, segs: dict, notes: list, step):
-    """The replay of a walk's swings with the obstructed ones left out, its nominal prediction and residuals."""
-    n_spans = sum(len(v) for v in segs.values())
-    if n_spans == 0 and rec.lost:
-        raise RecordingError(f'{rec.source}: {_lost_text(rec)}: no swing of the walk is left clear of them')
-    if n_spans == 0:
-        raise RecordingError(f'{rec.source}: looks like a walk (legs carry load) but no swing phase '
-                             'was found in the femur commands; pass --time windows where the legs '
-                             'hang free')
-    step('replaying the swings')
-    replay = walk_replay(robot, rec, joints, segs, phases, step)
-    pred0 = replay.predict(robot)
-    res0 = _residuals(replay, pred0)
-    blocked = obstructed_swings(replay, res0, settle_s=WALK_SETTLE_S)
-    n_blocked = sum(len(v) for v in blocked.values())
-    if n_blocked:
-        spans = {leg: [(replay.segments[leg][i][0] * replay.dt, replay.segments[leg][i][1] * replay.dt)
-                       for i in range(len(replay.segments[leg])) if i not in blocked.get(leg, ())]
-                 for leg in replay.legs}
-        where = '; '.join(f'leg {leg} at ' + ', '.join(f'{replay.segments[leg][i][0] * replay.dt:.1f} s'
-                                                        for i in v)
-                          for leg, v in blocked.items() if v)
-        notes.append(f'{n_blocked} swing(s) left out as obstructed (the leg departs from the free-leg '
-                     f'model in that swing only, e.g. a foot touching a block edge): {where}')
-        replay = walk_replay(robot, rec, joints, spans, phases, step)
-        pred0 = replay.predict(robot)
-        res0 = _residuals(replay, pred0)
-    n_spans = sum(len(v) for v in replay.segments.values())
-    total = sum(b - a for v in replay.segments.values() for a, b in v) * replay.dt
-    notes.append(f'walk recording: stance legs carry the body, so only swing phases were analysed '
-                 f'({n_spans} swings, {total:.1f} s of leg time, from lift-off to just before the '
-                 f'swing-down stops, each started from the recorded position and speed)')
-    if replay.correction is not None:
-        notes.append('the body moved under the swinging legs: the swings were also replayed on the '
-                     "MuJoCo hexapod with the trunk's acceleration and tilt from /imu, and the free-leg "
-                     'model is corrected by that replay')
-    notes.extend(walk_cycle_notes(phases, replay))
-    return replay, pred0, res0
-
-
-def _lost_text(rec: Recording) -> str:
-    """What a damaged bag lost, in a few words."""
-    spans = ', '.join(f'{a:.2f}-{b:.2f} s' for a, b in rec.lost[:4]) + (', ...' if len(rec.lost) > 4 else '')
-    return (f'{len(rec.lost)} span(s) of the recording lost with damaged chunks ({rec.lost_s:.2f} s of '
-            f'{rec.duration_s:.1f} s: {spans})')
-
-
-def _replay_analysed(rec: Recording, robot: Robot, joints, windows, mode: str, settings: FitSettings,
-                     notes: list, step):
-    """The replay the analysis judges: the given windows, a walk's swings or the whole stand.
-    -> (replay, nominal prediction, residuals, gait phases or None, mode used, reads skipped at a segment's
-    start [s], settings: a walk's with its larger held-out drop)."""
-    segments, mode_used = None, mode
-    if windows:
-        legs_all = sorted({j.leg for j in rec.joints})
-        segments = {leg: list(windows) for leg in legs_all}
-        mode_used = 'windows'
-        notes.append('analysed only the given time windows: '
-                     + ', '.join(f'{a:g}-{b:g} s' for a, b in windows))
-    elif rec.lost:                     # a damaged bag: nothing is replayed across a lost span
-        segments = spans_between_lost(rec, sorted({j.leg for j in rec.joints}))
-    step('replaying the recorded goals')
-    replay = Replay(robot, rec, joints=joints, segments=segments)
-    pred0 = replay.predict(robot)
-    res0 = _residuals(replay, pred0)
-    phases = None
-    skip_start_s = 0.3
-    if mode_used != 'windows':
-        every = gait_phases(rec, replay.legs)
-        phases = clear_of_lost(every, rec.lost)
-        segs = swing_segments(rec, replay.legs, phases=phases)
-        verdict = mode == 'walk'
-        if mode == 'auto':
-            verdict = walk_across_lost(replay, res0, segs, swing_segments(rec, replay.legs, phases=every), rec.lost,
-                                       skip_start_s, imu=rec.imu) if rec.lost else looks_like_walk(
-                                           replay, res0, segs, imu=rec.imu)
-        if verdict is None and rec.lost:
-            raise RecordingError(f'{rec.source}: {_lost_text(rec)}: what is left does not tell a walk from a '
-                                 'stand (--mode walk or --mode stand decides)')
-        if verdict:
-            replay, pred0, res0 = _walk_swings(rec, robot, joints, phases, segs, notes, step)
-            skip_start_s = WALK_SETTLE_S
-            mode_used = 'walk'
-            settings = replace(settings, min_drop_ticks=max(settings.min_drop_ticks, settings.walk_min_drop_ticks))
-        else:
-            mode_used = 'stand'
-            notes.append('stand recording: every leg treated as hanging free for the whole recording'
-                         + (' (apart from the lost spans)' if rec.lost else ''))
-    if rec.lost:
-        notes.append(f'{_lost_text(rec)}: left out' + (', with every swing within '
-                                                        f'{LOST_MARGIN_S:g} s of one' if mode_used == 'walk' else ''))
-    return replay, pred0, res0, phases, mode_used, skip_start_s, settings
 
 
 def _found_effects(pred: Predictor, replay: Replay, split, cond: dict, effects: list, accepted: list,
@@ -507,8 +254,10 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
     notes: list[str] = []
     bar, step = _progress_bar(progress)
     try:
-        replay, pred0, res0, phases, mode_used, skip_start_s, settings = _replay_analysed(
-            rec, robot, joints, windows, mode, settings, notes, step)
+        replay, pred0, res0, phases, mode_used, skip_start_s = replay_analysed(rec, robot, joints, windows, mode, notes,
+                                                                               step)
+        if mode_used == 'walk':          # a walk's larger held-out drop
+            settings = replace(settings, min_drop_ticks=max(settings.min_drop_ticks, settings.walk_min_drop_ticks))
         by_swing = block_s is None and mode_used == 'walk'
         split = make_split(replay, block_s=block_s or 2.0, skip_start_s=skip_start_s, by_segment=by_swing)
         step('motion conditions')
@@ -518,7 +267,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         step('naming and fitting effects')
         effects, found, nearest, blind, pred1 = _name_effects(replay, robot, split, settings, pred0, cond, step,
                                                               workers)
-        res1 = _residuals(replay, pred1)
+        res1 = replay.residuals(pred1)
         jfit = _joint_fits(replay, split, res0, res1)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
         choose = None
@@ -530,7 +279,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             ww_phases = gait_phases(rec_ww, replay.legs)
         if mode_used == 'walk' and whole_walk:
             def choose(named, terms):
-                terms, more = choose_terms(rec_ww, robot, named, terms, ground, ww_phases, replay.joints, progress=step)
+                terms, more = structure.choose_terms(rec_ww, robot, named, terms, ground, ww_phases, replay.joints, progress=step)
                 notes.extend(more)
                 return terms
         terms, found, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, found,
@@ -547,9 +296,9 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                 if rec.lost:
                     notes.append(f'whole walk: replayed up to the first lost span, {rec_ww.duration_s:.1f} s')
                 notes.extend(ww_notes)
-                found, unexplained = _widened(found, unexplained, wide, whole, replay.joints)
-                unexplained = _whole_walk_agrees(unexplained, whole, rec_ww.duration_s)
-                found, blind = _add_loaded(found, blind, finds, replay.joints)
+                found, unexplained = widened(found, unexplained, wide, whole, replay.joints)
+                unexplained = whole_walk_agrees(unexplained, whole, rec_ww.duration_s)
+                found, blind = add_loaded(found, blind, finds, replay.joints)
         notes.append(_split_note(split, by_swing))
         return Analysis(source=rec.source, mode=mode_used, robot=robot, replay=replay, split=split,
                         duration_s=rec.duration_s, residual_before=res0, residual_after=res1, conditions=cond,

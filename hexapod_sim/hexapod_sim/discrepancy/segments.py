@@ -11,6 +11,10 @@ touch the ground).
 ``auto`` mode decides between the two from the data: outside its swing phases a stance leg is
 pushed *above* the free-leg prediction by the body's weight, which a hanging leg never shows
 (:func:`looks_like_walk`).
+
+:func:`replay_analysed` makes the replay the analysis judges: the given windows, the whole stand, or a
+walk's swings with the obstructed ones left out, each started in motion from lift-off (:func:`walk_replay`;
+corrected by the body's motion from ``/imu`` where other legs level the body under a swing).
 """
 from __future__ import annotations
 
@@ -18,8 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hexapod_model.description import Robot
 from hexapod_model.joints import Joint
+from hexapod_sim.discrepancy.body_motion import body_motion_correction
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
+from hexapod_sim.discrepancy.simulate import Replay
 
 
 def parse_windows(texts) -> list[tuple[float, float]]:
@@ -387,3 +394,147 @@ def obstructed_swings(replay, residual: dict, settle_s: float = 0.1, factor: flo
             if any(ka < hb and ha < kb for ha, hb in hit):
                 out[leg].add(i)
     return {leg: sorted(v) for leg, v in out.items()}
+
+
+# A walk's swing starts in motion from the reads around lift-off; reads in the first 0.1 s are left
+# out of fit and judgement (on clean sim walks the nominal replay is at the rounding floor from there,
+# docs/discrepancy.md).
+WALK_SETTLE_S = 0.1
+
+
+# What the walk analysis was measured on (docs/discrepancy.md, "Which walks"): a calibration walk,
+# hexapod_locomotion/config/calibration_walk.yaml. Beyond these the nominal replay of a clean walk
+# leaves more than tick rounding, and the report says why.
+CALIBRATION_BODY_MOTION_SHARE = 0.1    # of the analysed swing time with the body moved by other legs
+CALIBRATION_SWING_UP_S = 0.15          # swing-up duration [s]; the faster cycle in sequence left up to 0.96 ticks
+
+
+def _body_motion_share(phases: dict, replay: Replay) -> float:
+    """:func:`body_motion_share` over the replay's analysed swings (firmware periods -> s)."""
+    return body_motion_share(phases, {leg: [(a * replay.dt, b * replay.dt) for a, b in v]
+                                      for leg, v in replay.segments.items()})
+
+
+def walk_replay(robot: Robot, rec: Recording, joints, segments, phases, step=lambda msg: None) -> Replay:
+    """The swings of a walk, from lift-off, started in motion; where the body moves under them (other legs
+    leveling) and the recording has ``/imu``, corrected by a replay with the body's motion
+    (:mod:`.body_motion`). Not otherwise: the correction is a nominal replay added to every hypothesis, and
+    on a calibration walk, where the body holds still, it took the coxa backlash of the walk bench from 20 %
+    to 25 % off without lowering any clean walk's worst joint below 0.5 tick that was above it."""
+    replay = Replay(robot, rec, joints=joints, segments=segments, moving_start=True)
+    if rec.imu is not None and _body_motion_share(phases, replay) > CALIBRATION_BODY_MOTION_SHARE:
+        step('replaying the swings with the body motion')
+        replay.correction = body_motion_correction(replay, rec, robot)
+    return replay
+
+
+def walk_cycle_notes(phases: dict, replay: Replay) -> list[str]:
+    """Notes on a walk whose gait cycle the free-leg replay is not measured for (without ``/imu``)."""
+    if replay.correction is not None:
+        return []
+    out = []
+    share = _body_motion_share(phases, replay)
+    up = median_swing_up_s(phases)
+    if share > CALIBRATION_BODY_MOTION_SHARE:
+        out.append(f'the body moved under the swinging legs for {100 * share:.0f} % of the analysed swing time '
+                   '(other legs leveling: the overlapped gait cycle); the free-leg model holds the body still, so '
+                   'part of the mismatch may be body motion, not missing physics')
+    if up < CALIBRATION_SWING_UP_S - 0.01:
+        out.append(f'swing-ups of {1000 * up:.0f} ms, faster than the replay is measured for '
+                   f'({1000 * CALIBRATION_SWING_UP_S:.0f} ms): fast swings shake the body on its stance legs')
+    if out:
+        out.append('for a walk this tool can judge to tick rounding, record a calibration walk: locomotion '
+                   'parameters from hexapod_locomotion/config/calibration_walk.yaml (docs/discrepancy.md)')
+    return out
+
+
+def _walk_swings(rec: Recording, robot: Robot, joints, phases: dict, segs: dict, notes: list, step):
+    """The replay of a walk's swings with the obstructed ones left out, its nominal prediction and residuals."""
+    n_spans = sum(len(v) for v in segs.values())
+    if n_spans == 0 and rec.lost:
+        raise RecordingError(f'{rec.source}: {_lost_text(rec)}: no swing of the walk is left clear of them')
+    if n_spans == 0:
+        raise RecordingError(f'{rec.source}: looks like a walk (legs carry load) but no swing phase '
+                             'was found in the femur commands; pass --time windows where the legs '
+                             'hang free')
+    step('replaying the swings')
+    replay = walk_replay(robot, rec, joints, segs, phases, step)
+    pred0 = replay.predict(robot)
+    res0 = replay.residuals(pred0)
+    blocked = obstructed_swings(replay, res0, settle_s=WALK_SETTLE_S)
+    n_blocked = sum(len(v) for v in blocked.values())
+    if n_blocked:
+        spans = {leg: [(replay.segments[leg][i][0] * replay.dt, replay.segments[leg][i][1] * replay.dt)
+                       for i in range(len(replay.segments[leg])) if i not in blocked.get(leg, ())]
+                 for leg in replay.legs}
+        where = '; '.join(f'leg {leg} at ' + ', '.join(f'{replay.segments[leg][i][0] * replay.dt:.1f} s'
+                                                        for i in v)
+                          for leg, v in blocked.items() if v)
+        notes.append(f'{n_blocked} swing(s) left out as obstructed (the leg departs from the free-leg '
+                     f'model in that swing only, e.g. a foot touching a block edge): {where}')
+        replay = walk_replay(robot, rec, joints, spans, phases, step)
+        pred0 = replay.predict(robot)
+        res0 = replay.residuals(pred0)
+    n_spans = sum(len(v) for v in replay.segments.values())
+    total = sum(b - a for v in replay.segments.values() for a, b in v) * replay.dt
+    notes.append(f'walk recording: stance legs carry the body, so only swing phases were analysed '
+                 f'({n_spans} swings, {total:.1f} s of leg time, from lift-off to just before the '
+                 f'swing-down stops, each started from the recorded position and speed)')
+    if replay.correction is not None:
+        notes.append('the body moved under the swinging legs: the swings were also replayed on the '
+                     "MuJoCo hexapod with the trunk's acceleration and tilt from /imu, and the free-leg "
+                     'model is corrected by that replay')
+    notes.extend(walk_cycle_notes(phases, replay))
+    return replay, pred0, res0
+
+
+def _lost_text(rec: Recording) -> str:
+    """What a damaged bag lost, in a few words."""
+    spans = ', '.join(f'{a:.2f}-{b:.2f} s' for a, b in rec.lost[:4]) + (', ...' if len(rec.lost) > 4 else '')
+    return (f'{len(rec.lost)} span(s) of the recording lost with damaged chunks ({rec.lost_s:.2f} s of '
+            f'{rec.duration_s:.1f} s: {spans})')
+
+
+def replay_analysed(rec: Recording, robot: Robot, joints, windows, mode: str, notes: list, step):
+    """The replay the analysis judges: the given windows, a walk's swings or the whole stand.
+    -> (replay, nominal prediction, residuals, gait phases or None, mode used, reads skipped at a segment's
+    start [s])."""
+    segments, mode_used = None, mode
+    if windows:
+        legs_all = sorted({j.leg for j in rec.joints})
+        segments = {leg: list(windows) for leg in legs_all}
+        mode_used = 'windows'
+        notes.append('analysed only the given time windows: '
+                     + ', '.join(f'{a:g}-{b:g} s' for a, b in windows))
+    elif rec.lost:                     # a damaged bag: nothing is replayed across a lost span
+        segments = spans_between_lost(rec, sorted({j.leg for j in rec.joints}))
+    step('replaying the recorded goals')
+    replay = Replay(robot, rec, joints=joints, segments=segments)
+    pred0 = replay.predict(robot)
+    res0 = replay.residuals(pred0)
+    phases = None
+    skip_start_s = 0.3
+    if mode_used != 'windows':
+        every = gait_phases(rec, replay.legs)
+        phases = clear_of_lost(every, rec.lost)
+        segs = swing_segments(rec, replay.legs, phases=phases)
+        verdict = mode == 'walk'
+        if mode == 'auto':
+            verdict = walk_across_lost(replay, res0, segs, swing_segments(rec, replay.legs, phases=every), rec.lost,
+                                       skip_start_s, imu=rec.imu) if rec.lost else looks_like_walk(
+                                           replay, res0, segs, imu=rec.imu)
+        if verdict is None and rec.lost:
+            raise RecordingError(f'{rec.source}: {_lost_text(rec)}: what is left does not tell a walk from a '
+                                 'stand (--mode walk or --mode stand decides)')
+        if verdict:
+            replay, pred0, res0 = _walk_swings(rec, robot, joints, phases, segs, notes, step)
+            skip_start_s = WALK_SETTLE_S
+            mode_used = 'walk'
+        else:
+            mode_used = 'stand'
+            notes.append('stand recording: every leg treated as hanging free for the whole recording'
+                         + (' (apart from the lost spans)' if rec.lost else ''))
+    if rec.lost:
+        notes.append(f'{_lost_text(rec)}: left out' + (', with every swing within '
+                                                        f'{LOST_MARGIN_S:g} s of one' if mode_used == 'walk' else ''))
+    return replay, pred0, res0, phases, mode_used, skip_start_s

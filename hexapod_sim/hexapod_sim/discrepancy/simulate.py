@@ -259,6 +259,10 @@ class Replay:
     def predict(self, robot: Robot) -> dict[Joint, np.ndarray]:
         return self.predict_joints(robot, self.joints)
 
+    def residuals(self, pred: dict) -> dict[Joint, np.ndarray]:
+        """Recorded minus predicted ticks (``pred``: joint -> ticks at the reads) of every replayed joint."""
+        return {j: self.reads[j].tick - pred[j] for j in self.joints}
+
     def trajectory(self, robot: Robot, leg: int):
         """Full 1 kHz predicted trajectories of a leg (coxa, femur, tibia) for plots: (t_s, theta (n, 3)), NaN outside segments."""
         q = np.full((self.n_periods, 3), np.nan)

@@ -13,12 +13,16 @@ with it in place and the pair is judged together. A named list effect that touch
 joints (for the sag: any of a leg or the whole robot touching them) is the nearest candidate to the
 physics there, so the terms are fitted without it first, and one that passes and leaves less than it
 replaces it. What stays unexplained is reported as before.
+
+On a walk the terms the swings gave are judged on the whole walk's replay as well (:func:`choose_terms`):
+a joint term the whole walk does not need is dropped, and of terms that fit the swings alike the one the
+whole walk follows best is kept.
 """
 from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
@@ -26,7 +30,10 @@ from scipy.optimize import minimize, minimize_scalar
 from hexapod_model.description import Effect, Robot
 from hexapod_model.dictionary import BY_TERM, TERMS, Term
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, Split, affected_joints
+from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.simulate import Replay
+from hexapod_sim.discrepancy.whole_walk_search import Replays, follows, joint_rms, walk_ground
+from hexapod_sim.physics.terrain import Ground
 
 
 @dataclass(frozen=True)
@@ -270,4 +277,51 @@ def _pair(pred, split, meas, base, first, j, s: SearchSettings):
     return [(0.0, True, 0.0, obj1, x1, own, rb, ra1), (0.0, True, 0.0, obj2, x2, own, ra1, ra)]
 
 
-__all__ = ['FoundTerm', 'SearchSettings', 'search', 'fit_term']
+def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground: Ground | None, phases: dict,
+                 joints, progress=lambda msg: None) -> tuple[list, list[str]]:
+    """The dictionary terms of a walk's swings, judged on the whole walk (the named effects and the other
+    terms in place). A joint term the whole walk does not need (without it the replay follows its joints
+    to tick rounding in every phase over most of the walk: what the free leg missed there is the free-leg
+    model's, as in :func:`.whole_walk_search.follows`) is dropped. A term found where others passed as well
+    (:attr:`FoundTerm.alternatives`; a weaker motor and friction that grows with the gear load
+    slow a swinging leg alike, but only the friction holds a leg that carries the body) is replayed with
+    each of them, and the one whose joints follow the recording best, over the span the best replay stays
+    in step, is kept. -> (terms, notes)."""
+    joint_terms = [t for t in terms if not BY_TERM[t.effect.effect].robot_wide]
+    if not joint_terms:
+        return list(terms), []
+    ground, _ = walk_ground(rec, ground)
+    replays = Replays(rec, robot, ground)
+    joints = [j for j in joints if j in rec.states]
+    out, notes = list(terms), []
+    for t in joint_terms:
+        k = next(i for i, u in enumerate(out) if u is t)
+        others = list(named) + [u.effect for u in out if u is not t]
+        progress(f'whole walk: without {t.effect.effect} on {", ".join(map(str, t.effect.joints))}')
+        res, until = replays.in_step(robot.with_effects(others), joints)
+        if follows(rec, res, until, phases, t.effect.joints):
+            notes.append(f'whole walk: without {t.words} on {", ".join(map(str, t.effect.joints))} the replay follows '
+                         'the recording there to tick rounding in every phase: the free leg missed it, not the robot')
+            out.pop(k)
+            continue
+        if not t.alternatives:
+            continue
+        options = [(t.effect, t.heldout_rmse_ticks_after)] + list(t.alternatives)
+        runs = []
+        for e, _ra in options:
+            progress(f'whole walk: {e.effect} on {", ".join(map(str, e.joints))}')
+            runs.append(replays.in_step(robot.with_effects(others + [e]), joints))
+        until = max(u for _, u in runs)
+        scores = [joint_rms(rec, res, t.effect.joints, until) for res, _ in runs]
+        best = int(np.argmin(scores))
+        if best:
+            e, ra = options[best]
+            out[k] = replace(t, effect=e, words=BY_TERM[e.effect].describe(e.params), heldout_rmse_ticks_after=ra,
+                             alternatives=tuple(o for i, o in enumerate(options) if i != best))
+            notes.append(f'whole walk: {e.effect.replace("_", " ")} and {t.effect.effect.replace("_", " ")} fit the '
+                         f'swings of {", ".join(map(str, e.joints))} alike; the whole walk follows the recording with '
+                         f'{e.effect.replace("_", " ")} ({scores[best]:.2f} ticks RMS against {scores[0]:.2f})')
+    return out, notes
+
+
+__all__ = ['FoundTerm', 'SearchSettings', 'choose_terms', 'search', 'fit_term']

@@ -1,50 +1,227 @@
-"""What the whole walk adds to the swings' findings, and the check :func:`~.analysis.analyse` runs on a walk.
+"""The whole walk judged: its replay against the recording phase by phase, what it adds to the swings'
+findings, and the check :func:`~.analysis.analyse` runs on a walk.
+
+The replays of one analysis (:class:`Replays`, each a :class:`~.whole_walk.WalkReplay`) run until they leave
+the recording: :func:`in_step_until` finds that moment, and only reads before it are judged
+(:func:`compare`). Phases (:data:`WHOLE_PHASES`): the gait phases of :mod:`.segments`, with the first
+``TOUCHDOWN_S`` of a stance after a swing-down (the leg takes its share of the body's weight) and the first
+``LIFT_OFF_S`` of a swing-up (it gives the share up) told apart.
 
 Effects the swings found on part of the robot that the whole walk wants on every joint (:func:`widen`), and
 effects the loaded phases show (:func:`search_loaded`: backlash, break-away friction and the dead-band fitted
-on the whole walk's replay, :mod:`.whole_walk`); :func:`whole_walk_check` runs the comparison and both and
-writes the report's notes.
+on the whole walk's replay); :func:`whole_walk_check` runs the comparison and both and writes the report's
+notes, and :func:`widened`, :func:`whole_walk_agrees` and :func:`add_loaded` carry what it found into the
+analysis's findings (:mod:`.findings`).
 """
 from __future__ import annotations
 
 import math
+import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from hexapod_model.description import Robot
-from hexapod_model.dictionary import BY_TERM
+from hexapod_model.joints import Joint
+from hexapod_sim.discrepancy.effects import scope_name
+from hexapod_sim.discrepancy.findings import UNEXPLAINED_TICKS, FoundEffect
 from hexapod_sim.discrepancy.recording import Recording
-from hexapod_sim.discrepancy.whole_walk import (
-    LOADED_PHASES,
-    ROUNDING_TICKS,
-    START_S,
-    WHOLE_PHASES,
-    Replays,
-    WalkReplay,
-    WholeWalk,
-    compare,
-    rec_ticks,
-    whole_labels,
-)
+from hexapod_sim.discrepancy.segments import PHASES, LegPhases
+from hexapod_sim.discrepancy.whole_walk import WalkReplay, rec_ticks, sorted_writes
 from hexapod_sim.physics.terrain import Ground
 
+WHOLE_PHASES = ('swing_up', 'swing_forward', 'swing_down', 'stance', 'touchdown', 'lift_off', 'leveling')
+TOUCHDOWN_S = 0.1          # [s] of stance after a swing-down stops: the leg takes up the body's weight
+LIFT_OFF_S = 0.1           # [s] of swing-up after it starts: the leg gives up its share
+STEP_WINDOW_S = 0.5        # [s] windows in which the replay is judged in step with the recording
+OUT_OF_STEP_TICKS = 1.0    # the median joint's RMS over a window above this: the trunk went elsewhere
+START_S = 0.2              # [s] at the start left out (the first reads settle the pose)
+LOADED_PHASES = ('stance', 'touchdown', 'lift_off', 'leveling')   # where the legs carry the body
+ROUNDING_TICKS = 0.5       # a phase's RMS error at most this is tick rounding (uniform rounding: 0.29)
 WIDEN_MIN_GAIN_S = 2.0        # [s] longer in step for an effect found on some joints to be put on all
 AGREES_SHARE = 0.8            # the whole-walk replay in step over this share of a walk can clear a joint
 AGREES_MIN_READS = 20         # a phase judged on fewer reads says nothing either way
 
 
-def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, joints, ww: WholeWalk,
-          progress=lambda msg: None, replays: Replays | None = None) -> tuple[list, dict, WholeWalk]:
+def whole_labels(phases: LegPhases, t: np.ndarray) -> np.ndarray:
+    """Index into :data:`WHOLE_PHASES` for every time in ``t`` [s]."""
+    t = np.asarray(t, dtype=float)
+    out = phases.label(t)                       # PHASES indices; the first five names are the same
+    assert WHOLE_PHASES[:3] == PHASES[:3] and PHASES[3] == 'stance' and PHASES[4] == 'leveling'
+    out = np.where(out == PHASES.index('leveling'), WHOLE_PHASES.index('leveling'), out)
+    for sw in phases.swings:
+        out[(t >= sw.t_up) & (t < min(sw.t_up + LIFT_OFF_S, sw.t_forward))] = WHOLE_PHASES.index('lift_off')
+        after = (t >= sw.t_stop) & (t < sw.t_stop + TOUCHDOWN_S) & (out == WHOLE_PHASES.index('stance'))
+        out[after] = WHOLE_PHASES.index('touchdown')
+    return out
+
+
+class Replays:
+    """The whole-walk replays of one analysis (one recording, robot description and ground), each made once
+    and run only as far as a caller needs: the nominal replay is compared against every set of effects
+    tried, and the replay with the effects found is the search's starting point. A replay serves any span
+    up to its own (the first steps of a longer replay are the shorter one's, write for write)."""
+
+    def __init__(self, rec: Recording, robot: Robot, ground: Ground):
+        self.rec, self.robot, self.ground = rec, robot, ground
+        self._made: list[tuple[Robot, tuple, WalkReplay]] = []
+        self._meas: dict[Joint, np.ndarray] = {}
+        self._writes: dict[float, list] = {}          # physics step -> the writes by tick (the same for every model)
+
+    def _sorted_writes(self, rec: Recording, dt: float) -> list:
+        if dt not in self._writes:
+            self._writes[dt] = sorted_writes(rec, dt)
+        return self._writes[dt]
+
+    def meas(self, joint: Joint) -> np.ndarray:
+        """The recorded reads of ``joint`` in ticks."""
+        if joint not in self._meas:
+            self._meas[joint] = rec_ticks(self.rec, self.robot, joint)
+        return self._meas[joint]
+
+    def get(self, model: Robot, joints, t_end_s: float | None = None, keep: bool = True) -> WalkReplay:
+        """A replay of ``model`` that predicts ``joints`` up to ``t_end_s`` (None: the whole walk), not yet
+        run further than before; ``keep``: hold it for later calls."""
+        end = self.rec.duration_s if t_end_s is None else min(t_end_s, self.rec.duration_s)
+        for m, js, r in self._made:
+            if set(joints) <= set(js) and r.t_end >= end and m == model:
+                return r
+        r = WalkReplay(self.rec, model, self.ground, joints, t_end_s, self._sorted_writes)
+        if keep:
+            self._made.append((model, tuple(r.joints), r))
+        return r
+
+    def residuals(self, r: WalkReplay, joints=None, t_end_s: float | None = None) -> dict[Joint, np.ndarray]:
+        """Recorded minus predicted ticks of ``joints`` (default the replay's) at the reads up to ``t_end_s``
+        (default the replay's end); NaN where the replay has not yet come."""
+        out = {}
+        for j in (joints or r.joints):
+            p = r.pred[j]
+            if t_end_s is not None and t_end_s < r.t_end:
+                p = p[:int(np.searchsorted(self.rec.states[j].t_s, t_end_s, side='right'))]
+            out[j] = self.meas(j)[:len(p)] - p
+        return out
+
+    def in_step(self, model: Robot, joints, need_s: float = 0.0) -> tuple[dict[Joint, np.ndarray], float]:
+        """(residuals, :func:`in_step_until`) of the whole-walk replay of ``model``, replayed until it leaves
+        the recording (the first window whose median joint is above ``OUT_OF_STEP_TICKS``, as soon as every
+        read of that window is replayed) but at least up to ``need_s``: the same verdict as the whole replay,
+        and the same residuals before it."""
+        r = self.get(model, joints)
+        t = STEP_WINDOW_S
+        while True:
+            covered = r.run_to(t)
+            res = self.residuals(r, joints)
+            if r.finished:
+                return res, in_step_until(self.rec, res)
+            win = _window_rms(self.rec, res)
+            done = int(np.count_nonzero((np.arange(len(win)) + 1) * STEP_WINDOW_S < covered))
+            bad = np.flatnonzero(win[:done] > OUT_OF_STEP_TICKS)
+            if len(bad) and covered >= need_s:
+                return res, float(bad[0] * STEP_WINDOW_S)
+            t = max(t, covered) + STEP_WINDOW_S
+
+
+def _window_rms(rec: Recording, res: dict[str, np.ndarray]) -> np.ndarray:
+    """The median joint's RMS residual [ticks] in every ``STEP_WINDOW_S`` window of the walk (NaN where no
+    joint has a read with a residual)."""
+    end = rec.duration_s
+    n_win = int(math.ceil(end / STEP_WINDOW_S))
+    per = np.full((len(res), n_win), np.nan)
+    for r, (j, v) in enumerate(res.items()):
+        t = rec.states[j].t_s[:len(v)]
+        w = np.minimum((t / STEP_WINDOW_S).astype(np.int64), n_win - 1)
+        sq = np.bincount(w, weights=v ** 2, minlength=n_win)
+        cnt = np.bincount(w, minlength=n_win)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            per[r] = np.sqrt(sq / cnt)
+    with np.errstate(all='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)          # a window no joint has a read in yet
+        return np.nanmedian(per, axis=0) if len(res) else np.zeros(n_win)
+
+
+def in_step_until(rec: Recording, res: dict[str, np.ndarray]) -> float:
+    """The end of the last window [s] before the replay first leaves the recording: the median joint's
+    RMS residual over a ``STEP_WINDOW_S`` window above ``OUT_OF_STEP_TICKS`` (physics left out of one
+    joint raises that joint; the trunk going elsewhere raises every joint). The recording's end if never."""
+    bad = np.flatnonzero(_window_rms(rec, res) > OUT_OF_STEP_TICKS)
+    return rec.duration_s if not len(bad) else float(bad[0] * STEP_WINDOW_S)
+
+
+@dataclass(frozen=True)
+class PhaseRow:
+    """RMS error of one joint in one phase over the reads judged [ticks]: the nominal replay, and the
+    replay with the effects the tool found."""
+
+    n_reads: int
+    rmse_ticks_nominal: float
+    rmse_ticks_fitted: float
+
+
+@dataclass(frozen=True)
+class WholeWalk:
+    """The whole-walk comparison: the ground, the span judged (the replay in step with the recording
+    with the effects found), and per joint and phase the RMS errors."""
+
+    ground: Ground
+    in_step_until_s: float
+    nominal_in_step_until_s: float
+    phases: dict                 # joint -> {phase name: PhaseRow}
+    runtime_s: float
+
+    def worst(self, phase_names=WHOLE_PHASES) -> tuple[Joint | str, str, float]:
+        """(joint, phase, RMS) of the largest fitted RMS error over ``phase_names`` ('' where none is judged)."""
+        best = ('', '', 0.0)
+        for j, row in self.phases.items():
+            for ph, v in row.items():
+                if ph in phase_names and v.rmse_ticks_fitted > best[2]:
+                    best = (j, ph, v.rmse_ticks_fitted)
+        return best
+
+
+def compare(replays: Replays, fitted: Robot | None, phases: dict, joints=None) -> WholeWalk:
+    """Replay the whole walk nominally and with the effects found (``fitted``; None: none found) and
+    tabulate the error per joint and phase over the reads in step (``phases``: leg -> LegPhases).
+    Each replay runs until it leaves the recording (:meth:`Replays.in_step`), the nominal one at least as
+    far as the one with the effects is judged. ``replays``: the analysis's replays (its recording, nominal
+    robot and ground), reused."""
+    t0 = time.perf_counter()
+    rec, robot = replays.rec, replays.robot
+    joints = [j for j in (joints or rec.states) if j in rec.states]
+    if fitted is None:
+        res0, until0 = replays.in_step(robot, joints)
+        res1, until1 = res0, until0
+    else:
+        res1, until1 = replays.in_step(fitted, joints)
+        res0, until0 = replays.in_step(robot, joints, need_s=until1)
+    table = {}
+    for j in joints:
+        t = rec.states[j].t_s
+        lab = whole_labels(phases[j.leg], t)
+        judged = (t >= START_S) & (t < until1)
+        row = {}
+        for k, name in enumerate(WHOLE_PHASES):
+            sel = judged & (lab == k)
+            n = int(np.count_nonzero(sel))
+            if n:
+                row[name] = PhaseRow(n, float(np.sqrt(np.mean(res0[j][sel] ** 2))),
+                                     float(np.sqrt(np.mean(res1[j][sel] ** 2))))
+        table[j] = row
+    return WholeWalk(replays.ground, until1, until0, table, time.perf_counter() - t0)
+
+
+def widen(replays: Replays, effects: list, phases: dict, joints, ww: WholeWalk,
+          progress=lambda msg: None) -> tuple[list, dict, WholeWalk]:
     """Effects the swings found on some joints that the whole walk wants on every joint: where the replay
     with the effects leaves the recording, each kind found on part of the robot (not the servo law, not a
     payload) is tried on every analysed joint at the mean of its fitted values; kept when the replay then
     stays in step ``WIDEN_MIN_GAIN_S`` longer. -> (effects, {kind: the robot-wide effect}, comparison)."""
     from hexapod_sim.discrepancy.effects import BY_NAME
+    rec, robot = replays.rec, replays.robot
     wide: dict = {}
     if ww.in_step_until_s >= rec.duration_s:
         return list(effects), wide, ww
-    replays = replays or Replays(rec, robot, ground)
     out = list(effects)
     for kind in dict.fromkeys(e.effect for e in effects):
         same = [e for e in out if e.effect == kind]
@@ -55,17 +232,16 @@ def widen(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: d
         mean = float(np.mean([e.params[key] for e in same]))
         rest = [e for e in out if e.effect != kind]
         progress(f'whole walk: {kind} on every joint')
-        ww2 = compare(rec, robot, robot.with_effects(rest + [BY_NAME[kind].make(joints, mean)]), ground, phases, joints,
-                      replays)
+        ww2 = compare(replays, robot.with_effects(rest + [BY_NAME[kind].make(joints, mean)]), phases, joints)
         if ww2.in_step_until_s < ww.in_step_until_s + WIDEN_MIN_GAIN_S:
             continue
         until = min(ww2.in_step_until_s, START_S + SEARCH_HORIZON_S)       # the value, refitted on the whole walk
         fit, _ = _masks(rec, joints, until)
-        v, _, _ = _search_one(rec, robot, rest, BY_NAME[kind], tuple(joints), ground, until, fit, progress,
-                              bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)), replays=replays)
+        v, _, _ = _search_one(replays, rest, BY_NAME[kind], tuple(joints), until, fit, progress,
+                              bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)))
         trial_e = BY_NAME[kind].make(joints, v)
         out, wide[kind] = rest + [trial_e], trial_e
-        ww = compare(rec, robot, robot.with_effects(out), ground, phases, joints, replays)
+        ww = compare(replays, robot.with_effects(out), phases, joints)
     return out, wide, ww
 
 
@@ -77,54 +253,6 @@ def walk_ground(rec: Recording, ground: Ground | None) -> tuple[Ground, str]:
     if rec.ground is not None:
         return rec.ground, "from the bag's /sim/scene"
     return Ground(), 'assumed: a flat floor, as for a calibration walk; --terrain sets it'
-
-
-def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground: Ground | None, phases: dict,
-                 joints, progress=lambda msg: None) -> tuple[list, list[str]]:
-    """The dictionary terms of a walk's swings, judged on the whole walk (the named effects and the other
-    terms in place). A joint term the whole walk does not need (without it the replay follows its joints
-    to tick rounding in every phase over most of the walk: what the free leg missed there is the free-leg
-    model's, as in :func:`follows`) is dropped. A term found where others passed as well
-    (:attr:`.structure.FoundTerm.alternatives`; a weaker motor and friction that grows with the gear load
-    slow a swinging leg alike, but only the friction holds a leg that carries the body) is replayed with
-    each of them, and the one whose joints follow the recording best, over the span the best replay stays
-    in step, is kept. -> (terms, notes)."""
-    from dataclasses import replace
-    joint_terms = [t for t in terms if not BY_TERM[t.effect.effect].robot_wide]
-    if not joint_terms:
-        return list(terms), []
-    ground, _ = walk_ground(rec, ground)
-    replays = Replays(rec, robot, ground)
-    joints = [j for j in joints if j in rec.states]
-    out, notes = list(terms), []
-    for t in joint_terms:
-        k = next(i for i, u in enumerate(out) if u is t)
-        others = list(named) + [u.effect for u in out if u is not t]
-        progress(f'whole walk: without {t.effect.effect} on {", ".join(map(str, t.effect.joints))}')
-        res, until = replays.in_step(robot.with_effects(others), joints)
-        if follows(rec, res, until, phases, t.effect.joints):
-            notes.append(f'whole walk: without {t.words} on {", ".join(map(str, t.effect.joints))} the replay follows '
-                         'the recording there to tick rounding in every phase: the free leg missed it, not the robot')
-            out.pop(k)
-            continue
-        if not t.alternatives:
-            continue
-        options = [(t.effect, t.heldout_rmse_ticks_after)] + list(t.alternatives)
-        runs = []
-        for e, _ra in options:
-            progress(f'whole walk: {e.effect} on {", ".join(map(str, e.joints))}')
-            runs.append(replays.in_step(robot.with_effects(others + [e]), joints))
-        until = max(u for _, u in runs)
-        scores = [_joint_rms(rec, res, t.effect.joints, until) for res, _ in runs]
-        best = int(np.argmin(scores))
-        if best:
-            e, ra = options[best]
-            out[k] = replace(t, effect=e, words=BY_TERM[e.effect].describe(e.params), heldout_rmse_ticks_after=ra,
-                             alternatives=tuple(o for i, o in enumerate(options) if i != best))
-            notes.append(f'whole walk: {e.effect.replace("_", " ")} and {t.effect.effect.replace("_", " ")} fit the '
-                         f'swings of {", ".join(map(str, e.joints))} alike; the whole walk follows the recording with '
-                         f'{e.effect.replace("_", " ")} ({scores[best]:.2f} ticks RMS against {scores[0]:.2f})')
-    return out, notes
 
 
 def follows_to_rounding(in_step_until_s: float, duration_s: float, rows) -> bool:
@@ -156,7 +284,7 @@ def follows(rec: Recording, res: dict, until_s: float, phases: dict, joints) -> 
     return True
 
 
-def _joint_rms(rec: Recording, res: dict, joints, until_s: float) -> float:
+def joint_rms(rec: Recording, res: dict, joints, until_s: float) -> float:
     """RMS residual [ticks] of ``joints`` over the reads from ``START_S`` to ``until_s`` (a read the replay
     has not reached counts as out of step: inf)."""
     sq, n = 0.0, 0
@@ -173,6 +301,60 @@ def _joint_rms(rec: Recording, res: dict, joints, until_s: float) -> float:
     return math.sqrt(sq / n) if n else math.inf
 
 
+def widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple[list, list]:
+    """Found effects of a kind the whole walk put on every joint (:func:`widen`) become one effect of the
+    whole robot, judged on the whole walk (all joints and phases, nominal -> fitted); what was left
+    unexplained on joints the whole walk now fits leaves the list."""
+    if not wide:
+        return found, unexplained
+    rows = [v for row in whole.phases.values() for v in row.values()]
+    n = sum(v.n_reads for v in rows)
+    before = math.sqrt(sum(v.n_reads * v.rmse_ticks_nominal ** 2 for v in rows) / n) if n else math.nan
+    after = math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in rows) / n) if n else math.nan
+    out = [f for f in found if f.effect.effect not in wide]
+    out += [FoundEffect(e, scope_name(e.joints, joints), 'in the whole walk (it keeps the replay in step)', before, after)
+            for e in wide.values()]
+
+    def fitted_rms(j):
+        row = whole.phases.get(j, {})
+        m = sum(v.n_reads for v in row.values())
+        return math.sqrt(sum(v.n_reads * v.rmse_ticks_fitted ** 2 for v in row.values()) / m) if m else math.inf
+
+    kept = [u for u in unexplained if max(fitted_rms(j) for j in u.joints) > UNEXPLAINED_TICKS]
+    return out, kept
+
+
+def whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
+    """Drop what the free-leg model leaves unexplained on joints that the MuJoCo hexapod, replaying the
+    whole walk with the effects found, follows to tick rounding in every phase over most of the walk:
+    the free leg is then the model that falls short (a swing that starts while the leg still sheds the
+    body's weight), not the robot's physics. A joint the replay judged on too few reads stays."""
+    if whole is None:
+        return unexplained
+
+    def at_rounding(j):
+        rows = [(v.n_reads, v.rmse_ticks_fitted) for v in whole.phases.get(j, {}).values()]
+        return follows_to_rounding(whole.in_step_until_s, duration_s, rows)
+
+    return [u for u in unexplained if not all(at_rounding(j) for j in u.joints)]
+
+
+def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
+    """The effects the whole walk's loaded phases show (:func:`search_loaded`) join the found ones and
+    leave the "cannot show" list on their joints."""
+    found = list(found)
+    for f in finds:
+        e = f.effect
+        found.append(FoundEffect(e, scope_name(e.joints, joints), f'in the whole walk ({f.phase.replace("_", "-")})',
+                                 f.heldout_rmse_ticks_before, f.heldout_rmse_ticks_after))
+        if e.effect in blind:
+            rest = tuple(j for j in blind[e.effect] if j not in e.joints)
+            blind = {k: v for k, v in blind.items() if k != e.effect}
+            if rest:
+                blind[e.effect] = rest
+    return found, blind
+
+
 def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
                      joints, search: bool = True, progress=lambda msg: None
                      ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict]:
@@ -183,12 +365,11 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     ground, origin = walk_ground(rec, ground)
     fitted = robot.with_effects(effects) if effects else None
     replays = Replays(rec, robot, ground)
-    ww = compare(rec, robot, fitted, ground, phases, joints, replays)
-    effects, wide, ww = widen(rec, robot, list(effects), ground, phases, joints, ww, progress, replays)
-    finds = search_loaded(rec, robot, list(effects), ground, phases, ww, progress, replays) if search else []
+    ww = compare(replays, fitted, phases, joints)
+    effects, wide, ww = widen(replays, list(effects), phases, joints, ww, progress)
+    finds = search_loaded(replays, list(effects), ww, progress) if search else []
     if finds:
-        ww = compare(rec, robot, robot.with_effects(list(effects) + [f.effect for f in finds]), ground, phases, joints,
-                     replays)
+        ww = compare(replays, robot.with_effects(list(effects) + [f.effect for f in finds]), phases, joints)
     notes = [f'whole walk: the recorded goals replayed through the MuJoCo hexapod on {ground.describe()} '
              f'({origin}), {ww.runtime_s:.1f} s']
     if ww.in_step_until_s < rec.duration_s:
@@ -259,10 +440,10 @@ def _masks(rec: Recording, joints, until_s: float):
     return fit, hold
 
 
-def _rms(rec, robot, pred: dict, joints, masks) -> float:
+def _rms(replays: Replays, pred: dict, joints, masks) -> float:
     sq, n = 0.0, 0
     for j in joints:
-        r = (rec_ticks(rec, robot, j)[:len(pred[j])] - pred[j])[masks[j][:len(pred[j])]]
+        r = (replays.meas(j)[:len(pred[j])] - pred[j])[masks[j][:len(pred[j])]]
         sq += float(np.sum(r ** 2))
         n += len(r)
     return math.sqrt(sq / n) if n else math.nan
@@ -290,7 +471,7 @@ class _Trial:
         self.t += SEARCH_CHECK_S
         self.replay.run_to(self.t)
         if self.replay.finished:
-            self.value = _rms(self.replays.rec, self.replays.robot, self.replay.pred, self.scope, self.fit)
+            self.value = _rms(self.replays, self.replay.pred, self.scope, self.fit)
             return
         res = self.replays.residuals(self.replay, self.scope)
         self.sq = sum(float(np.nansum(res[j][self.masks[j]] ** 2)) for j in self.scope)
@@ -317,16 +498,15 @@ def _settle(trials: list[_Trial]) -> list[float]:
         min(open_, key=_Trial.bound).advance()
 
 
-def _search_one(rec, robot, base: list, cand, scope, ground, until_s, fit, progress,
-                bracket: tuple[float, float] | None = None, replays: Replays | None = None
-                ) -> tuple[float, float, WalkReplay]:
+def _search_one(replays: Replays, base: list, cand, scope, until_s, fit, progress,
+                bracket: tuple[float, float] | None = None) -> tuple[float, float, WalkReplay]:
     """(value, fit RMS, its replay) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole
     walk, over the candidate's range (or ``bracket``): a log-spaced grid, then golden-section steps between
     the best point's neighbours. Each comparison replays its candidates only as far as it needs
     (:func:`_settle`), and a golden-section step reuses the interior point it keeps where the logarithms give
     it exactly again (about every other step; a value one rounding away is replayed, as the walk's replay
     is that sensitive)."""
-    replays = replays or Replays(rec, robot, ground)
+    robot = replays.robot
     made: list[tuple[float, _Trial]] = []
 
     def trial(v):
@@ -372,12 +552,12 @@ def _least_measured(cand, robot: Robot) -> float:
     return least
 
 
-def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, phases: dict, ww: WholeWalk,
-                  progress=lambda msg: None, replays: Replays | None = None) -> list[LoadedFind]:
+def search_loaded(replays: Replays, effects: list, ww: WholeWalk, progress=lambda msg: None) -> list[LoadedFind]:
     """Effects of :data:`LOADED_CANDIDATES` that explain what the whole walk's loaded phases leave, on the
     joints that leave more than tick rounding (each alone; and the whole robot when many do), fitted on
     alternate 2 s blocks of the whole walk and judged on the others. At most one effect per joint."""
     from hexapod_sim.discrepancy.effects import BY_NAME
+    rec, robot = replays.rec, replays.robot
     excess = _loaded_excess(ww)
     if not excess or ww.in_step_until_s < START_S + SEARCH_MIN_IN_STEP_S:
         return []
@@ -387,7 +567,6 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
     scopes = [(j,) for j, _ in excess[:MAX_JOINT_SCOPES]]
     scopes += [tuple(joints)] if len(excess) >= ROBOT_WIDE_MIN_JOINTS else []
     base = list(effects)
-    replays = replays or Replays(rec, robot, ground)
     r0 = replays.get(robot.with_effects(base), joints, until)
     r0.run_to(until)
     base_pred = {j: r0.pred[j][:int(np.searchsorted(rec.states[j].t_s, until, side='right'))] for j in joints}
@@ -395,12 +574,12 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
     for scope in sorted(scopes, key=len, reverse=True):
         if any(j in f.effect.joints for f in found for j in scope):
             continue
-        before = _rms(rec, robot, base_pred, scope, hold)
+        before = _rms(replays, base_pred, scope, hold)
         trials = []
         for name in LOADED_CANDIDATES:
             cand = BY_NAME[name]
-            v, _, r = _search_one(rec, robot, base, cand, scope, ground, until, fit, progress, replays=replays)
-            trials.append((_rms(rec, robot, r.pred, scope, hold), cand.make(scope, v)))
+            v, _, r = _search_one(replays, base, cand, scope, until, fit, progress)
+            trials.append((_rms(replays, r.pred, scope, hold), cand.make(scope, v)))
         after, eff = min(trials, key=lambda x: x[0])
         explained = (before ** 2 - after ** 2) / max(before ** 2 - ROUNDING_RMS ** 2, 1e-9)
         c = BY_NAME[eff.effect]
@@ -413,4 +592,6 @@ def search_loaded(rec: Recording, robot: Robot, effects: list, ground: Ground, p
     return found
 
 
-__all__ = ['LoadedFind', 'choose_terms', 'follows', 'follows_to_rounding', 'search_loaded', 'walk_ground', 'whole_walk_check', 'widen']
+__all__ = ['LoadedFind', 'PhaseRow', 'Replays', 'WHOLE_PHASES', 'WholeWalk', 'add_loaded', 'compare', 'follows',
+           'follows_to_rounding', 'in_step_until', 'joint_rms', 'search_loaded', 'walk_ground', 'whole_labels',
+           'whole_walk_agrees', 'whole_walk_check', 'widen', 'widened']
