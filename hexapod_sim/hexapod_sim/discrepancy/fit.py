@@ -48,15 +48,16 @@ missing physics found".
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from hexapod_model.description import Effect, Robot
 from hexapod_model.joints import LEG_JOINTS, Joint
-from hexapod_sim.discrepancy.effects import BY_NAME, CANDIDATES, Candidate
+from hexapod_sim.discrepancy.effects import BY_NAME, Candidate
+from hexapod_sim.discrepancy.hypothesis import FitSettings, Hypothesis
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, Split, affected_joints, effect_units
+from hexapod_sim.discrepancy.servo_law_search import ServoLawSearch
 from hexapod_sim.discrepancy.simulate import Replay
 
 NONLINEAR = ('static_friction', 'backlash', 'compliance_deadband', 'torque_saturation')
@@ -67,70 +68,9 @@ TWIN_OF = {law: joint_effect for joint_effect, law in ROBOT_WIDE_AS.items()}
 # A joint effect on several joints that raises one joint's held-out RMS error by more than this [ticks]
 # is not on that joint (a leg-wide dead-band that takes a coxa at rounding, 0.32, to 0.83 ticks).
 WORSE_TICKS = 0.2
-# joint effects fitted beside a servo-law term that passes only with one of them (Namer._with_servo_law)
-PAIR_TRIES = 3
 
 
-@dataclass
-class Hypothesis:
-    candidate: Candidate
-    joints: tuple[Joint, ...]
-    screen_gain: float = 0.0
-    screen_ratio: float = 1.0
-    value: float = math.nan
-    fit_sse_before: float = math.nan
-    fit_sse_after: float = math.nan
-    hold_sse_before: float = math.nan
-    hold_sse_after: float = math.nan
-    n_hold: int = 0
-    affected: tuple[Joint, ...] = ()
-    evals: int = 0
-    # per affected joint: held-out (squared error before, after, number of reads)
-    hold_by_joint: dict = field(default_factory=dict)
-
-    @property
-    def effect(self) -> Effect:
-        return self.candidate.make(self.joints, self.value)
-
-    @property
-    def hold_rmse_before(self) -> float:
-        return math.sqrt(self.hold_sse_before / max(self.n_hold, 1))
-
-    @property
-    def hold_rmse_after(self) -> float:
-        return math.sqrt(self.hold_sse_after / max(self.n_hold, 1))
-
-    @property
-    def hold_gain(self) -> float:
-        return self.hold_sse_before - self.hold_sse_after
-
-
-@dataclass
-class FitSettings:
-    min_ratio: float = 1.15          # held-out RMS before/after on the effect's joints
-    min_drop_ticks: float = 0.03     # and at least this absolute drop
-    walk_min_drop_ticks: float = 0.15  # on a walk (fewer, shorter free spans: small dents are not effects)
-    min_explained: float = 0.5       # and explain this share of the held-out variance above tick rounding
-    # with every named effect in place, each must still explain this share of its joints' held-out excess
-    # over rounding; below it, it is the nearest candidate to physics the library lacks: not named
-    min_final_explained: float = 0.75
-    # and lower the held-out squared error by this much [tick^2] in all: 120 reads' worth of rounding
-    # variance, so a few held-out reads cannot confirm an effect alone (a 0.01 N m s/rad damping on
-    # one coxa of a walk, 17 reads 0.52 -> 0.30 ticks: 3 tick^2; true effects on the walk bench: >= 62)
-    min_gain_ticks2: float = 10.0
-    parsimony: float = 0.95          # prefer a smaller scope reaching this share of the best gain
-    max_effects: int = 4
-    n_fit: int = 6                   # hypotheses fitted exactly per round
-    min_screen_ratio: float = 1.02   # skip exact fits the linear screen gives no chance
-    screen_floor_ticks: float = 0.4  # joints with a fitting residual below this need no explaining
-    grid: int = 8
-    feature_window_s: float = 0.25
-    candidates: tuple[str, ...] = tuple(c.effect for c in CANDIDATES)
-    dictionary: bool = True          # search the dictionary of physical terms where the candidates leave a mismatch
-    log: list = field(default_factory=list)
-
-
-class Namer:
+class Namer(ServoLawSearch):
     """Greedy forward selection of effects (see the module docstring)."""
 
     def __init__(self, replay: Replay, base: Robot, split: Split, settings: FitSettings | None = None,
@@ -404,35 +344,6 @@ class Namer:
                 and (not share or (explained >= self.s.min_explained
                                    and sse_before - sse_after >= self.s.min_gain_ticks2)))
 
-    def _with_servo_law(self, effects, base_pred, fitted: list[Hypothesis]) -> list[Hypothesis]:
-        """A servo-law term and a joint effect that pass only together, when nothing passes alone.
-
-        A servo-law term acts on every joint, so beside a joint effect it explains less than half of
-        that joint's excess and fails the explained share (a punch 0.03 more than the model's beside a
-        tibia's dead-band on a one-leg stand: held-out 1.39 -> 1.08 ticks, 42 % of the excess), and the
-        joint effect alone fails as well, its joint carrying the punch too. So where a servo-law term's
-        fit clears the ratio and the drop of the acceptance test, the best screened joint effects of the
-        round are fitted with it in place, and it is refitted with each that then passes: the pair is
-        taken when both pass with the other in place. -> [servo-law term, joint effect] or []."""
-        near = [h for h in fitted if h.candidate.servo_law and np.isfinite(h.value) and h.n_hold
-                and h.fit_sse_after < h.fit_sse_before
-                and self._confirms(h.hold_sse_before, h.hold_sse_after, h.n_hold, share=False)]
-        if not near:
-            return []
-        law = max(near, key=lambda h: h.hold_gain)
-        with_law = list(effects) + [law.effect]
-        base_law = self.pred.predict(with_law, self.rep.joints)
-        for h in [h for h in fitted if not h.candidate.servo_law][:PAIR_TRIES]:
-            joint = self.fit(Hypothesis(h.candidate, h.joints), with_law, base_law)
-            if not self.passes(joint) or self._worsens_a_joint(joint):
-                continue
-            with_joint = list(effects) + [joint.effect]
-            law2 = self.fit(Hypothesis(law.candidate, law.joints), with_joint,
-                            self.pred.predict(with_joint, self.rep.joints))
-            if self.passes(law2):
-                return [law2, joint]
-        return []
-
     def _worsens_a_joint(self, h: Hypothesis) -> bool:
         """Whether a joint effect on several joints makes one of them clearly worse on its held-out
         reads: the effect is not on that joint, so this is not its scope (the servo law's terms are on
@@ -454,8 +365,9 @@ class Namer:
         return self._confirms(b, a, n)
 
     # ------------------------------------------------------------------ the search
-    def run(self) -> tuple[list[Effect], list[Hypothesis]]:
-        effects: list[Effect] = []
+    def run(self, given=()) -> tuple[list[Effect], list[Hypothesis]]:
+        """The effects named and their hypotheses; ``given``: effects in place throughout, not named again."""
+        effects: list[Effect] = list(given)
         accepted: list[Hypothesis] = []
         for round_ in range(self.s.max_effects):
             base_pred = self.pred.predict(effects, self.rep.joints)
@@ -501,9 +413,8 @@ class Namer:
             effects.append(best.effect)
             accepted.append(best)
         if len(accepted) > 1:
-            accepted = self._refine(accepted)
-            effects = [h.effect for h in accepted]
-        return effects, accepted
+            accepted = self._refine(accepted, given)
+        return [h.effect for h in accepted], accepted
 
     def _smaller_scope(self, best: Hypothesis, ok: list[Hypothesis], effect: str | None) -> Hypothesis:
         """The smallest accepted hypothesis of ``effect`` on a subset of ``best``'s joints that reaches
@@ -515,79 +426,6 @@ class Namer:
                     and not self._extra_joints_confirm(best, h)):
                 return h
         return best
-
-    def _servo_law_bundle(self, effects, base_pred, fitted: list[Hypothesis]) -> tuple[list[Hypothesis], float]:
-        """The servo-law terms that together explain the recording, when one of them improves it alone.
-
-        Punch, motor damping and goal latency act on every servo at once and partly stand in for each
-        other (more punch speeds a move up where more damping slows it down), so one of them alone can
-        lose to a joint effect that mimics their sum (a torque limit on the whole robot), and fitted one
-        after the other the first takes what belongs to the others (a walk with 1.15x damping, more punch
-        and a 1 ms goal latency: damping 1.07 alone, then no punch), or none passes alone (a tetrapod walk
-        with 0.14 N m more punch and 1.3x damping: punch alone explained 31 % of the excess, a leg's torque
-        limit was taken instead). So when a servo-law term's fit improves the held-out reads at all, all of
-        them are fitted at once (Nelder-Mead on the fitting reads' squared error, from those fits), and
-        those that pass the acceptance test with the others in place are taken (the rest dropped, the
-        others refitted). Returns them and their held-out gain together, or ([], 0).
-        """
-        alone = {h.candidate.effect: h for h in fitted if h.candidate.servo_law and h.hold_gain > 0
-                 and np.isfinite(h.value)}
-        if not alone:
-            return [], 0.0
-        joints = tuple(self.rep.joints)
-        terms = [BY_NAME[n] for n in self.s.candidates if BY_NAME[n].servo_law]
-        while terms:
-            values = self._fit_together(effects, terms, alone)
-            bundle = [self._judge(Hypothesis(c, joints, value=v), effects,
-                                  [t.make(joints, values[k]) for k, t in enumerate(terms) if t is not c])
-                      for c, v in zip(terms, values)]
-            bad = [h for h in bundle if not self.passes(h)]
-            if not bad:
-                break
-            worst = min(bad, key=lambda h: h.hold_gain)
-            terms = [c for c in terms if c is not worst.candidate]
-        else:
-            return [], 0.0
-        b0, _ = self._sse(base_pred, joints, 'hold')
-        b1, _ = self._sse(self.pred.predict(list(effects) + [h.effect for h in bundle], joints), joints, 'hold')
-        return bundle, b0 - b1
-
-    def _fit_together(self, effects, terms, alone) -> list[float]:
-        """Parameters of servo-law ``terms`` fitted at once on every analysed joint (see above)."""
-        from scipy.optimize import minimize
-        joints = tuple(self.rep.joints)
-        # each parameter scaled by its typical size; nominal values (no term) at 0 except a ratio's 1
-        x0 = [(alone[c.effect].value if c.effect in alone else (1.0 if c.two_sided else 0.0)) for c in terms]
-        lo = [c.lo if c.two_sided else 0.0 for c in terms]
-        hi = [c.hi for c in terms]
-        scale = [abs(c.typical - (1.0 if c.two_sided else 0.0)) for c in terms]
-        cache: dict[tuple, float] = {}
-
-        def loss(z):
-            v = tuple(float(min(max(x0[k] + z[k] * scale[k], lo[k]), hi[k])) for k in range(len(terms)))
-            if v not in cache:
-                inner = [c.make(joints, x) for c, x in zip(terms, v)
-                         if x != (1.0 if c.two_sided else 0.0)]
-                cache[v] = self._sse(self.pred.predict(list(effects) + inner, joints), joints, 'fit')[0]
-            return cache[v]
-
-        res = minimize(loss, np.zeros(len(terms)), method='Nelder-Mead',
-                       options={'initial_simplex': np.vstack([np.zeros(len(terms)), 0.5 * np.eye(len(terms))]),
-                                'xatol': 0.02, 'fatol': 1.0, 'maxfev': 60 * len(terms)})
-        return [float(min(max(x0[k] + res.x[k] * scale[k], lo[k]), hi[k])) for k in range(len(terms))]
-
-    def _judge(self, h: Hypothesis, effects, others) -> Hypothesis:
-        """Fill in ``h``'s fitting and held-out errors at its value, with ``effects`` and ``others`` in place."""
-        inner = list(effects) + list(others)
-        aff = sorted(affected_joints(h.candidate.effect, h.joints) & set(self.rep.joints))
-        base = self.pred.predict(inner, aff)
-        self._score_before(h, base)
-        if not h.value > h.candidate.lo and not h.candidate.two_sided:
-            h.value = math.nan                       # the term is not there at all
-            return h
-        p = self._score_held_out(h, inner, base, aff)
-        h.fit_sse_after, _ = self._sse(p, aff, 'fit')
-        return h
 
     def _pick_for_fit(self, hyps: list[Hypothesis]) -> list[Hypothesis]:
         """The best screened hypotheses, at most two per effect, ``n_fit`` in all. Where an effect's best
@@ -609,11 +447,11 @@ class Namer:
                 break
         return out
 
-    def _refine(self, accepted: list[Hypothesis]) -> list[Hypothesis]:
-        """Refit each parameter once with all other accepted effects in place."""
+    def _refine(self, accepted: list[Hypothesis], given=()) -> list[Hypothesis]:
+        """Refit each parameter once with all other accepted effects (and ``given``) in place."""
         out = list(accepted)
         for i, h in enumerate(out):
-            others = [x.effect for k, x in enumerate(out) if k != i]
+            others = list(given) + [x.effect for k, x in enumerate(out) if k != i]
             base_pred = self.pred.predict(others, self.rep.joints)
             nh = Hypothesis(h.candidate, h.joints)
             self.fit(nh, others, base_pred)
