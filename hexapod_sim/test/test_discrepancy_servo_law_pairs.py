@@ -27,3 +27,20 @@ def test_more_punch_beside_a_tibia_dead_band_names_both_with_their_values():
     assert named['compliance_deadband'].params['margin_ticks'] == pytest.approx(3.0, rel=0.25)   # the bench's tolerance
     assert named['punch'].params['extra_punch_nm'] == pytest.approx(0.15, rel=0.25)
     assert a.unexplained == [], text_report(a)
+
+
+def test_more_punch_beside_angle_periodic_friction_names_the_punch_and_the_dictionary_term():
+    """Nothing of the list explains the femur's friction, and beside the punch no dictionary term explains
+    enough of a joint alone: the dictionary is searched beside the best servo-law term, and both are
+    named once the punch passes with the term in place."""
+    robot = load_robot()
+    femur = Joint(2, 'femur')
+    rec = _record(robot, Effect('punch', ALL_JOINTS, {'extra_punch_nm': 0.095}),
+                  Effect('periodic_friction', (femur,), {'amplitude_nm': 0.167, 'period_rad': 0.274,
+                                                         'phase_rad': 0.866}))
+    a = analyse(rec, robot, workers=1)
+    assert [f.effect.effect for f in a.effects] == ['punch'], text_report(a)
+    assert a.effects[0].effect.params['extra_punch_nm'] == pytest.approx(0.095, rel=0.25)
+    assert [(t.effect.effect, t.effect.joints) for t in a.terms] == [('periodic_friction', (femur,))], text_report(a)
+    assert a.terms[0].heldout_rmse_ticks_before / a.terms[0].heldout_rmse_ticks_after >= 1.5
+    assert a.unexplained == [], text_report(a)
