@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import random
+import time
 
 import numpy as np
 import pytest
@@ -54,13 +55,62 @@ def test_the_tally_counts_cases_per_kind_and_endings_per_tool():
     assert tally.add(1, 'bag bitflip', [O('analyse', 2, ['analyse: error: x'], 0.2),
                                         O('replay-reader', None, [], 3.0, 'KeyError: 1 (reader.py:1)', 2.5)]) != []
     assert tally.add(2, 'description nan', [O('analyse', 2, ['a', 'b'], 0.1)]) != []
-    assert tally.kinds == {'bag bitflip': [2, 1], 'description nan': [1, 1]} and tally.failed == 2
-    assert tally.tools['analyse'] == [3, 1, 0, 1, 1, 0.5]
-    assert tally.tools['replay-reader'] == [2, 0, 1, 0, 1, 3.0]
-    assert tally.slowest == (3.0, 'replay-reader', 1, 2.5)
-    assert 'slowest tool run: replay-reader on case 1, 3.00 s (CPU 2.50 s); most CPU time of a tool run 2.50 s' \
-        in tally.report()
-    assert O('discrepancy', 0, [], 10.5, cpu_s=4.0).problem() == 'discrepancy: took 10.5 s (CPU 4.0 s)'
+    assert tally.add(3, 'bag truncate', [O('discrepancy', 0, [], 16.5, cpu_s=3.0),
+                                         O('analyse', None, [], 31.0, cpu_s=30.0, stopped='cpu')]) != []
+    assert tally.add(4, 'bag truncate', [O('discrepancy', None, [], 120.0, cpu_s=0.1, stopped='hang')]) != []
+    assert tally.kinds == {'bag bitflip': [2, 1, 0, 0], 'description nan': [1, 1, 0, 0], 'bag truncate': [2, 2, 1, 1]}
+    assert tally.failed == 4
+    assert tally.tools['analyse'] == [4, 1, 0, 1, 2, 1, 0, 0, 31.0]
+    assert tally.tools['replay-reader'] == [2, 0, 1, 0, 1, 0, 0, 0, 3.0]
+    assert tally.tools['discrepancy'] == [2, 1, 0, 0, 1, 0, 1, 1, 120.0]
+    assert tally.slowest == (120.0, 'discrepancy', 4, 0.1)
+    report = tally.report()
+    assert '  bag truncate: 2, 2 (1, 1)' in report and '  discrepancy: 2, 1, 0, 0, 1 (0, 1), 1, 120.00' in report
+    assert 'slowest tool run: discrepancy on case 4, 120.00 s (CPU 0.10 s); most CPU time of a tool run 30.00 s' \
+        in report
+    assert O('discrepancy', 0, [], 10.5, cpu_s=4.0).problem() == ''
+    assert O('discrepancy', 0, [], 10.5, cpu_s=10.5).problem() == \
+        'discrepancy: over the CPU budget: 10.5 s of CPU time (limit 10 s), 10.5 s wall'
+
+
+def _sleeper(seconds: float):
+    def run() -> int:
+        time.sleep(seconds)
+        return 0
+    return run
+
+
+def _burner() -> int:
+    x = 0
+    while True:
+        x += 1
+
+
+def test_a_tool_that_waits_for_a_loaded_machine_is_not_failed_by_the_time_limit(monkeypatch):
+    """On a loaded machine a tool run of 5.33 s of CPU time took 10.83 s of wall time and failed the 10 s
+    limit, which judged the wall time. A tool run that uses little CPU time is judged by it, not by the wait."""
+    monkeypatch.setattr(fuzz_inputs, 'CASE_LIMIT_S', 0.2)
+    out = fuzz_inputs.run_tool('sleeper', _sleeper(0.6))
+    assert out.code == 0 and out.seconds >= 0.6 and out.cpu_s < 0.2, out
+    assert out.problem() == '', out
+
+
+def test_a_tool_that_burns_cpu_past_its_budget_is_stopped_and_failed_as_such(monkeypatch):
+    monkeypatch.setattr(fuzz_inputs, 'CASE_LIMIT_S', 0.2)
+    out = fuzz_inputs.run_tool('burner', _burner)
+    assert out.stopped == 'cpu' and not out.trace and out.cpu_s > 0.2, out
+    assert out.problem().startswith('burner: over the CPU budget: ') and ', stopped, ' in out.problem(), out
+
+
+def test_a_tool_that_blocks_is_stopped_as_hung_by_the_wall_limit(monkeypatch):
+    """A process blocked without using CPU never reaches its CPU budget: the wall limit catches it."""
+    monkeypatch.setattr(fuzz_inputs, 'HANG_LIMIT_S', 0.5)
+    out = fuzz_inputs.run_tool('blocked', _sleeper(30.0))
+    assert out.stopped == 'hang' and 0.5 <= out.seconds < 5.0 and out.cpu_s < 0.5, out
+    assert out.problem().startswith('blocked: hung: no end after '), out
+    tally = fuzz_inputs.Tally()
+    tally.add(0, 'bag bitflip', [out])
+    assert tally.kinds['bag bitflip'] == [1, 1, 0, 1] and tally.tools['blocked'][4:7] == [1, 0, 1]
 
 
 def test_a_walk_with_a_lost_chunk_is_not_read_as_a_stand(base, tmp_path):

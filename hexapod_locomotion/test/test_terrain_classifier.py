@@ -163,6 +163,26 @@ def test_the_front_legs_weigh_more_and_a_crossing_switches_the_class():
     assert (even.predict(crossing) == 'a').mean() > 0.5
 
 
+def test_with_leg_context_a_leg_is_classed_against_the_posture_of_the_whole_cycle():
+    """A leg's feature tells its class only against a cycle feature (a foot's contact height against how
+    low the body stands): the leg model alone cannot tell, with the cycle's features beside it it can."""
+    from hexapod_locomotion.core.terrain_estimator import CycleLegClassifier
+    rng = np.random.default_rng(3)
+    n = 400
+    posture = rng.uniform(-5.0, 5.0, size=n)
+    y = np.where(rng.random(n) < 0.5, 'a', 'b')
+    cyc = np.c_[posture, rng.normal(size=n)]                  # the cycle model: no clue to the class
+    leg = posture + np.where(y == 'a', -0.5, 0.5)             # the leg's feature: relative to the posture
+    xs = np.array([225.0, 225.0, -225.0, -225.0, 0.0, 0.0])
+    x = np.c_[cyc, *[np.c_[np.full(n, fx), leg + rng.normal(0, 0.05, n)] for fx in xs]]
+    tr, te = slice(0, 300), slice(300, n)
+    alone = CycleLegClassifier(2, 2, cycle_weight=0.1, tree_params={'max_iter': 40}).fit(x[tr], y[tr])
+    ctx = CycleLegClassifier(2, 2, cycle_weight=0.1, tree_params={'max_iter': 40}, leg_context=[0]).fit(x[tr], y[tr])
+    assert ctx._leg_rows(x[:2]).shape == (12, 3)
+    assert (ctx.predict(x[te]) == y[te]).mean() > 0.9
+    assert (alone.predict(x[te]) == y[te]).mean() < 0.8
+
+
 def test_the_temperature_fitted_on_held_out_scores_calibrates_them():
     from hexapod_locomotion.core.terrain_estimator import fit_temperature, softmax
     rng = np.random.default_rng(2)

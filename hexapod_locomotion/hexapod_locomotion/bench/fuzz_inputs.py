@@ -15,10 +15,15 @@ Each case damages a small valid input and runs the tools on it in this process:
   ``discrepancy --robot``/``--overlay``.
 
 A case passes if each tool ends with code 0 (at most one warning line) or 2 (exactly one error line),
-prints no traceback, and takes at most 10 s. A failing case prints its seed and what happened; a
-progress line every 10 cases; at the end, cases and failures per kind of damage, per tool its runs,
-how they ended and its slowest run, and the peak memory of the run (every case under 1 GB if the
-run's peak is). The exit code is 1 if any case failed.
+prints no traceback, and uses at most 10 s of CPU time (:data:`CASE_LIMIT_S`; a tool still working at
+three times that is stopped). The wall time is not judged by that budget: on a loaded machine a tool
+that works waits for a core, and its wall time grows while its CPU time does not. A tool that has not
+ended after :data:`HANG_LIMIT_S` of wall time is stopped and fails as hung (a process blocked, using no
+CPU, never reaches its CPU budget). A failing case prints its seed and what happened; a progress line
+every 10 cases; at the end, cases and failures per kind of damage, per tool its runs, how they ended,
+the runs over the CPU budget, the hung ones and the passing ones that took more than 10 s of wall time,
+its slowest run, and the peak memory of the run (every case under 1 GB if the run's peak is). The exit
+code is 1 if any case failed.
 
 ``--lost-chunk BAG`` breaks one chunk of a copy of BAG at a time and prints what ``discrepancy`` makes of
 each: the spans lost, walk or stand with the effects it names, or its one-line refusal.
@@ -46,7 +51,9 @@ import yaml
 
 from hexapod_sim.bagio import BagError, BagReader, BagWarning, BagWriter
 
-CASE_LIMIT_S = 10.0
+CASE_LIMIT_S = 10.0         # CPU time a tool run may use [s]
+CPU_STOP_FACTOR = 3.0       # a run still working at this many times CASE_LIMIT_S of CPU time is stopped
+HANG_LIMIT_S = 120.0        # wall time after which a run that has not ended is stopped as hung [s]
 BASE_SECONDS = 2.5          # of the reference walk in the base bag
 BAG_KINDS = ('bitflip', 'truncate', 'huge_length', 'wrong_type', 'metadata_lies')
 DESC_KINDS = ('wrong_type', 'nan', 'inf', 'negative', 'missing_key')
@@ -255,16 +262,27 @@ class Outcome:
     tool: str
     code: int | None
     lines: list
-    seconds: float                  # wall time: what the limit judges
+    seconds: float                  # wall time
     trace: str = ''
-    cpu_s: float = float('nan')     # CPU time of this process (every thread) meanwhile: a loaded machine
-                                    # stretches the wall time, a tool that works longer the CPU time
+    cpu_s: float = float('nan')     # CPU time of this process (every thread) meanwhile, what CASE_LIMIT_S
+                                    # judges: a loaded machine stretches the wall time, a tool that works
+                                    # longer the CPU time
+    stopped: str = ''               # 'cpu': stopped over the CPU budget; 'hang': over HANG_LIMIT_S of wall time
+
+    def limit(self) -> str:
+        """Which time limit the run failed: 'hang', 'cpu' or ''."""
+        if self.stopped == 'hang':
+            return 'hang'
+        return 'cpu' if self.stopped == 'cpu' or self.cpu_s > CASE_LIMIT_S else ''
 
     def problem(self) -> str:
         if self.trace:
             return f'{self.tool}: uncaught {self.trace}'
-        if self.seconds > CASE_LIMIT_S:
-            return f'{self.tool}: took {self.seconds:.1f} s (CPU {self.cpu_s:.1f} s)'
+        if self.limit() == 'hang':
+            return f'{self.tool}: hung: no end after {self.seconds:.1f} s wall (CPU {self.cpu_s:.1f} s)'
+        if self.limit() == 'cpu':
+            return (f'{self.tool}: over the CPU budget: {self.cpu_s:.1f} s of CPU time (limit {CASE_LIMIT_S:g} s)'
+                    f'{", stopped" if self.stopped else ""}, {self.seconds:.1f} s wall')
         if self.code == 2 and len(self.lines) != 1:
             return f'{self.tool}: exit 2 with {len(self.lines)} stderr lines: {self.lines[:3]}'
         if self.code == 0 and len([x for x in self.lines if 'warning' in x]) > 1:
@@ -274,39 +292,48 @@ class Outcome:
         return ''
 
 
-class _Timeout(Exception):
-    pass
+class _Stopped(BaseException):     # not an Exception: a tool's own ``except Exception`` lets it through
+    """Raised in the tool by a timer: ``args[0]`` is 'cpu' (its CPU budget) or 'hang' (HANG_LIMIT_S)."""
 
 
-def _alarm(signum, frame):
-    raise _Timeout()
+def _stop_cpu(signum, frame):
+    raise _Stopped('cpu')
+
+
+def _stop_hang(signum, frame):
+    raise _Stopped('hang')
 
 
 def run_tool(name: str, fn) -> Outcome:
-    """``fn()`` (a tool's main, returning its exit code) with stderr captured and a time limit."""
+    """``fn()`` (a tool's main, returning its exit code) with stderr captured, stopped at
+    CPU_STOP_FACTOR x CASE_LIMIT_S of CPU time (``ITIMER_PROF``: this process's user and system time)
+    or at HANG_LIMIT_S of wall time (``ITIMER_REAL``), whichever comes first."""
     err = io.StringIO()
     t0, cpu0 = time.perf_counter(), time.process_time()
-    code, trace = None, ''
-    old = signal.signal(signal.SIGALRM, _alarm)
-    signal.setitimer(signal.ITIMER_REAL, CASE_LIMIT_S * 3)
+    code, trace, stopped = None, '', ''
+    old = signal.signal(signal.SIGALRM, _stop_hang), signal.signal(signal.SIGPROF, _stop_cpu)
+    signal.setitimer(signal.ITIMER_REAL, HANG_LIMIT_S)
+    signal.setitimer(signal.ITIMER_PROF, CASE_LIMIT_S * CPU_STOP_FACTOR)
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
             warnings.simplefilter('ignore')
             code = fn()
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    except _Timeout:
-        trace = f'timeout after {CASE_LIMIT_S * 3:.0f} s'
+    except _Stopped as exc:
+        stopped = exc.args[0]
     except BaseException as exc:           # noqa: BLE001 - what the fuzzer looks for
         tb = traceback.extract_tb(exc.__traceback__)[-1]
         trace = f'{type(exc).__name__}: {str(exc)[:200]} ({Path(tb.filename).name}:{tb.lineno})'
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
+        signal.setitimer(signal.ITIMER_PROF, 0)
+        signal.signal(signal.SIGALRM, old[0])
+        signal.signal(signal.SIGPROF, old[1])
     lines = [x for x in err.getvalue().splitlines() if x.strip()]
     if 'Traceback' in err.getvalue():
         trace = trace or 'traceback printed: ' + lines[-1][:200]
-    return Outcome(name, code, lines, time.perf_counter() - t0, trace, time.process_time() - cpu0)
+    return Outcome(name, code, lines, time.perf_counter() - t0, trace, time.process_time() - cpu0, stopped)
 
 
 def _read_all(bag: Path) -> int:
@@ -372,28 +399,37 @@ def peak_memory_mb() -> float:
 
 @dataclass
 class Tally:
-    """The figures of a run: cases and failures per kind of damage; per tool its runs, how they ended
-    (0 without a warning, 0 with one warning line, 2 with one error line), failures and slowest run."""
-    kinds: dict = field(default_factory=dict)      # kind -> [cases, failed]
-    tools: dict = field(default_factory=dict)      # tool -> [runs, clean, warned, refused, failed, slowest s]
+    """The figures of a run: cases and failures per kind of damage (of those, over the CPU budget and
+    hung); per tool its runs, how they ended (0 without a warning, 0 with one warning line, 2 with one
+    error line), failures (of those, over the CPU budget and hung), passing runs over CASE_LIMIT_S of
+    wall time, and its slowest run."""
+    kinds: dict = field(default_factory=dict)      # kind -> [cases, failed, over CPU budget, hung]
+    tools: dict = field(default_factory=dict)      # tool -> [runs, clean, warned, refused, failed, over CPU
+                                                   #          budget, hung, passed over the limit in wall time, slowest s]
     slowest: tuple = (0.0, '', -1, 0.0)            # (seconds, tool, case, CPU seconds)
     most_cpu_s: float = 0.0
 
     def add(self, i: int, kind: str, outcomes: list[Outcome]) -> list[str]:
         """Count case ``i``; its problems (empty if it passed)."""
         problems = [p for p in (o.problem() for o in outcomes) if p]
-        k = self.kinds.setdefault(kind, [0, 0])
+        limits = {o.limit() for o in outcomes if not o.trace}
+        k = self.kinds.setdefault(kind, [0, 0, 0, 0])
         k[0] += 1
         k[1] += bool(problems)
+        k[2] += 'cpu' in limits
+        k[3] += 'hang' in limits
         for o in outcomes:
-            t = self.tools.setdefault(o.tool, [0, 0, 0, 0, 0, 0.0])
+            t = self.tools.setdefault(o.tool, [0, 0, 0, 0, 0, 0, 0, 0, 0.0])
             failed = bool(o.problem())
             t[0] += 1
             t[1] += not failed and o.code == 0 and not any('warning' in x for x in o.lines)
             t[2] += not failed and o.code == 0 and any('warning' in x for x in o.lines)
             t[3] += not failed and o.code == 2
             t[4] += failed
-            t[5] = max(t[5], o.seconds)
+            t[5] += not o.trace and o.limit() == 'cpu'
+            t[6] += not o.trace and o.limit() == 'hang'
+            t[7] += not failed and o.seconds > CASE_LIMIT_S
+            t[8] = max(t[8], o.seconds)
             self.most_cpu_s = max(self.most_cpu_s, o.cpu_s)
             if o.seconds > self.slowest[0]:
                 self.slowest = (o.seconds, o.tool, i, o.cpu_s)
@@ -401,13 +437,16 @@ class Tally:
 
     @property
     def failed(self) -> int:
-        return sum(f for _, f in self.kinds.values())
+        return sum(k[1] for k in self.kinds.values())
 
     def report(self) -> list[str]:
-        out = ['kind of damage: cases, failed']
-        out += [f'  {k}: {n}, {f}' for k, (n, f) in sorted(self.kinds.items())]
-        out.append('tool: runs, exit 0 clean, exit 0 with one warning, exit 2 with one line, failed, slowest s')
-        out += [f'  {name}: {t[0]}, {t[1]}, {t[2]}, {t[3]}, {t[4]}, {t[5]:.2f}' for name, t in sorted(self.tools.items())]
+        out = [f'kind of damage: cases, failed (of those: over the {CASE_LIMIT_S:g} s CPU budget, hung: no end after '
+               f'{HANG_LIMIT_S:g} s wall)']
+        out += [f'  {k}: {n}, {f} ({c}, {h})' for k, (n, f, c, h) in sorted(self.kinds.items())]
+        out.append('tool: runs, exit 0 clean, exit 0 with one warning, exit 2 with one line, failed (over the CPU '
+                   f'budget, hung), passed over {CASE_LIMIT_S:g} s wall, slowest s')
+        out += [f'  {name}: {t[0]}, {t[1]}, {t[2]}, {t[3]}, {t[4]} ({t[5]}, {t[6]}), {t[7]}, {t[8]:.2f}'
+                for name, t in sorted(self.tools.items())]
         s, tool, i, cpu = self.slowest
         out.append(f'slowest tool run: {tool} on case {i}, {s:.2f} s (CPU {cpu:.2f} s); most CPU time of a tool run '
                    f'{self.most_cpu_s:.2f} s')

@@ -11,7 +11,10 @@ on a new class first, so weighting them lets the class change sooner when the ro
 The sum is divided by ``temperature`` before the softmax, fitted so the probabilities are calibrated
 (see :func:`fit_temperature`). The leg model may be trained with a label per leg: on a walk across
 class boundaries the legs of one cycle stand on different classes, and so learn how a leg on the new
-class feels while the others are still on the old.
+class feels while the others are still on the old. With ``leg_context`` (indices of cycle features) the
+leg model sees those of the leg's cycle beside the leg's own: how a foot on flat ground meets it depends
+on the posture the other legs hold the body in (after soft ground the body stands lower and tilted for a few cycles, and
+a front foot on flat ground then stops where a foot on rough ground would on level support).
 """
 from __future__ import annotations
 
@@ -31,13 +34,18 @@ class CycleLegClassifier:
     ``legs`` blocks of ``n_leg`` leg features, the nominal foot x first in each block (see the module doc)."""
 
     def __init__(self, n_cycle: int, n_leg: int, legs: int = 6, cycle_weight: float = 1.0, front_weight: float = 1.0,
-                 temperature: float = 1.0, seed: int = 0, tree_params: dict | None = None):
-        self.n_cycle, self.n_leg, self.legs = n_cycle, n_leg, legs
+                 temperature: float = 1.0, seed: int = 0, tree_params: dict | None = None, leg_context=()):
+        self.n_cycle, self.n_leg, self.legs, self.leg_context = n_cycle, n_leg, legs, tuple(leg_context)
         self.cycle_weight, self.front_weight, self.temperature = cycle_weight, front_weight, temperature
         self.seed, self.tree_params = seed, dict(tree_params or {})
 
     def _leg_rows(self, x: np.ndarray) -> np.ndarray:
-        return x[:, self.n_cycle:self.n_cycle + self.legs * self.n_leg].reshape(len(x) * self.legs, self.n_leg)
+        """One row per leg: its block, then the ``leg_context`` features of its cycle."""
+        rows = x[:, self.n_cycle:self.n_cycle + self.legs * self.n_leg].reshape(len(x) * self.legs, self.n_leg)
+        ctx = list(getattr(self, 'leg_context', ()))      # none in a model file saved before the option
+        if not ctx:
+            return rows
+        return np.concatenate([rows, np.repeat(x[:, ctx], self.legs, axis=0)], axis=1)
 
     def fit(self, x, y, leg_y=None, skip: str = '-') -> 'CycleLegClassifier':
         """``y``: the class per row, ``leg_y`` (rows, legs): per leg (default: the row's); a label ``skip``

@@ -7,8 +7,9 @@
   bench                      the classifier's time per gait cycle (features + prediction)
 
 Sets (every gait; seeds in brackets): train [0-5] and test [10-11] walk each terrain class,
-courses [20-22] and courses-train [0-5, 12-16] the mixed courses; damped [10] and damped-train [0] walk
-each class with a servo law of 1.5 x the motor damping (data/damped_servo.yaml). Label files: one interval per line,
+courses [20-22] and courses-train [0-5, 12-16, 23, 25, 29, 32, 36] the mixed courses; damped [10] and
+damped-train [0] walk each class with a servo law of 1.5 x the motor damping (data/damped_servo.yaml).
+Label files: one interval per line,
 ``START_S END_S LABEL`` in the bag's stamps, ``-`` for no label (docs/terrain.md).
 """
 from __future__ import annotations

@@ -352,7 +352,7 @@ SETS = {
     'train': ('classes', (0, 1, 2, 3, 4, 5), CLASS_TRIAL_S, ()),
     'test': ('classes', (10, 11), CLASS_TRIAL_S, ()),
     'courses': ('course', (20, 21, 22), COURSE_TRIAL_S, ()),
-    'courses-train': ('course', (0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16), COURSE_TRIAL_S, ()),
+    'courses-train': ('course', (0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16, 23, 25, 29, 32, 36), COURSE_TRIAL_S, ()),
     'damped': ('classes', (10,), CLASS_TRIAL_S, (DAMPED_OVERLAY,)),
     'damped-train': ('classes', (0,), CLASS_TRIAL_S, (DAMPED_OVERLAY,)),
 }
