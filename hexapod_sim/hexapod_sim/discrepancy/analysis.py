@@ -129,13 +129,17 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
     return terms, found, _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
 
 
+def _servo_law_candidates(settings: FitSettings) -> tuple[str, ...]:
+    return tuple(c for c in settings.candidates if BY_NAME[c].servo_law)
+
+
 def _terms_beside_a_servo_law(replay: Replay, robot: Robot, split, settings: FitSettings, joints, step) -> list:
     """Where neither the list nor the dictionary explains anything: the dictionary's terms found beside the
     servo-law term that improves the recording most (held-out ratio and drop, whatever share it explains),
     for :func:`_servo_law_beside` to confirm. A servo-law term spreads over every joint, so beside it no
     term explains enough of a joint alone (a femur's angle-periodic friction beside 0.09 N m more punch on
     a one-leg stand left the whole leg at 1.4 ticks, nothing named)."""
-    law = tuple(c for c in settings.candidates if BY_NAME[c].servo_law)
+    law = _servo_law_candidates(settings)
     if not law:
         return []
     step('the dictionary beside the servo law')
@@ -159,7 +163,7 @@ def _servo_law_beside(replay: Replay, robot: Robot, split, cond, settings: FitSe
     held out, 42 % of the excess, and no joint effect of the list passes beside it). Named as the namer
     names (held-out acceptance, and ``min_final_explained`` of its joints' excess with the rest in place).
     -> (effects, found) with it."""
-    law = tuple(c for c in settings.candidates if BY_NAME[c].servo_law)
+    law = _servo_law_candidates(settings)
     if not terms or not law or any(BY_NAME[e.effect].servo_law for e in effects):
         return effects, found
     step('the servo law beside the terms found')
@@ -169,17 +173,12 @@ def _servo_law_beside(replay: Replay, robot: Robot, split, cond, settings: FitSe
         more, accepted = namer.run(given=given)
         if not more:
             return effects, found
-        pred_wo = namer.pred.predict(given, replay.joints)
         pred_w = namer.pred.predict(given + tuple(more), replay.joints)
+        # given holds the terms, so no effect is judged against the nominal prediction (pred0: None)
+        new = [f for f in _found_effects(namer.pred, replay, split, cond, more, accepted, None, pred_w, given)
+               if _explained(f) >= settings.min_final_explained]
     finally:
         namer.close()
-    new, r_wo, r_w = [], replay.residuals(pred_wo), replay.residuals(pred_w)
-    for h in accepted:
-        own = [j for j in h.joints if j in replay.reads]
-        f = FoundEffect(h.effect, scope_name(h.joints, replay.joints), dominant_condition(own, cond, r_wo, r_w),
-                        _rmse(r_wo, split.hold, own)[0], _rmse(r_w, split.hold, own)[0])
-        if _explained(f) >= settings.min_final_explained:
-            new.append(f)
     return list(effects) + [f.effect for f in new], list(found) + new
 
 
@@ -220,11 +219,12 @@ def _progress_bar(progress: bool):
 
 
 def _found_effects(pred: Predictor, replay: Replay, split, cond: dict, effects: list, accepted: list,
-                   pred0: dict, pred1: dict) -> list[FoundEffect]:
-    """Each accepted effect with its joints' held-out RMS error without it (the others in place) and with it."""
+                   pred0: dict | None, pred1: dict, given=()) -> list[FoundEffect]:
+    """Each accepted effect with its joints' held-out RMS error without it (the others and ``given`` in
+    place) and with it."""
     found = []
     for i, h in enumerate(accepted):
-        others = [e for k, e in enumerate(effects) if k != i]
+        others = list(given) + [e for k, e in enumerate(effects) if k != i]
         p_wo = pred.predict(others, replay.joints) if others else pred0
         own = [j for j in h.joints if j in replay.reads]
         r_wo = {j: replay.reads[j].tick - p_wo[j] for j in own}
