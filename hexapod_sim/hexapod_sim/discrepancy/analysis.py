@@ -109,7 +109,8 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
         return [], found, unexplained, res1, jfit
     step('searching the dictionary of physical terms')
     joints = list(dict.fromkeys(j for u in unexplained for j in u.joints))
-    terms, displaced = structure.search(replay, robot, split, tuple(effects), joints, scope_name)
+    terms, displaced = structure.search(replay, robot, split, tuple(effects), joints, scope_name,
+                                        _search_settings(settings))
     law_first = not terms and not effects
     if law_first:
         terms = _terms_beside_a_servo_law(replay, robot, split, settings, joints, step)
@@ -127,6 +128,11 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
     jfit = {j: JointFit(v.heldout_rmse_ticks_before, _rmse(res1, split.hold, [j])[0], v.n_heldout)
             for j, v in jfit.items()}
     return terms, found, _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
+
+
+def _search_settings(settings: FitSettings) -> structure.SearchSettings:
+    """The dictionary search's settings with the namer's bar on the held-out gain."""
+    return structure.SearchSettings(min_gain_ticks2=settings.min_gain_ticks2)
 
 
 def _servo_law_candidates(settings: FitSettings) -> tuple[str, ...]:
@@ -151,7 +157,7 @@ def _terms_beside_a_servo_law(replay: Replay, robot: Robot, split, settings: Fit
         namer.close()
     if not tentative:
         return []
-    terms, _ = structure.search(replay, robot, split, tuple(tentative), joints, scope_name)
+    terms, _ = structure.search(replay, robot, split, tuple(tentative), joints, scope_name, _search_settings(settings))
     return terms
 
 
