@@ -267,3 +267,28 @@ def test_an_unexplained_free_leg_mismatch_that_the_whole_walk_follows_is_not_rep
     assert whole_walk_agrees([femur, tibia], walk(5.0), 12.5) == [femur, tibia]       # out of step early
     assert whole_walk_agrees([femur], walk(12.5, reads=10), 12.5) == [femur]          # no phase judged
     assert whole_walk_agrees([femur], None, 12.5) == [femur]                          # no whole-walk replay
+
+
+@pytest.mark.parametrize('truth_on, widened', [('leg', True), ('femur', False)])
+def test_a_joint_effect_the_whole_walk_wants_on_its_whole_leg_is_put_there(tmp_path, robot, truth_on, widened):
+    """A walking coxa and tibia are read a few times a swing, so the swings find a leg's viscous damping on
+    its femur alone; the whole walk reads them in stance too, and puts the damping on the leg where the
+    plant has it there, not where the plant has it on the femur only. A femur effect on a leg without it
+    is not widened either."""
+    bench = pytest.importorskip('hexapod_locomotion.bench.discrepancy_bench', reason='the locomotion package is not importable')
+    from hexapod_model.description import Effect
+    from hexapod_model.joints import LEG_JOINTS
+    from hexapod_sim.discrepancy.whole_walk_search import Replays, walk_ground, widen_to_legs
+
+    def viscous(joints):
+        return Effect('viscous_damping', tuple(joints), {'b_nms_per_rad': 0.13})
+
+    truth = viscous(LEG_JOINTS[5] if truth_on == 'leg' else (Joint(5, 'femur'),))
+    bag, _ = bench.record_walk(bench.Case('legwide', (truth,), walk=('pentapod', 'flat'), cycle='default'), tmp_path,
+                               duration_s=8.0, seed=1)
+    rec = load_recording(bag, robot)
+    femur, elsewhere = viscous((Joint(5, 'femur'),)), viscous((Joint(2, 'femur'),))
+    effects, moved = widen_to_legs(Replays(rec, robot, walk_ground(rec, None)[0]), [femur, elsewhere],
+                                   [Joint.of(j) for j in rec.states])
+    assert moved == ([(femur, viscous(LEG_JOINTS[5]))] if widened else [])
+    assert effects == ([elsewhere, viscous(LEG_JOINTS[5])] if widened else [femur, elsewhere])

@@ -65,9 +65,41 @@ NONLINEAR = ('static_friction', 'backlash', 'compliance_deadband', 'torque_satur
 # whole robot the servo law's candidate stands for it (the replay cannot tell them apart).
 ROBOT_WIDE_AS = {'viscous_damping': 'motor_damping', 'readout_delay': 'goal_latency'}
 TWIN_OF = {law: joint_effect for joint_effect, law in ROBOT_WIDE_AS.items()}
+# A twin joint effect named beside its servo-law term, or an effect named on some joints of a larger effect
+# of its kind, at less than this share of that term's or effect's size (a servo-law term as the twin's
+# parameter, :func:`as_twin`) is the larger one fitted unevenly over its joints, not physics of its own
+# (robot-wide viscous damping of 0.187 N m s/rad fitted as 1.85x motor damping, 0.172, left 0.015 on two
+# legs; a leg's 0.193 fitted as 0.166 left 0.023 on its femur).
+UNEVEN_SHARE = 0.25
 # A joint effect on several joints that raises one joint's held-out RMS error by more than this [ticks]
 # is not on that joint (a leg-wide dead-band that takes a coxa at rounding, 0.32, to 0.83 ticks).
 WORSE_TICKS = 0.2
+
+
+def as_twin(law: Effect, robot: Robot) -> float:
+    """A servo-law term as the parameter of its twin joint effect (:data:`TWIN_OF`) on every joint: motor
+    damping as the extra viscous damping it adds, a goal latency as the readout delay it looks like."""
+    if law.effect == 'motor_damping':
+        return (law.params['ratio'] - 1.0) * robot.servo.reflected_damping_nms_per_rad
+    return law.params['delay_s']
+
+
+def uneven_parts(effects, robot: Robot) -> list[int]:
+    """Indices of the effects in ``effects`` that are a larger one fitted unevenly (:data:`UNEVEN_SHARE`):
+    a servo-law term's twin, or an effect of the same kind on some of another's joints."""
+    out = []
+    for big in effects:
+        if big.effect in TWIN_OF:
+            kind, size = TWIN_OF[big.effect], abs(as_twin(big, robot))
+        elif big.effect in BY_NAME and not BY_NAME[big.effect].servo_law:
+            kind, size = big.effect, abs(big.params[BY_NAME[big.effect].key])
+        else:
+            continue
+        key = BY_NAME[kind].key
+        out.extend(i for i, e in enumerate(effects)
+                   if e is not big and e.effect == kind and abs(e.params[key]) < UNEVEN_SHARE * size
+                   and (big.effect in TWIN_OF or set(e.joints) <= set(big.joints)))
+    return sorted(set(out))
 
 
 class Namer(ServoLawSearch):

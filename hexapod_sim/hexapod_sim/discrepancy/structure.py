@@ -107,14 +107,15 @@ class _Objective:
         return out
 
 
-def fit_term(obj: _Objective, max_evals: int) -> np.ndarray:
-    """Parameters of ``obj``'s term that minimise the fitting reads' squared error (grid, then local search)."""
+def fit_term(obj: _Objective, max_evals: int, x0=None) -> np.ndarray:
+    """Parameters of ``obj``'s term that minimise the fitting reads' squared error (grid, then local search;
+    ``x0``: values it had, a start beside the grid's)."""
     term = obj.term
     if len(term.params) == 1:
         r = minimize_scalar(lambda v: obj.sse([v]), bounds=(obj.lo[0], obj.hi[0]), method='bounded',
                             options={'xatol': 1e-3 * (obj.hi[0] - obj.lo[0]), 'maxiter': 40})
         return np.array([r.x])
-    starts = sorted(_starts(term), key=lambda x: obj.sse(x))[:2]
+    starts = sorted(_starts(term) + ([tuple(x0)] if x0 is not None else []), key=lambda x: obj.sse(x))[:2]
     span = obj.hi - obj.lo
     best, best_f = np.asarray(starts[0], dtype=float), math.inf
     for x0 in starts:
@@ -199,6 +200,28 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
         # captures (a walk sagging far below the supply gave weak motors and load friction on 12 joints)
         return [t for t in found if BY_TERM[t.effect.effect].robot_wide], []
     return found, displaced
+
+
+def refit(replay: Replay, robot: Robot, split: Split, named: tuple, terms: list, scope_name,
+          settings: SearchSettings | None = None) -> list[FoundTerm]:
+    """``terms`` (found by :func:`search`) fitted again in turn with ``named`` and the other terms in place
+    (from the values they had), with their joints' held-out RMS error without and with them."""
+    s = settings or SearchSettings()
+    pred = Predictor(replay, robot, workers=1)
+    meas = {j: replay.reads[j].tick for j in replay.joints}
+    out = list(terms)
+    for i, t in enumerate(out):
+        e = t.effect
+        term = BY_TERM[e.effect]
+        base = tuple(named) + tuple(u.effect for k, u in enumerate(out) if k != i)
+        aff = sorted(affected_joints(term.name, e.joints) & set(replay.joints))
+        obj = _Objective(pred, split, meas, base, term, e.joints, aff)
+        new = obj.effect(fit_term(obj, s.max_evals, [e.params[p.key] for p in term.params]))
+        own = [j for j in e.joints if j in replay.reads]
+        out[i] = replace(t, effect=new, scope=scope_name(new.joints, replay.joints), words=term.describe(new.params),
+                         heldout_rmse_ticks_before=_current(pred, split, meas, base, own),
+                         heldout_rmse_ticks_after=_current(pred, split, meas, base + (new,), own))
+    return out
 
 
 def _supply_sag(pred, split, meas, base, named, todo, s: SearchSettings):
@@ -336,4 +359,4 @@ def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground:
     return out, notes
 
 
-__all__ = ['FoundTerm', 'SearchSettings', 'choose_terms', 'search', 'fit_term']
+__all__ = ['FoundTerm', 'SearchSettings', 'choose_terms', 'fit_term', 'refit', 'search']

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_model.description import Robot
+from hexapod_model.description import Effect, Robot
 from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy.effects import scope_name
 from hexapod_sim.discrepancy.findings import UNEXPLAINED_TICKS, FoundEffect
@@ -245,6 +245,41 @@ def widen(replays: Replays, effects: list, phases: dict, joints, ww: WholeWalk,
     return out, wide, ww
 
 
+def widen_to_legs(replays: Replays, effects: list, joints, progress=lambda msg: None) -> tuple[list, list]:
+    """Joint effects the swings found on part of one leg that the whole walk wants on the whole leg: a
+    walking coxa or tibia is read a few times a swing (4 and 5 held-out reads beside a femur's 261), so the
+    swings cannot confirm an effect there; the whole walk reads them in stance too. Each such effect (of the
+    list, not the servo law, not a payload) is replayed on its leg's analysed joints at its value, and kept
+    there when the leg's other joints then follow the recording by ``SEARCH_MIN_RATIO`` and
+    ``SEARCH_MIN_EXPLAINED`` of their excess over rounding, and the replay stays in step as long (a leg's
+    viscous damping found on its femur alone left the coxa at 0.90 ticks). -> (effects, [(found, widened)])."""
+    from hexapod_sim.discrepancy.effects import BY_NAME
+    rec, robot = replays.rec, replays.robot
+    out, moved = list(effects), []
+    res, until = replays.in_step(robot.with_effects(out), joints)
+    for e in effects:
+        legs = {j.leg for j in e.joints}
+        if e.effect not in BY_NAME or BY_NAME[e.effect].servo_law or e.effect == 'mass_error' or len(legs) != 1:
+            continue
+        leg_joints = tuple(j for j in joints if j.leg in legs)
+        extra = [j for j in leg_joints if j not in e.joints]
+        if not extra:
+            continue
+        trial = Effect(e.effect, leg_joints, dict(e.params))
+        rest = [x for x in out if x is not e]
+        progress(f'whole walk: {e.effect} on leg {next(iter(legs))}')
+        res2, until2 = replays.in_step(robot.with_effects(rest + [trial]), joints)
+        if until2 < until:
+            continue
+        b, a = joint_rms(rec, res, extra, until), joint_rms(rec, res2, extra, until)
+        excess = b ** 2 - ROUNDING_RMS ** 2
+        if (b > ROUNDING_TICKS and b / max(a, 1e-9) >= SEARCH_MIN_RATIO
+                and (b ** 2 - a ** 2) / excess >= SEARCH_MIN_EXPLAINED):
+            out, res, until = rest + [trial], res2, until2
+            moved.append((e, trial))
+    return out, moved
+
+
 def walk_ground(rec: Recording, ground: Ground | None) -> tuple[Ground, str]:
     """(ground, where it comes from) of the whole-walk replay: ``ground`` as given, else the recording's
     (``/sim/scene``), else a flat floor."""
@@ -357,16 +392,20 @@ def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
 
 def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
                      joints, search: bool = True, progress=lambda msg: None
-                     ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict]:
+                     ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict, list]:
     """The whole-walk comparison of :func:`analyse`'s walk path, the effects found on part of the robot
-    that it puts on every joint (:func:`widen`), what :func:`search_loaded` finds in its loaded phases
-    (with ``search``), and the notes for the report. ``ground``: None takes the recording's
-    (``/sim/scene``), else a flat floor."""
+    that it puts on every joint (:func:`widen`) and on a whole leg (:func:`widen_to_legs`), what
+    :func:`search_loaded` finds in its loaded phases (with ``search``), and the notes for the report.
+    ``ground``: None takes the recording's (``/sim/scene``), else a flat floor.
+    -> (comparison, notes, loaded finds, {kind: robot-wide effect}, [(effect, on its whole leg)])."""
     ground, origin = walk_ground(rec, ground)
     fitted = robot.with_effects(effects) if effects else None
     replays = Replays(rec, robot, ground)
     ww = compare(replays, fitted, phases, joints)
     effects, wide, ww = widen(replays, list(effects), phases, joints, ww, progress)
+    effects, moved = widen_to_legs(replays, effects, joints, progress)
+    if moved:
+        ww = compare(replays, robot.with_effects(effects), phases, joints)
     finds = search_loaded(replays, list(effects), ww, progress) if search else []
     if finds:
         ww = compare(replays, robot.with_effects(list(effects) + [f.effect for f in finds]), phases, joints)
@@ -382,10 +421,13 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     if j:
         notes.append(f'whole walk: largest RMS error where the legs carry the body: {j} in {ph.replace("_", "-")}, '
                      f'{v:.2f} ticks' + (' (tick rounding)' if v <= ROUNDING_TICKS else ''))
+    for e, leg in moved:
+        notes.append(f'whole walk: {e.effect.replace("_", " ")} found on {", ".join(map(str, e.joints))} makes the '
+                     f'whole walk follow the leg\'s other joints only on the whole leg: put on leg {leg.joints[0].leg}')
     for kind in wide:
         notes.append(f'whole walk: {kind.replace("_", " ")} found on part of the robot keeps the replay in step only '
                      'when it acts on every joint: put on the whole robot')
-    return ww, notes, finds, wide
+    return ww, notes, finds, wide, moved
 
 
 # Effects that show where a leg carries the body (a load reversal, a hold under load) more than in a free
