@@ -331,6 +331,12 @@ def _name_effects(replay: Replay, robot: Robot, split, settings: FitSettings, pr
         blind = unobservable(namer.pred, split, pred0, settings.candidates, settings.min_drop_ticks,
                              settings.min_gain_ticks2)
         effects, accepted = namer.run()
+        # a small part of a larger effect is that effect fitted unevenly (fit.UNEVEN_SHARE): not named, and
+        # the rest fitted again without it
+        uneven = uneven_parts(effects, robot)
+        if uneven:
+            accepted = namer.refine([h for i, h in enumerate(accepted) if i not in uneven])
+            effects = [h.effect for h in accepted]
         step('before/after on held-out data')
         pred1 = namer.pred.predict(effects, replay.joints)
         found = _found_effects(namer.pred, replay, split, cond, effects, accepted, pred0, pred1)
@@ -339,10 +345,8 @@ def _name_effects(replay: Replay, robot: Robot, split, settings: FitSettings, pr
         # femur was taken for a torque limit, held-out 3.94 -> 2.22 ticks)
         weak = [i for i, f in enumerate(found) if _explained(f) < settings.min_final_explained]
         nearest = [(found[i], accepted[i]) for i in weak]
-        # a small part of a larger effect is that effect fitted unevenly (fit.UNEVEN_SHARE): not named
-        uneven = uneven_parts(effects, robot)
-        if weak or uneven:
-            keep = [i for i in range(len(found)) if i not in weak and i not in uneven]
+        if weak:
+            keep = [i for i in range(len(found)) if i not in weak]
             found = [found[i] for i in keep]
             effects = [effects[i] for i in keep]
             pred1 = namer.pred.predict(effects, replay.joints)

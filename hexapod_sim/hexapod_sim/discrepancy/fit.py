@@ -445,7 +445,7 @@ class Namer(ServoLawSearch):
             effects.append(best.effect)
             accepted.append(best)
         if len(accepted) > 1:
-            accepted = self._refine(accepted, given)
+            accepted = self.refine(accepted, given)
         return [h.effect for h in accepted], accepted
 
     def _smaller_scope(self, best: Hypothesis, ok: list[Hypothesis], effect: str | None) -> Hypothesis:
@@ -479,7 +479,7 @@ class Namer(ServoLawSearch):
                 break
         return out
 
-    def _refine(self, accepted: list[Hypothesis], given=()) -> list[Hypothesis]:
+    def refine(self, accepted: list[Hypothesis], given=()) -> list[Hypothesis]:
         """Refit each parameter once with all other accepted effects (and ``given``) in place."""
         out = list(accepted)
         for i, h in enumerate(out):
