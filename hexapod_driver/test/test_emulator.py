@@ -353,6 +353,8 @@ def test_reply_latency_holds_replies_back_without_blocking_instructions(robot):
         ser.timeout = 5.0
         assert ser.read(12) == p.encode_status(1, 0) * 2          # both replies, late, in order
         ser.close()
+        ping, write = list(emu.log)[-2:]
+        assert ping.t_reply - ping.t >= 0.3 and write.t_reply - write.t >= 0.3     # the log says when they went
 
 
 def test_a_backend_that_is_not_installed_is_named_in_one_error_line(monkeypatch, capsys):

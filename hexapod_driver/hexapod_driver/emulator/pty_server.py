@@ -37,7 +37,8 @@ class LogEntry:
     data: bytes
     replied: bool
     error: int
-    wall_reply: float = float('nan')   # time.time() when the status packet was written
+    wall_reply: float = float('nan')   # time.time() when the status packet was written (held back by an
+                                       # adapter latency: when it was written to the host, late)
     t_reply: float = float('nan')      # emulator time when the status packet was written (clock of ``t``)
     reply_params: bytes = b''          # parameters of the status packet (the data of a READ)
     reply_delay_s: float = 0.0         # the servo's return delay time applied before replying
@@ -89,7 +90,7 @@ class BusEmulator:
         self._t0 = 0.0
         self._parser = p.PacketParser()
         self.packets = 0
-        self._late: list[tuple[float, int, bytes]] = []
+        self._late: list[tuple[float, int, bytes, LogEntry]] = []     # (due, order, reply, its log entry)
         self._late_seq = iter(range(1 << 62))
         self._late_cv = threading.Condition()
         self._late_thread: threading.Thread | None = None
@@ -151,7 +152,7 @@ class BusEmulator:
                 if not self._late:
                     self._late_cv.wait(0.05)
                     continue
-                due, _seq, reply = self._late[0]
+                due, _seq, reply, entry = self._late[0]
                 left = due - self.clock()
                 if left > 2e-4:
                     self._late_cv.wait(left - 1.5e-4)
@@ -160,6 +161,7 @@ class BusEmulator:
             _sleep_until(self.clock, due)
             fd = self._master
             if fd is not None:
+                entry.t_reply, entry.wall_reply = self.now(), time.time()     # as in _send: before the write
                 try:
                     os.write(fd, reply)
                 except OSError:
@@ -281,7 +283,7 @@ class BusEmulator:
         latency = self.faults.reply_latency_s
         if latency > 0:                          # delivered by the late-reply thread
             with self._late_cv:
-                heapq.heappush(self._late, (self._t0 + t_arrival + delay + latency, next(self._late_seq), reply))
+                heapq.heappush(self._late, (self._t0 + t_arrival + delay + latency, next(self._late_seq), reply, entry))
                 self._late_cv.notify()
             return
         if delay > 0:
