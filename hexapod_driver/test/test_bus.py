@@ -153,6 +153,45 @@ def test_wrong_model_is_named_at_startup(robot):
         b.close()
 
 
+def test_a_servo_at_status_return_level_0_is_set_to_2_at_startup(robot):
+    with BusEmulator(robot) as emu:
+        emu.servo(7).set_register('status_return_level', 0)          # answers PING only
+        b = make_bus(robot, emu)
+        b.close()
+        said = [(e.kind, e.servo_id) for e in b.take_events() if e.kind is EventKind.NO_READ_REPLIES]
+        assert said == [(EventKind.NO_READ_REPLIES, 7)]
+        assert emu.servo(7).get('status_return_level') == 2
+
+
+def test_a_read_reply_that_comes_late_at_startup_is_not_taken_for_status_return_level_0(robot, monkeypatch):
+    # On a loaded host one reply can come after the driver gave up on it: the READ of the model
+    # number after an answered PING. The servo does answer READs; nothing may say otherwise or
+    # write its EEPROM.
+    from hexapod_driver.bus.transport import Transport
+    real, held = Transport.transact, []
+
+    def transact(self, sid, instruction, params, n_reply, expect_reply=True):
+        late = sid == 7 and instruction == p.READ and params[0] == 0 and not held
+        if late:
+            held.append(sid)
+            emu.faults.set_reply_latency(0.25)                       # after the start-up reply timeout
+        try:
+            return real(self, sid, instruction, params, n_reply, expect_reply)
+        finally:
+            if late:
+                emu.faults.set_reply_latency(0.0)
+    monkeypatch.setattr(Transport, 'transact', transact)
+    with BusEmulator(robot) as emu:
+        b = make_bus(robot, emu)
+        b.close()
+        kinds = {e.kind for e in b.take_events()}
+        reads = [e for e in emu.log if e.servo_id == 7 and e.instruction == p.READ and e.address == 0]
+        assert held and reads[0].replied
+        assert EventKind.NO_READ_REPLIES not in kinds
+        assert not [e for e in emu.log if e.instruction == p.WRITE and e.address == 16]
+        assert len(reads) == 2 and reads[1].data == b'\x03'          # asked again, a byte more
+
+
 def test_config_validation_names_the_parameter(robot):
     with pytest.raises(ValueError, match="fault_policy: 'hold' no longer exists"):
         DynamixelBus(robot, DriverConfig(fault_policy='hold'))

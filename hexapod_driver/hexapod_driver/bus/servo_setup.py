@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
-from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS
+from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
 from hexapod_driver import protocol as p
 from hexapod_driver.bus.events import EventKind
@@ -66,8 +66,9 @@ class ServoSetup:
         for j in bus.joints:
             sid = bus.mount[j].servo_id
             model, result, why = None, None, ''
-            for _ in range(attempts):
-                model, result, why = self._ping(sid, rtts)
+            for k in range(attempts):
+                # only a first PING is timed: a retry's answer may be the late one to the PING before
+                model, result, why = self._ping(sid, rtts if k == 0 else None)
                 if result == COMM_SUCCESS:
                     break
             if result != COMM_SUCCESS:
@@ -119,16 +120,21 @@ class ServoSetup:
             return None, result, f'PING: {result_text(result)}'
         if rtts is not None:
             rtts.append(tr.last_ok_t - tr.last_tx_time)
-        data, result, _err = tr.transact(sid, p.READ, [0, 2], 2)
-        if result == COMM_RX_TIMEOUT:
-            # answers PING but not READ: status return level 0. Set it to 2 (EEPROM; the write
+        # every attempt one byte longer (Transport.read): a reply that comes late, on a loaded
+        # host, is not taken for the answer to the next attempt, nor for a missing reply
+        attempts = self.bus.attempts()
+        read = tr.read(sid, 0, 2, attempts)
+        if read.data is None and read.failures == [result_text(COMM_RX_TIMEOUT)] * attempts:
+            # answers PING but never READ: status return level 0. Set it to 2 (EEPROM; the write
             # itself is not answered at level 0) and ask again.
             tr.send(sid, p.WRITE, [16, p.RETURN_ALL])
             self.bus.events.emit(EventKind.NO_READ_REPLIES, servo_id=sid, value=p.RETURN_ALL)
-            data, result, _err = tr.transact(sid, p.READ, [0, 2], 2)
-        if result != COMM_SUCCESS:
-            return None, result, f'READ of the model number: {result_text(result)}'
-        return u16(data), COMM_SUCCESS, ''
+            read = tr.read(sid, 0, 2, attempts)
+        if read.data is None:
+            last = read.failures[-1]
+            return (None, COMM_RX_TIMEOUT if last == result_text(COMM_RX_TIMEOUT) else COMM_RX_CORRUPT,
+                    f'READ of the model number: {last}')
+        return u16(read.data), COMM_SUCCESS, ''
 
     # ------------------------------------------------------------------ configuration
     def configure(self, enable_torque: bool) -> None:
