@@ -405,6 +405,14 @@ def ping_round_trip_bounds(emu):
     return out
 
 
+def reply_timeout_s(late_replies_line, baud_rate):
+    """The driver's reply timeout for a READ of 2 bytes after start-up widened it (transport.py)."""
+    import re
+    widened_ms = float(re.search(r'widened .* to ([\d.]+)', late_replies_line).group(1))
+    margin_ms = float(next(a for a in PARAMS if a.startswith('timeout_margin_ms:=')).partition(':=')[2])
+    return 8 * p.BITS_PER_BYTE / baud_rate + (2.0 * widened_ms + margin_ms) * 1e-3
+
+
 def test_late_replies_are_never_paired_with_the_wrong_request_and_the_cause_is_named(robot, ros):
     node, ex = ros
     latency_s = 0.016                                               # FTDI latency timer at its default
@@ -415,8 +423,13 @@ def test_late_replies_are_never_paired_with_the_wrong_request_and_the_cause_is_n
         cmd_pub = node.create_publisher(JointState, contract.JOINT_COMMANDS, 10)
         sched_pub = node.create_publisher(ReadSchedule, contract.READ_SCHEDULE, 10)
         try:
-            wait_for(ex, lambda: inbox.states, 60.0, proc, 'first reads')
+            wait_for(ex, lambda: inbox.states and testing.logged(out.text(), EventKind.LATE_REPLIES), 60.0, proc,
+                     'first reads')
             pings = ping_round_trip_bounds(emu)
+            # now and then a reply later than the reply timeout (a USB stall), answered while the
+            # driver waits for its next attempt: only the request/reply pairing keeps it apart
+            timeout_s = reply_timeout_s(testing.logged(out.text(), EventKind.LATE_REPLIES)[0], robot.bus.baud_rate)
+            emu.faults.hold_replies(1.2 * timeout_s - latency_s, ids=1, count=None, probability=0.05)
             sched = ReadSchedule()
             sched.joint_names = ['leg1_coxa']
             target = [0.8]
@@ -448,6 +461,7 @@ def test_late_replies_are_never_paired_with_the_wrong_request_and_the_cause_is_n
     assert low - 0.1 <= rtt_ms <= high + 0.1, (low, rtt_ms, high, text)
     assert late_ms >= latency_s * 1e3 - 1.0 and new_ms >= late_ms / 2.0, text   # the timeout counts it twice
     samples = [m for m in inbox.states if m.name[0] == 'leg1_coxa']
+    assert any(e.servo_id == 1 and e.t_reply - e.t > timeout_s for e in emu.log)   # such replies came
     ticks = set()
     for m in samples:
         stamp = contract.stamp_seconds(m.header.stamp)
