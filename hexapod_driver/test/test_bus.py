@@ -496,7 +496,9 @@ def test_reads_are_paced_and_goals_do_not_wait_for_the_read_slot(robot, emu):
         assert r.wrote and r.samples
         write = next(e for e in emu.log if e.instruction == p.SYNC_WRITE)
         read = next(e for e in emu.log if e.instruction == p.READ)
-        assert write.wall < read.wall - 0.03         # written when it came, not at the next read slot
-        assert write.wall - sent[0][0] < read.wall - sent[0][0]
+        # written when it came, before the read slot the driver's own stamps set (a timer late by up
+        # to 80 ms on a loaded machine still passes), and the read not before its slot
+        slot = stamps[-1] + 0.1
+        assert sent[0][0] <= write.wall < slot <= read.wall, (sent[0][0] - slot, write.wall - slot, read.wall - slot)
     finally:
         b.close()
