@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Sequence
 
-import numpy as np
 from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
 from hexapod_driver import protocol as p
@@ -56,7 +55,8 @@ class ServoSetup:
     def verify(self) -> None:
         """PING every joint's servo and check its model number; raise naming every bad one.
 
-        Also measures the reply latency (median PING round trip minus its wire time); replies far
+        Also measures the reply latency (the fastest PING round trip minus its wire time: the
+        adapter's latency timer holds back every reply, a loaded host only some); replies far
         later than the wire time mean the USB adapter's latency timer is not 1 ms: the reply
         timeout is widened to cover it (so no reply is declared lost and then taken for the answer
         to a later request) and a warning says what to fix."""
@@ -103,14 +103,14 @@ class ServoSetup:
         if not rtts:
             return
         wire = 12 * p.BITS_PER_BYTE / self.transport.baud_rate            # PING: 6 bytes out, 6 back
-        late = max(0.0, float(np.median(rtts)) - wire)
+        late = max(0.0, min(rtts) - wire)           # the adapter delays every reply, host load some
         self.bus.reply_latency_s = late
         if late * 1e3 > max(2.0, 2.0 * self.config.latency_timer_ms + 1.0):
             port = self.transport.port
             old = port.latency_timer_ms
             port.latency_timer_ms = max(old, (late * 1e3 + 1.0) / 2.0)       # the timeout counts it twice
             self.bus.events.emit(EventKind.LATE_REPLIES, late_ms=late * 1e3, rtt_ms=(late + wire) * 1e3,
-                                 wire_us=wire * 1e6, old_ms=old, new_ms=port.latency_timer_ms)
+                                 pings=len(rtts), wire_us=wire * 1e6, old_ms=old, new_ms=port.latency_timer_ms)
 
     def _ping(self, sid: int, rtts: list[float] | None = None) -> tuple[int | None, int, str]:
         """PING, then READ the model number: (model, result, what failed)."""
