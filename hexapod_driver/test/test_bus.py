@@ -153,6 +153,58 @@ def test_wrong_model_is_named_at_startup(robot):
         b.close()
 
 
+def test_a_servo_at_status_return_level_0_is_set_to_2_at_startup(robot):
+    with BusEmulator(robot) as emu:
+        emu.servo(7).set_register('status_return_level', 0)          # answers PING only
+        b = make_bus(robot, emu)
+        b.close()
+        said = [(e.kind, e.servo_id) for e in b.take_events() if e.kind is EventKind.NO_READ_REPLIES]
+        assert said == [(EventKind.NO_READ_REPLIES, 7)]
+        assert emu.servo(7).get('status_return_level') == 2
+
+
+def test_a_read_reply_that_comes_late_at_startup_is_not_taken_for_status_return_level_0(robot, monkeypatch):
+    # On a loaded host one reply can come after the driver gave up on it: the READ of the model
+    # number after an answered PING. The servo does answer READs; nothing may say otherwise or
+    # write its EEPROM.
+    from hexapod_driver.bus.transport import Transport
+    real, held = Transport.transact, []
+
+    def transact(self, sid, instruction, params, n_reply, expect_reply=True):
+        late = sid == 7 and instruction == p.READ and params[0] == 0 and not held
+        if late:
+            held.append(sid)
+            emu.faults.set_reply_latency(0.25)                       # after the start-up reply timeout
+        try:
+            return real(self, sid, instruction, params, n_reply, expect_reply)
+        finally:
+            if late:
+                emu.faults.set_reply_latency(0.0)
+    monkeypatch.setattr(Transport, 'transact', transact)
+    with BusEmulator(robot) as emu:
+        b = make_bus(robot, emu)
+        b.close()
+        kinds = {e.kind for e in b.take_events()}
+        reads = [e for e in emu.log if e.servo_id == 7 and e.instruction == p.READ and e.address == 0]
+        assert held and reads[0].replied
+        assert EventKind.NO_READ_REPLIES not in kinds
+        assert not [e for e in emu.log if e.instruction == p.WRITE and e.address == 16]
+        assert len(reads) == 2 and reads[1].data == b'\x03'          # asked again, a byte more
+
+
+def test_replies_late_now_and_then_are_not_taken_for_the_adapters_latency_timer(robot):
+    # The adapter's latency timer holds back every reply, a loaded host only some: here the PINGs
+    # of 10 servos of 18 are answered 20 ms late (within start-up's reply timeout), the others at once.
+    with BusEmulator(robot) as emu:
+        for sid in range(1, 11):
+            emu.faults.hold_replies(0.02, ids=sid, count=1)            # a servo's first reply: its PING
+        b = make_bus(robot, emu)
+        b.close()
+        held = [e for e in emu.log if e.instruction == p.PING and e.t_reply - e.t >= 0.02]
+        assert len(held) == 10                                       # the median PING was late
+        assert EventKind.LATE_REPLIES not in {e.kind for e in b.take_events()}
+
+
 def test_config_validation_names_the_parameter(robot):
     with pytest.raises(ValueError, match="fault_policy: 'hold' no longer exists"):
         DynamixelBus(robot, DriverConfig(fault_policy='hold'))
@@ -457,7 +509,9 @@ def test_reads_are_paced_and_goals_do_not_wait_for_the_read_slot(robot, emu):
         assert r.wrote and r.samples
         write = next(e for e in emu.log if e.instruction == p.SYNC_WRITE)
         read = next(e for e in emu.log if e.instruction == p.READ)
-        assert write.wall < read.wall - 0.03         # written when it came, not at the next read slot
-        assert write.wall - sent[0][0] < read.wall - sent[0][0]
+        # written when it came, before the read slot the driver's own stamps set (a timer late by up
+        # to 80 ms on a loaded machine still passes), and the read not before its slot
+        slot = stamps[-1] + 0.1
+        assert sent[0][0] <= write.wall < slot <= read.wall, (sent[0][0] - slot, write.wall - slot, read.wall - slot)
     finally:
         b.close()

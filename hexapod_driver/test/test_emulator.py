@@ -353,6 +353,23 @@ def test_reply_latency_holds_replies_back_without_blocking_instructions(robot):
         ser.timeout = 5.0
         assert ser.read(12) == p.encode_status(1, 0) * 2          # both replies, late, in order
         ser.close()
+        ping, write = list(emu.log)[-2:]
+        assert ping.t_reply - ping.t >= 0.3 and write.t_reply - write.t >= 0.3     # the log says when they went
+
+
+def test_a_held_reply_comes_late_and_the_replies_behind_it_wait(robot):
+    with BusEmulator(robot) as emu:
+        emu.faults.set_reply_latency(0.001)
+        emu.faults.hold_replies(0.2, ids=1, count=1)
+        ser = _open(emu.port, robot.bus.baud_rate)
+        ser.timeout = 5.0
+        ser.write(p.encode_instruction(1, p.PING) + p.encode_instruction(2, p.PING))
+        assert ser.read(12) == p.encode_status(1, 0) + p.encode_status(2, 0)     # in the order asked
+        ser.write(p.encode_instruction(1, p.PING))
+        assert ser.read(6) == p.encode_status(1, 0)
+        ser.close()
+        held, behind = list(emu.log)[-3:-1]
+        assert held.t_reply - held.t >= 0.2 and behind.t_reply >= held.t_reply    # on the emulator's clock
 
 
 def test_a_backend_that_is_not_installed_is_named_in_one_error_line(monkeypatch, capsys):

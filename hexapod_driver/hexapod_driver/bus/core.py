@@ -64,7 +64,7 @@ class DynamixelBus(ServoBus, Scheduled):
         self.timing = TimingStats()
         self.estopped = False
         self.last_failure = ''
-        self.reply_latency_s = math.nan            # measured at start-up (median PING round trip - wire)
+        self.reply_latency_s = math.nan            # measured at start-up (fastest PING round trip - wire)
         self.events = EventLog(clock)
         self.commands = Commands(robot, self.joints, self.to_tick, config.limit_policy, config.command_timeout_s,
                                  clock)

@@ -40,8 +40,8 @@ class EventKind(enum.Enum):
     CLOCK_PAUSED = ('clock_paused', WARN, 'the clock is not advancing (at {now:.3f} s for {wall_s:.1f} s of wall '
                     'time: use_sim_time with a paused /clock?): reads wait for it')
     CLOCK_RESUMED = ('clock_resumed', INFO, 'the clock advances again (at {now:.3f} s)')
-    LATE_REPLIES = ('late_replies', WARN, "replies arrive ~{late_ms:.0f} ms late (median PING round trip "
-                    "{rtt_ms:.1f} ms, wire time {wire_us:.0f} us): the USB adapter's latency timer is probably "
+    LATE_REPLIES = ('late_replies', WARN, "replies arrive ~{late_ms:.0f} ms late (the fastest of {pings} PING "
+                    "round trips {rtt_ms:.1f} ms, wire time {wire_us:.0f} us): the USB adapter's latency timer is probably "
                     "at its 16 ms default. Set the adapter's latency_timer to 1 (udev rule, see "
                     'docs/real-robot.md). Until then every read waits for it: reply timeout widened from '
                     'latency_timer_ms={old_ms:g} to {new_ms:.1f}')

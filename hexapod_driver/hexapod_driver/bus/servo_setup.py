@@ -12,8 +12,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Sequence
 
-import numpy as np
-from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS
+from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
 from hexapod_driver import protocol as p
 from hexapod_driver.bus.events import EventKind
@@ -56,7 +55,8 @@ class ServoSetup:
     def verify(self) -> None:
         """PING every joint's servo and check its model number; raise naming every bad one.
 
-        Also measures the reply latency (median PING round trip minus its wire time); replies far
+        Also measures the reply latency (the fastest PING round trip minus its wire time: the
+        adapter's latency timer holds back every reply, a loaded host only some); replies far
         later than the wire time mean the USB adapter's latency timer is not 1 ms: the reply
         timeout is widened to cover it (so no reply is declared lost and then taken for the answer
         to a later request) and a warning says what to fix."""
@@ -66,8 +66,9 @@ class ServoSetup:
         for j in bus.joints:
             sid = bus.mount[j].servo_id
             model, result, why = None, None, ''
-            for _ in range(attempts):
-                model, result, why = self._ping(sid, rtts)
+            for k in range(attempts):
+                # only a first PING is timed: a retry's answer may be the late one to the PING before
+                model, result, why = self._ping(sid, rtts if k == 0 else None)
                 if result == COMM_SUCCESS:
                     break
             if result != COMM_SUCCESS:
@@ -102,14 +103,14 @@ class ServoSetup:
         if not rtts:
             return
         wire = 12 * p.BITS_PER_BYTE / self.transport.baud_rate            # PING: 6 bytes out, 6 back
-        late = max(0.0, float(np.median(rtts)) - wire)
+        late = max(0.0, min(rtts) - wire)           # the adapter delays every reply, host load some
         self.bus.reply_latency_s = late
         if late * 1e3 > max(2.0, 2.0 * self.config.latency_timer_ms + 1.0):
             port = self.transport.port
             old = port.latency_timer_ms
             port.latency_timer_ms = max(old, (late * 1e3 + 1.0) / 2.0)       # the timeout counts it twice
             self.bus.events.emit(EventKind.LATE_REPLIES, late_ms=late * 1e3, rtt_ms=(late + wire) * 1e3,
-                                 wire_us=wire * 1e6, old_ms=old, new_ms=port.latency_timer_ms)
+                                 pings=len(rtts), wire_us=wire * 1e6, old_ms=old, new_ms=port.latency_timer_ms)
 
     def _ping(self, sid: int, rtts: list[float] | None = None) -> tuple[int | None, int, str]:
         """PING, then READ the model number: (model, result, what failed)."""
@@ -119,16 +120,21 @@ class ServoSetup:
             return None, result, f'PING: {result_text(result)}'
         if rtts is not None:
             rtts.append(tr.last_ok_t - tr.last_tx_time)
-        data, result, _err = tr.transact(sid, p.READ, [0, 2], 2)
-        if result == COMM_RX_TIMEOUT:
-            # answers PING but not READ: status return level 0. Set it to 2 (EEPROM; the write
+        # every attempt one byte longer (Transport.read): a reply that comes late, on a loaded
+        # host, is not taken for the answer to the next attempt, nor for a missing reply
+        attempts = self.bus.attempts()
+        read = tr.read(sid, 0, 2, attempts)
+        if read.data is None and read.failures == [result_text(COMM_RX_TIMEOUT)] * attempts:
+            # answers PING but never READ: status return level 0. Set it to 2 (EEPROM; the write
             # itself is not answered at level 0) and ask again.
             tr.send(sid, p.WRITE, [16, p.RETURN_ALL])
             self.bus.events.emit(EventKind.NO_READ_REPLIES, servo_id=sid, value=p.RETURN_ALL)
-            data, result, _err = tr.transact(sid, p.READ, [0, 2], 2)
-        if result != COMM_SUCCESS:
-            return None, result, f'READ of the model number: {result_text(result)}'
-        return u16(data), COMM_SUCCESS, ''
+            read = tr.read(sid, 0, 2, attempts)
+        if read.data is None:
+            last = read.failures[-1]
+            return (None, COMM_RX_TIMEOUT if last == result_text(COMM_RX_TIMEOUT) else COMM_RX_CORRUPT,
+                    f'READ of the model number: {last}')
+        return u16(read.data), COMM_SUCCESS, ''
 
     # ------------------------------------------------------------------ configuration
     def configure(self, enable_torque: bool) -> None:

@@ -19,7 +19,8 @@ What the horns do is a *backend*:
 
 Fault injection (:class:`Faults`): dropped replies, corrupt checksums, late (stale) replies ahead of
 the real one, every reply held back by an adapter latency (:meth:`Faults.set_reply_latency`, the
-FTDI latency timer), a servo that disappears,
+FTDI latency timer), a reply held back longer still, with the replies behind it
+(:meth:`Faults.hold_replies`, a USB stall), a servo that disappears,
 overheating (temperature above the limit at address 11), overload, input voltage, and the whole
 port vanishing (:meth:`BusEmulator.disconnect`) and coming back (:meth:`BusEmulator.reconnect`,
 behind a stable symlink like a udev name). A servo whose baud rate register (address 4) does not

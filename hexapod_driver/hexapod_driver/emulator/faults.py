@@ -1,5 +1,5 @@
-"""Fault injection of the emulated bus: dropped, corrupt and stale replies, adapter latency, a servo
-that disappears, overheating, overload and supply voltage."""
+"""Fault injection of the emulated bus: dropped, corrupt and stale replies, adapter latency, replies
+held back longer (a USB stall), a servo that disappears, overheating, overload and supply voltage."""
 from __future__ import annotations
 
 import random
@@ -24,6 +24,7 @@ class Faults:
         self._drop: list[tuple[set[int] | None, int | None, float]] = []
         self._corrupt: list[tuple[set[int] | None, int | None, float]] = []
         self._stale: list[tuple[set[int] | None, int | None, float]] = []
+        self._hold: list[tuple[set[int] | None, int | None, float, float]] = []   # ..., seconds
         self.missing: set[int] = set()
         self.temperature_override: dict[int, float] = {}   # servo id -> present temperature, over the backend's
         self._before_override: dict[int, float] = {}
@@ -57,7 +58,7 @@ class Faults:
         """End a rule of :meth:`drop_replies` / :meth:`corrupt_replies` / :meth:`stale_replies` made
         with ``count=None`` (a counted rule ends by itself); unknown rules are ignored."""
         with self._emu.lock:
-            for rules in (self._drop, self._corrupt, self._stale):
+            for rules in (self._drop, self._corrupt, self._stale, self._hold):
                 if rule in rules:
                     rules.remove(rule)
                     return
@@ -76,6 +77,17 @@ class Faults:
             raise EmulatorError(f'reply latency must be >= 0, got {seconds}')
         with self._emu.lock:
             self.reply_latency_s = float(seconds)
+
+    def hold_replies(self, seconds: float, ids=None, count: int | None = 1, probability: float = 1.0) -> tuple:
+        """The next ``count`` replies (or each with ``probability`` if ``count`` is None) reach the host
+        ``seconds`` later than the latency alone brings them, as in a USB stall; the replies behind
+        one wait for it (the adapter is a FIFO). Returns the rule, for :meth:`cancel`."""
+        if not seconds > 0:
+            raise EmulatorError(f'hold must be > 0 s, got {seconds}')
+        rule = (self._ids(ids), count, probability, float(seconds))
+        with self._emu.lock:
+            self._hold.append(rule)
+        return rule
 
     def remove_servo(self, servo_id: int) -> None:
         """The servo disappears from the bus (cable cut): it neither answers nor executes."""
@@ -126,6 +138,7 @@ class Faults:
             self._drop.clear()
             self._corrupt.clear()
             self._stale.clear()
+            self._hold.clear()
             self.missing.clear()
 
     @staticmethod
@@ -142,6 +155,18 @@ class Faults:
                     rules[i] = (ids, count - 1, prob)
             return True
         return False
+
+    def _hold_s(self, servo_id: int) -> float:
+        for i, (ids, count, prob, seconds) in enumerate(self._hold):
+            if ids is not None and servo_id not in ids or self._rng.random() >= prob:
+                continue
+            if count is not None:
+                if count <= 1:
+                    del self._hold[i]
+                else:
+                    self._hold[i] = (ids, count - 1, prob, seconds)
+            return seconds
+        return 0.0
 
     def _should_drop(self, servo_id: int) -> bool:
         if self._match(self._drop, self._rng, servo_id):

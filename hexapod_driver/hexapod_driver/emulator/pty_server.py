@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import collections
 import heapq
+import math
 import os
 import select
 import termios
@@ -37,7 +38,8 @@ class LogEntry:
     data: bytes
     replied: bool
     error: int
-    wall_reply: float = float('nan')   # time.time() when the status packet was written
+    wall_reply: float = float('nan')   # time.time() when the status packet was written (held back by the
+                                       # adapter latency or a stall: when it was written to the host)
     t_reply: float = float('nan')      # emulator time when the status packet was written (clock of ``t``)
     reply_params: bytes = b''          # parameters of the status packet (the data of a READ)
     reply_delay_s: float = 0.0         # the servo's return delay time applied before replying
@@ -89,7 +91,7 @@ class BusEmulator:
         self._t0 = 0.0
         self._parser = p.PacketParser()
         self.packets = 0
-        self._late: list[tuple[float, int, bytes]] = []
+        self._late: list[tuple[float, int, bytes, LogEntry]] = []     # (due, order, reply, its log entry)
         self._late_seq = iter(range(1 << 62))
         self._late_cv = threading.Condition()
         self._late_thread: threading.Thread | None = None
@@ -151,7 +153,7 @@ class BusEmulator:
                 if not self._late:
                     self._late_cv.wait(0.05)
                     continue
-                due, _seq, reply = self._late[0]
+                due, _seq, reply, entry = self._late[0]
                 left = due - self.clock()
                 if left > 2e-4:
                     self._late_cv.wait(left - 1.5e-4)
@@ -160,6 +162,7 @@ class BusEmulator:
             _sleep_until(self.clock, due)
             fd = self._master
             if fd is not None:
+                entry.t_reply, entry.wall_reply = self.now(), time.time()     # as in _send: before the write
                 try:
                     os.write(fd, reply)
                 except OSError:
@@ -267,21 +270,24 @@ class BusEmulator:
             replies = []
             with self.lock:
                 for pkt in self._parser.feed(data):
-                    self._reply_delay = 0.0
+                    self._reply_delay = self._reply_hold = 0.0
                     reply = self._handle(pkt, t_arrival, wall)
                     if reply is not None:
                         self.log[-1].reply_delay_s = self._reply_delay
-                        replies.append((reply, self._reply_delay, len(pkt.params) + 6, self.log[-1]))
-            for reply, delay, n_in, entry in replies:
-                self._send(reply, t_arrival, delay, n_in, entry)
+                        replies.append((reply, self._reply_delay, self._reply_hold, len(pkt.params) + 6,
+                                        self.log[-1]))
+            for reply, delay, hold, n_in, entry in replies:
+                self._send(reply, t_arrival, delay, hold, n_in, entry)
 
-    def _send(self, reply: bytes, t_arrival: float, delay: float, n_instruction_bytes: int, entry: 'LogEntry') -> None:
+    def _send(self, reply: bytes, t_arrival: float, delay: float, hold: float, n_instruction_bytes: int,
+              entry: 'LogEntry') -> None:
         if self.wire_time:
             delay += (n_instruction_bytes + len(reply)) * p.BITS_PER_BYTE / self.baud_rate
-        latency = self.faults.reply_latency_s
-        if latency > 0:                          # delivered by the late-reply thread
+        latency = self.faults.reply_latency_s + hold
+        if latency > 0:                          # delivered by the late-reply thread, in order (a FIFO)
             with self._late_cv:
-                heapq.heappush(self._late, (self._t0 + t_arrival + delay + latency, next(self._late_seq), reply))
+                self._last_due = max(self._t0 + t_arrival + delay + latency, self._last_due)
+                heapq.heappush(self._late, (self._last_due, next(self._late_seq), reply, entry))
                 self._late_cv.notify()
             return
         if delay > 0:
@@ -297,6 +303,8 @@ class BusEmulator:
             pass
 
     _reply_delay = 0.0
+    _reply_hold = 0.0
+    _last_due = -math.inf
 
     def _speed_ticks_per_s(self, slot: int) -> float:
         s = next(x for x in self.servos if x.slot == slot)
@@ -458,6 +466,7 @@ class BusEmulator:
             pkt[-1] ^= 0x5A
         if self.faults._should_prepend_stale(s.servo_id):
             pkt[:0] = p.encode_status(s.servo_id, 0)
+        self._reply_hold = self.faults._hold_s(s.servo_id)
         entry.replied = True
         entry.reply_params = bytes(params)
         entry.tx = bytes(pkt)
