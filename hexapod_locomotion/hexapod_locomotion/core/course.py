@@ -120,11 +120,14 @@ class CourseKeeper:
         """The heading error now: its mean over the last cycle, carried on to now by its trend from the
         cycle before (``trend`` of it; the mean lags by about half a cycle, and a correction acting on
         that late overshoots)."""
-        e_last, t_last = (float(np.mean([h[2] - h[1] for h in last])), float(np.mean([h[0] for h in last])))
+        def mean_error(window) -> tuple[float, float]:
+            """(mean heading error, mean time) of a window of the history."""
+            return float(np.mean([h[2] - h[1] for h in window])), float(np.mean([h[0] for h in window]))
+        e_last, t_last = mean_error(last)
         before = self._hist[:len(self._hist) - len(last)]
         if len(before) < max(len(last) - 1, 1):
             return wrap_angle(e_last)
-        e_before, t_before = float(np.mean([h[2] - h[1] for h in before])), float(np.mean([h[0] for h in before]))
+        e_before, t_before = mean_error(before)
         slope = (e_last - e_before) / (t_last - t_before)
         return wrap_angle(e_last + self.config.trend * slope * (t_s - t_last))
 
