@@ -123,7 +123,8 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
     effects, found, terms = _servo_law_beside(replay, robot, split, cond, settings, effects, found, terms, step)
     if law_first and not found:          # the terms were found beside a servo-law term that is not confirmed
         return [], found, unexplained, res1, jfit
-    return (terms, found) + _judged_with(replay, robot, split, cond, tuple(effects) + tuple(t.effect for t in terms),
+    found, terms = _twins_as_servo_law(replay, robot, split, cond, settings, found, terms, step)
+    return (terms, found) + _judged_with(replay, robot, split, cond, [f.effect for f in found] + [t.effect for t in terms],
                                          jfit, nearest)
 
 
@@ -356,6 +357,26 @@ def _name_effects(replay: Replay, robot: Robot, split, settings: FitSettings, pr
     return effects, found, nearest, blind, pred1
 
 
+def _whole_walk_recording(rec: Recording, replay: Replay, phases: dict, mode_used: str):
+    """(recording, gait phases) of the whole walk: one replay of the trunk on the ground cannot cross a lost
+    span, so on a walk that lost one it is the recording up to the first, with that recording's phases."""
+    if rec.lost and mode_used == 'walk':
+        rec_ww = rec.before(rec.lost[0][0])
+        return rec_ww, gait_phases(rec_ww, replay.legs)
+    return rec, phases
+
+
+def _term_chooser(rec_ww: Recording, robot: Robot, ground, ww_phases: dict, replay: Replay, notes: list, step):
+    """``choose(named, terms)`` for :func:`_outside_the_list` on a walk: the dictionary's terms judged on the
+    whole walk (:func:`~.structure.choose_terms`), its notes added to ``notes``."""
+    def choose(named, terms):
+        terms, more = structure.choose_terms(rec_ww, robot, named, terms, ground, ww_phases, replay.joints,
+                                             progress=step)
+        notes.extend(more)
+        return terms
+    return choose
+
+
 def _joint_fits(replay: Replay, split, res0: dict, res1: dict) -> dict[Joint, JointFit]:
     jfit = {}
     for j in replay.joints:
@@ -410,27 +431,12 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
         res1 = replay.residuals(pred1)
         jfit = _joint_fits(replay, split, res0, res1)
         unexplained = _unexplained(replay, split, cond, res1, jfit, nearest)
-        choose = None
-        # the whole walk is one replay of the trunk on the ground: it cannot cross a lost span, so it is the
-        # whole walk of the recording up to the first, with that recording's gait phases
-        rec_ww, ww_phases = rec, phases
-        if rec.lost and mode_used == 'walk':
-            rec_ww = rec.before(rec.lost[0][0])
-            ww_phases = gait_phases(rec_ww, replay.legs)
-        if mode_used == 'walk' and whole_walk:
-            def choose(named, terms):
-                terms, more = structure.choose_terms(rec_ww, robot, named, terms, ground, ww_phases, replay.joints, progress=step)
-                notes.extend(more)
-                return terms
+        rec_ww, ww_phases = _whole_walk_recording(rec, replay, phases, mode_used)
+        choose = _term_chooser(rec_ww, robot, ground, ww_phases, replay, notes, step) if (
+            mode_used == 'walk' and whole_walk) else None
         terms, found, unexplained, res1, jfit = _outside_the_list(replay, robot, split, cond, effects, found,
                                                                   unexplained, res1, jfit, nearest, settings, step,
                                                                   choose)
-        merged, terms = _twins_as_servo_law(replay, robot, split, cond, settings, found, terms, step)
-        if merged is not found:
-            found = merged
-            unexplained, res1, jfit = _judged_with(replay, robot, split, cond,
-                                                   tuple(f.effect for f in found) + tuple(t.effect for t in terms),
-                                                   jfit, nearest)
         phase_fit, whole = {}, None
         if mode_used == 'walk':
             mism, phase_fit = _locate_phases(replay, phases, mism, res0, res1)
@@ -443,6 +449,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                     found = _on_whole_legs(replay, robot, split, found, terms, moved)
                     unexplained, res1, jfit = _judged_with(replay, robot, split, cond, [f.effect for f in found]
                                                            + [t.effect for t in terms], jfit, nearest)
+                    _, phase_fit = _locate_phases(replay, phases, [], res0, res1)   # with the leg's effect
                 if rec.lost:
                     notes.append(f'whole walk: replayed up to the first lost span, {rec_ww.duration_s:.1f} s')
                 notes.extend(ww_notes)
