@@ -250,9 +250,9 @@ def widen_to_legs(replays: Replays, effects: list, joints, progress=lambda msg: 
     walking coxa or tibia is read a few times a swing (4 and 5 held-out reads beside a femur's 261), so the
     swings cannot confirm an effect there; the whole walk reads them in stance too. Each such effect (of the
     list, not the servo law, not a payload) is replayed on its leg's analysed joints at its value, and kept
-    there when the leg's other joints then follow the recording by ``SEARCH_MIN_RATIO`` and
-    ``SEARCH_MIN_EXPLAINED`` of their excess over rounding, and the replay stays in step as long (a leg's
-    viscous damping found on its femur alone left the coxa at 0.90 ticks). -> (effects, [(found, widened)])."""
+    there when the leg's other joints (those no other effect of one leg covers) then follow the recording by
+    ``SEARCH_MIN_RATIO`` and ``SEARCH_MIN_EXPLAINED`` of their excess over rounding, and the replay stays in
+    step as long (a leg's viscous damping found on its femur alone left the coxa at 0.90 ticks). -> (effects, [(found, widened)])."""
     from hexapod_sim.discrepancy.effects import BY_NAME
     rec, robot = replays.rec, replays.robot
     out, moved = list(effects), []
@@ -262,7 +262,10 @@ def widen_to_legs(replays: Replays, effects: list, joints, progress=lambda msg: 
         if e.effect not in BY_NAME or BY_NAME[e.effect].servo_law or e.effect == 'mass_error' or len(legs) != 1:
             continue
         leg_joints = tuple(j for j in joints if j.leg in legs)
-        extra = [j for j in leg_joints if j not in e.joints]
+        # judged on the leg's joints no other effect of one leg covers: what such an effect leaves there is
+        # not this one's (a robot-wide effect is on every joint and says nothing of where this one is)
+        others = {j for x in out if x is not e and len({k.leg for k in x.joints}) == 1 for j in x.joints}
+        extra = [j for j in leg_joints if j not in e.joints and j not in others]
         if not extra:
             continue
         trial = Effect(e.effect, leg_joints, dict(e.params))
