@@ -252,7 +252,8 @@ def test_an_unexplained_free_leg_mismatch_that_the_whole_walk_follows_is_not_rep
     rounding in every phase, so nothing is claimed. A joint the replay does not follow stays; so does
     everything when the replay went out of step early or judged a joint on too few reads."""
     from hexapod_sim.discrepancy.findings import Unexplained
-    from hexapod_sim.discrepancy.whole_walk_search import PhaseRow, WholeWalk, whole_walk_agrees
+    from hexapod_sim.discrepancy.whole_walk_findings import whole_walk_agrees
+    from hexapod_sim.discrepancy.whole_walk_search import PhaseRow, WholeWalk
 
     def walk(in_step_s, femur_touchdown=0.36, reads=200):
         rows = {Joint(2, 'femur'): {'swing_forward': PhaseRow(reads, 0.32, 0.32), 'touchdown': PhaseRow(reads, 0.36, femur_touchdown),
@@ -278,7 +279,8 @@ def test_a_joint_effect_the_whole_walk_wants_on_its_whole_leg_is_put_there(tmp_p
     bench = pytest.importorskip('hexapod_locomotion.bench.discrepancy_bench', reason='the locomotion package is not importable')
     from hexapod_model.description import Effect
     from hexapod_model.joints import LEG_JOINTS
-    from hexapod_sim.discrepancy.whole_walk_search import Replays, walk_ground, widen_to_legs
+    from hexapod_sim.discrepancy.whole_walk_findings import widen_to_legs
+    from hexapod_sim.discrepancy.whole_walk_search import Replays, walk_ground
 
     def viscous(joints):
         return Effect('viscous_damping', tuple(joints), {'b_nms_per_rad': 0.13})

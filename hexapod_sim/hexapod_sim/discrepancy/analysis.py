@@ -23,7 +23,7 @@ from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, make_split,
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.segments import PHASES, gait_phases, replay_analysed
 from hexapod_sim.discrepancy.simulate import Replay
-from hexapod_sim.discrepancy.whole_walk_search import add_loaded, whole_walk_agrees, whole_walk_check, widened
+from hexapod_sim.discrepancy.whole_walk_findings import add_loaded, whole_walk_agrees, whole_walk_check, widened
 
 MODES = ('auto', 'stand', 'walk')
 
