@@ -3,7 +3,8 @@
 after a few seconds): the compiled loop run from one goal write to the next predicts the reads of a
 replay stepped 1 ms at a time bit for bit; a replay stopped once it is out of step gives the full
 replay's in-step verdict and residuals; candidates compared lazily give the minimum of the full
-comparisons; and the search with them finds the value of the search that replays every candidate whole."""
+comparisons; and the search with them finds the value of the search that replays every candidate whole.
+The writes applied in the compiled loop replay what the Python write loop does, bit for bit."""
 import math
 from pathlib import Path
 
@@ -73,6 +74,39 @@ def test_the_replay_from_write_to_write_predicts_what_the_step_by_step_replay_do
         assert set(got) == set(joints)
         for j in joints:
             assert np.array_equal(got[j], want[j]), j
+
+
+def test_the_writes_applied_in_the_compiled_loop_replay_what_the_python_write_loop_does(rec, robot):
+    """The recorded writes applied inside the compiled loop (physics.write_schedule) against a sync write and
+    a step from Python per write: the same output angles at every physics step, the same state, in pieces of
+    any length; a sim whose goals act later (a goal latency) is replayed through the Python loop."""
+    on = [Joint(6, 'femur')]
+    models = ((robot, True), (robot.with_effects([BY_NAME['static_friction'].make(on, 0.15)]), True),
+              (robot.with_effects([BY_NAME['compliance_deadband'].make(on, 2.0)]), True),
+              (robot.with_effects([BY_NAME['backlash'].make(on, 0.02)]), True),
+              (robot.with_effects([BY_NAME['goal_latency'].make(rec.joints, 0.002)]), False))
+    inputs = ww.ReplayInputs(rec, rec.ground)
+    for model, compiled in models:
+        fast = ww.WalkReplay(rec, model, rec.ground, t_end_s=2.5, inputs=inputs)
+        assert (fast._schedule is not None) is compiled
+        slow = ww.WalkReplay(rec, model, rec.ground, t_end_s=2.5)
+        slow._schedule = None                     # the writes from Python, one sync write and one step each
+        for t in (0.3, 0.3, 1.234, math.inf):
+            assert fast.run_to(t) == slow.run_to(t)
+            assert fast.steps == slow.steps
+            assert np.array_equal(fast.grid[:fast.steps], slow.grid[:slow.steps])
+        assert fast.finished and np.array_equal(fast.sim.data.qpos, slow.sim.data.qpos)
+        assert fast.sim.bus_stats == slow.sim.bus_stats and fast._next_write == slow._next_write
+        for j in fast.joints:
+            assert np.array_equal(fast.pred[j], slow.pred[j])
+
+
+def test_a_write_the_sim_refuses_is_left_to_the_python_loop():
+    from hexapod_sim.physics.write_schedule import WriteSchedule
+    good = WriteSchedule.of([(0, {'leg1_coxa': 0.1, 'leg2_tibia': -0.2}), (3, {'leg1_coxa': 0.2})])
+    assert good.step.tolist() == [0, 3] and good.start.tolist() == [0, 2, 3] and good.first_at_or_after(1) == 1
+    assert WriteSchedule.of([(0, {'leg1_coxa': math.nan})]) is None
+    assert WriteSchedule.of([(0, {'leg7_coxa': 0.1})]) is None
 
 
 def test_a_replay_stopped_once_out_of_step_gives_the_whole_replays_verdict(rec, robot):

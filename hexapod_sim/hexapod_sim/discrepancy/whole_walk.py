@@ -25,7 +25,8 @@ from hexapod_model.description import Robot
 from hexapod_model.joints import JOINTS, Joint
 from hexapod_model.servo import theta_to_tick
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
-from hexapod_sim.physics.terrain import Ground
+from hexapod_sim.physics.terrain import Ground, TerrainError, make_terrain
+from hexapod_sim.physics.write_schedule import WriteSchedule, can_replay, replay_writes
 
 
 def _writes_by_tick(rec: Recording, dt: float) -> dict[int, dict[str, float]]:
@@ -46,6 +47,38 @@ def sorted_writes(rec: Recording, dt: float) -> list[tuple[int, dict[str, float]
     return [(k, writes[k]) for k in sorted(writes)]
 
 
+class ReplayInputs:
+    """What every replay of one recording on one ground shares, made once: the recorded writes by tick
+    (:func:`sorted_writes`), the same as a :class:`~hexapod_sim.physics.write_schedule.WriteSchedule` for
+    the compiled loop, and the ground's terrain."""
+
+    def __init__(self, rec: Recording, ground: Ground):
+        self.rec, self.ground = rec, ground
+        self._writes: dict[float, list] = {}          # physics step -> the writes by tick
+        self._schedules: dict[float, WriteSchedule | None] = {}
+        self._terrain = None
+
+    def writes(self, dt: float) -> list:
+        if dt not in self._writes:
+            self._writes[dt] = sorted_writes(self.rec, dt)
+        return self._writes[dt]
+
+    def schedule(self, dt: float) -> WriteSchedule | None:
+        """The writes as a schedule (None: a joint name or an angle the sim refuses; the Python loop says so)."""
+        if dt not in self._schedules:
+            self._schedules[dt] = WriteSchedule.of(self.writes(dt))
+        return self._schedules[dt]
+
+    def terrain(self):
+        """The ground's terrain (None where its name or seed is bad: the replay reports it)."""
+        if self._terrain is None:
+            try:
+                self._terrain = make_terrain(self.ground.terrain, self.ground.seed)
+            except TerrainError:
+                return None
+        return self._terrain
+
+
 def _start_angles(rec: Recording, sim) -> dict[str, float] | None:
     """The recording's first read of every joint by name, unless they are the plant's home pose (then None:
     a recording of the sim from its start replays from exactly the state it was made from)."""
@@ -63,18 +96,21 @@ class WalkReplay:
 
     The compiled loop runs from one goal write to the next and keeps the output angle of every physics
     step (:meth:`HexapodSim.keep_output_angles`); :attr:`pred` holds the predicted ticks at every recorded
-    read of ``joints`` up to ``t_end_s``, NaN for the reads not yet replayed. ``writes``: ``(rec, dt) ->`` the
-    recorded writes as (tick, goals) in tick order (default :func:`sorted_writes`;
-    :class:`.whole_walk_search.Replays` makes them once)."""
+    read of ``joints`` up to ``t_end_s``, NaN for the reads not yet replayed. ``inputs``: the
+    :class:`ReplayInputs` of ``rec`` on ``ground`` (:class:`.whole_walk_search.Replays` shares one between
+    its replays; default: made here). The writes run in the compiled loop
+    (:func:`~hexapod_sim.physics.write_schedule.replay_writes`) where the sim allows it."""
 
     def __init__(self, rec: Recording, robot: Robot, ground: Ground, joints=None, t_end_s: float | None = None,
-                 writes=None):
+                 inputs: ReplayInputs | None = None):
         from hexapod_sim.physics.plant import HexapodSim, SimError
+        inputs = inputs or ReplayInputs(rec, ground)
+        terrain = inputs.terrain()
         self.rec = rec
         self.joints = [j for j in (joints or rec.states) if j in rec.states]
         try:
-            sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, imu_rate_hz=0.0,
-                             start_xy_m=ground.start_xy_m)
+            sim = HexapodSim(robot, terrain=ground.terrain if terrain is None else terrain, seed=ground.seed,
+                             imu_rate_hz=0.0, start_xy_m=ground.start_xy_m)
         except SimError as exc:
             raise RecordingError(f'whole-walk replay: {exc}') from None
         sim.reset()
@@ -85,8 +121,9 @@ class WalkReplay:
         self.t_end = rec.duration_s if t_end_s is None else min(t_end_s, rec.duration_s)
         self.n = n = int(math.ceil(self.t_end / self.dt)) + 2
         self.grid = sim.keep_output_angles(n)
-        writes = (writes or sorted_writes)(rec, self.dt)
+        writes = inputs.writes(self.dt)
         self._writes = writes[:bisect.bisect_left(writes, n, key=lambda w: w[0])]
+        self._schedule = inputs.schedule(self.dt) if can_replay(sim) else None
         self._next_write = 0
         self.steps = 0                          # physics steps run: grid rows 0 .. steps - 1 are filled
         self._cols = {j: JOINTS.index(j) for j in self.joints}
@@ -106,6 +143,9 @@ class WalkReplay:
         to which every read is."""
         target = min(self.n, int(math.ceil(min(t_s, self.t_end) / self.dt)) + 2)
         sim, w = self.sim, self._writes
+        if self._schedule is not None and self.steps < target:     # the same loop, compiled
+            self._next_write = replay_writes(sim, self._schedule, target, self._next_write)
+            self.steps = target
         while self.steps < target:
             if self._next_write < len(w) and w[self._next_write][0] <= self.steps:
                 sim.sync_write(w[self._next_write][1])
@@ -149,4 +189,4 @@ def rec_ticks(rec: Recording, robot: Robot, joint: Joint) -> np.ndarray:
     return theta_to_tick(rec.states[joint].theta_rad, robot.servo)
 
 
-__all__ = ['WalkReplay', 'rec_ticks', 'replay_walk', 'sorted_writes']
+__all__ = ['ReplayInputs', 'WalkReplay', 'rec_ticks', 'replay_walk', 'sorted_writes']

@@ -23,7 +23,7 @@ from hexapod_model.description import Robot
 from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.segments import PHASES, LegPhases
-from hexapod_sim.discrepancy.whole_walk import WalkReplay, rec_ticks, sorted_writes
+from hexapod_sim.discrepancy.whole_walk import ReplayInputs, WalkReplay, rec_ticks
 from hexapod_sim.physics.terrain import Ground
 
 WHOLE_PHASES = ('swing_up', 'swing_forward', 'swing_down', 'stance', 'touchdown', 'lift_off', 'leveling')
@@ -62,12 +62,7 @@ class Replays:
         self.rec, self.robot, self.ground = rec, robot, ground
         self._made: list[tuple[Robot, tuple, WalkReplay]] = []
         self._meas: dict[Joint, np.ndarray] = {}
-        self._writes: dict[float, list] = {}          # physics step -> the writes by tick (the same for every model)
-
-    def _sorted_writes(self, rec: Recording, dt: float) -> list:
-        if dt not in self._writes:
-            self._writes[dt] = sorted_writes(rec, dt)
-        return self._writes[dt]
+        self._inputs = ReplayInputs(rec, ground)      # the writes and the terrain (the same for every model)
 
     def meas(self, joint: Joint) -> np.ndarray:
         """The recorded reads of ``joint`` in ticks."""
@@ -82,7 +77,7 @@ class Replays:
         for m, js, r in self._made:
             if set(joints) <= set(js) and r.t_end >= end and m == model:
                 return r
-        r = WalkReplay(self.rec, model, self.ground, joints, t_end_s, self._sorted_writes)
+        r = WalkReplay(self.rec, model, self.ground, joints, t_end_s, inputs=self._inputs)
         if keep:
             self._made.append((model, tuple(r.joints), r))
         return r
