@@ -107,15 +107,15 @@ class _Objective:
         return out
 
 
-def fit_term(obj: _Objective, max_evals: int, x0=None) -> np.ndarray:
+def fit_term(obj: _Objective, max_evals: int, start=None) -> np.ndarray:
     """Parameters of ``obj``'s term that minimise the fitting reads' squared error (grid, then local search;
-    ``x0``: values it had, a start beside the grid's)."""
+    ``start``: values it had, a start beside the grid's)."""
     term = obj.term
     if len(term.params) == 1:
         r = minimize_scalar(lambda v: obj.sse([v]), bounds=(obj.lo[0], obj.hi[0]), method='bounded',
                             options={'xatol': 1e-3 * (obj.hi[0] - obj.lo[0]), 'maxiter': 40})
         return np.array([r.x])
-    starts = sorted(_starts(term) + ([tuple(x0)] if x0 is not None else []), key=lambda x: obj.sse(x))[:2]
+    starts = sorted(_starts(term) + ([tuple(start)] if start is not None else []), key=lambda x: obj.sse(x))[:2]
     span = obj.hi - obj.lo
     best, best_f = np.asarray(starts[0], dtype=float), math.inf
     for x0 in starts:
