@@ -128,30 +128,34 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
                                          jfit, nearest)
 
 
-def _judged_with(replay: Replay, robot: Robot, split, cond, effects, jfit, nearest):
-    """(unexplained, residuals, joint fits) with ``effects`` in place."""
-    res1 = replay.residuals(Predictor(replay, robot, workers=1).predict(tuple(effects), replay.joints))
+def _judged_with(replay: Replay, robot: Robot, split, cond, effects, jfit, nearest, pred: Predictor | None = None):
+    """(unexplained, residuals, joint fits) with ``effects`` in place (``pred``: a predictor whose cache to use)."""
+    pred = pred or Predictor(replay, robot, workers=1)
+    res1 = replay.residuals(pred.predict(tuple(effects), replay.joints))
     jfit = {j: JointFit(v.heldout_rmse_ticks_before, _rmse(res1, split.hold, [j])[0], v.n_heldout)
             for j, v in jfit.items()}
     return _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
 
 
-def _on_whole_legs(replay: Replay, robot: Robot, split, found, terms, moved) -> list:
-    """``found`` with the effects the whole walk put on their whole leg (``moved``: (effect, widened);
-    :func:`~.whole_walk_search.widen_to_legs`), each judged on the held-out reads of its leg."""
+def _on_whole_legs(replay: Replay, robot: Robot, split, cond, phases, found, terms, moved, res0, jfit, nearest):
+    """The findings with the effects the whole walk put on their whole leg (``moved``: (effect, widened);
+    :func:`~.whole_walk_findings.widen_to_legs`), each judged on the held-out reads of its leg as
+    :func:`_found_effects` judges (its condition kept), and what they leave. -> (found, unexplained,
+    residuals, joint fits, phase table)."""
     out = [replace(f, effect=next((n for o, n in moved if o is f.effect), f.effect)) for f in found]
     pred = Predictor(replay, robot, workers=1)
     every = [f.effect for f in out] + [t.effect for t in terms]
     pred_w = pred.predict(every, replay.joints)
     for i, f in enumerate(out):
-        if any(n is f.effect for _, n in moved):
-            own = [j for j in f.effect.joints if j in replay.reads]
-            pred_wo = pred.predict([e for e in every if e is not f.effect], own)
-            b, _ = _rmse({j: replay.reads[j].tick - pred_wo[j] for j in own}, split.hold, own)
-            a, _ = _rmse({j: replay.reads[j].tick - pred_w[j] for j in own}, split.hold, own)
-            out[i] = replace(f, scope=scope_name(f.effect.joints, replay.joints), heldout_rmse_ticks_before=b,
-                             heldout_rmse_ticks_after=a)
-    return out
+        e = f.effect
+        if any(n is e for _, n in moved):
+            c = BY_NAME[e.effect]
+            (judged,) = _found_effects(pred, replay, split, cond, [e], [Hypothesis(c, e.joints, value=e.params[c.key])],
+                                       None, pred_w, [x for x in every if x is not e])
+            out[i] = replace(judged, condition=f.condition)
+    unexplained, res1, jfit = _judged_with(replay, robot, split, cond, every, jfit, nearest, pred)
+    _, phase_fit = _locate_phases(replay, phases, [], res0, res1)
+    return out, unexplained, res1, jfit, phase_fit
 
 
 def _twins_as_servo_law(replay: Replay, robot: Robot, split, cond, settings: FitSettings, found, terms,
@@ -446,10 +450,8 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                 whole, ww_notes, finds, wide, moved = whole_walk_check(rec_ww, robot, named, ground, ww_phases,
                                                                        replay.joints, progress=step)
                 if moved:
-                    found = _on_whole_legs(replay, robot, split, found, terms, moved)
-                    unexplained, res1, jfit = _judged_with(replay, robot, split, cond, [f.effect for f in found]
-                                                           + [t.effect for t in terms], jfit, nearest)
-                    _, phase_fit = _locate_phases(replay, phases, [], res0, res1)   # with the leg's effect
+                    found, unexplained, res1, jfit, phase_fit = _on_whole_legs(replay, robot, split, cond, phases, found,
+                                                                               terms, moved, res0, jfit, nearest)
                 if rec.lost:
                     notes.append(f'whole walk: replayed up to the first lost span, {rec_ww.duration_s:.1f} s')
                 notes.extend(ww_notes)
