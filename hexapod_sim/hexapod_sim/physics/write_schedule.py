@@ -51,10 +51,6 @@ class WriteSchedule:
                   np.asarray(idx, dtype=np.int64), np.asarray(vals, dtype=np.float64))
         return out if np.all(np.isfinite(out.angle_rad)) else None
 
-    def first_at_or_after(self, step: int) -> int:
-        """Index of the first write at or after physics step ``step``."""
-        return int(np.searchsorted(self.step, step, side='left'))
-
 
 @njit(cache=True)
 def _run_writes(target, n_writes, w_step, w_start, w_idx, w_val, w_next, lim_lo, lim_hi, scale, base, angle_bit,
