@@ -40,7 +40,8 @@ def widen_to_legs(replays: Replays, effects: list, joints, progress=lambda msg: 
     list, not the servo law, not a payload) is replayed on its leg's analysed joints at its value, and kept
     there when the leg's other joints (those no other effect of one leg covers) then follow the recording by
     ``SEARCH_MIN_RATIO`` and ``SEARCH_MIN_EXPLAINED`` of their excess over rounding, and the replay stays in
-    step as long (a leg's viscous damping found on its femur alone left the coxa at 0.90 ticks). -> (effects, [(found, widened)])."""
+    step as long (a leg's viscous damping found on its femur alone left the coxa at 0.90 ticks).
+    -> (effects, [(found, widened)])."""
     rec, robot = replays.rec, replays.robot
     out, moved = list(effects), []
     res, until = replays.in_step(robot.with_effects(out), joints)
@@ -70,7 +71,6 @@ def widen_to_legs(replays: Replays, effects: list, joints, progress=lambda msg: 
     return out, moved
 
 
-
 def widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple[list, list]:
     """Found effects of a kind the whole walk put on every joint (:func:`widen`) become one effect of the
     whole robot, judged on the whole walk (all joints and phases, nominal -> fitted); what was left
@@ -94,7 +94,6 @@ def widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple[
     return out, kept
 
 
-
 def whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
     """Drop what the free-leg model leaves unexplained on joints that the MuJoCo hexapod, replaying the
     whole walk with the effects found, follows to tick rounding in every phase over most of the walk:
@@ -108,7 +107,6 @@ def whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
         return follows_to_rounding(whole.in_step_until_s, duration_s, rows)
 
     return [u for u in unexplained if not all(at_rounding(j) for j in u.joints)]
-
 
 
 def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
@@ -125,7 +123,6 @@ def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
             if rest:
                 blind[e.effect] = rest
     return found, blind
-
 
 
 def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
