@@ -102,3 +102,21 @@ def test_a_dictionary_term_must_remove_the_held_out_error_a_list_effect_must():
     assert structure.SearchSettings().min_gain_ticks2 == FitSettings().min_gain_ticks2
     assert not judged(18)[2]
     assert judged(60)[2]
+
+
+def test_a_term_that_replaced_a_list_effect_stays_when_small_terms_on_many_legs_are_dropped():
+    """Joint terms on three legs or more are dropped as the trace of a robot-wide cause, except a term that
+    replaced the list's effect on its joints: a femur's load friction (32.7 -> 0.26 ticks, where viscous
+    damping left 0.71) beside a motor damping's small leftovers on four other legs."""
+    from hexapod_model.description import Effect
+    from hexapod_sim.discrepancy.structure import FoundTerm, on_few_legs
+
+    def term(name, joint, params, before, after):
+        return FoundTerm(Effect(name, (joint,), params), str(joint), name, before, after)
+
+    load = term('load_friction', Joint(3, 'femur'), {'coefficient': 0.37}, 32.7, 0.26)
+    small = [term('load_friction', Joint(leg, 'coxa'), {'coefficient': 0.04}, 0.76, 0.35) for leg in (4, 5, 6)]
+    weak = term('weak_motor', Joint(2, 'tibia'), {'torque_scale': 0.98, 'speed_scale': 0.96}, 0.78, 0.30)
+    assert on_few_legs([weak, load] + small, [load], 3) == [load]
+    assert on_few_legs([weak, load] + small, [], 3) == []
+    assert on_few_legs([weak, load, small[0]], [load], 3) == [weak, load, small[0]]

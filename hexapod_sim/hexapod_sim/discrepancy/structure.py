@@ -162,6 +162,7 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
     base = tuple(named)
     found: list[FoundTerm] = []
     displaced: list[Effect] = []
+    beat_a_rival: list[FoundTerm] = []      # terms that replaced a named list effect on their joints
     todo = [j for j in joints if j in replay.reads]
     base, sag, gone = _supply_sag(pred, split, meas, base, named, todo, s)
     if sag:
@@ -174,12 +175,12 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
     while todo:
         j = todo[0]
         rivals = tuple(e for e in base if e in named and j in e.joints and set(e.joints) <= set(todo))
-        chosen = []
+        chosen, won = [], False
         if rivals:               # first without them: where they are the nearest candidate, that is the answer
             without = tuple(e for e in base if e not in rivals)
             alt = _round(pred, split, meas, without, j, todo, s)
             if alt and alt[-1][7] < _current(pred, split, meas, base, alt[-1][5]):
-                chosen, base = alt, without
+                chosen, base, won = alt, without, True
                 displaced.extend(rivals)
         if not chosen:
             chosen = _round(pred, split, meas, base, j, todo, s)
@@ -192,14 +193,25 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
             base = base + (e,)
             found.append(FoundTerm(e, scope_name(e.joints, replay.joints), BY_TERM[e.effect].describe(e.params), rb, ra,
                                    alts))
+            if won:
+                beat_a_rival.append(found[-1])
         done = {a for r in chosen for a in r[5]}
         todo = [a for a in todo if a not in done]
-    legs = {j.leg for t in found if not BY_TERM[t.effect.effect].robot_wide for j in t.effect.joints}
-    if len(legs) >= s.max_legs:
-        # separate joint physics on half the robot at once is less likely than one robot-wide cause no term
-        # captures (a walk sagging far below the supply gave weak motors and load friction on 12 joints)
-        return [t for t in found if BY_TERM[t.effect.effect].robot_wide], []
-    return found, displaced
+    return on_few_legs(found, beat_a_rival, s.max_legs), displaced
+
+
+def on_few_legs(found: list[FoundTerm], beat_a_rival: list[FoundTerm], max_legs: int) -> list[FoundTerm]:
+    """``found`` without its joint terms where those are on ``max_legs`` legs or more: separate joint physics
+    on half the robot at once is less likely than one robot-wide cause no term captures (a walk sagging far
+    below the supply gave weak motors and load friction on 12 joints). A term that replaced a named list
+    effect on its joints (``beat_a_rival``) was judged against that effect there; it is not counted and
+    stays (a femur's load friction, 32.7 -> 0.26 ticks where the list's viscous damping left 0.71, beside
+    small leftovers of a motor damping on four other legs)."""
+    legs = {j.leg for t in found if not BY_TERM[t.effect.effect].robot_wide and t not in beat_a_rival
+            for j in t.effect.joints}
+    if len(legs) < max_legs:
+        return found
+    return [t for t in found if BY_TERM[t.effect.effect].robot_wide or t in beat_a_rival]
 
 
 def refit(replay: Replay, robot: Robot, split: Split, named: tuple, terms: list, scope_name,
@@ -359,4 +371,4 @@ def choose_terms(rec: Recording, robot: Robot, named: list, terms: list, ground:
     return out, notes
 
 
-__all__ = ['FoundTerm', 'SearchSettings', 'choose_terms', 'fit_term', 'refit', 'search']
+__all__ = ['FoundTerm', 'SearchSettings', 'choose_terms', 'fit_term', 'on_few_legs', 'refit', 'search']
