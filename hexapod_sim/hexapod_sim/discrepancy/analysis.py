@@ -341,7 +341,8 @@ def _name_effects(replay: Replay, robot: Robot, split, settings: FitSettings, pr
         uneven = uneven_parts(effects, robot)
         if uneven:
             accepted = namer.refine([h for i, h in enumerate(accepted) if i not in uneven])
-            effects = [h.effect for h in accepted]
+        accepted = namer.servo_law_needed(accepted)
+        effects = [h.effect for h in accepted]
         step('before/after on held-out data')
         pred1 = namer.pred.predict(effects, replay.joints)
         found = _found_effects(namer.pred, replay, split, cond, effects, accepted, pred0, pred1)
