@@ -88,7 +88,7 @@ def test_the_writes_applied_in_the_compiled_loop_replay_what_the_python_write_lo
     inputs = ww.ReplayInputs(rec, rec.ground)
     for model, compiled in models:
         fast = ww.WalkReplay(rec, model, rec.ground, t_end_s=2.5, inputs=inputs)
-        assert (fast._schedule is not None) is compiled
+        assert (fast._schedule is not None) is compiled and fast.sim.writes_act_when_written is compiled
         slow = ww.WalkReplay(rec, model, rec.ground, t_end_s=2.5)
         slow._schedule = None                     # the writes from Python, one sync write and one step each
         for t in (0.3, 0.3, 1.234, math.inf):

@@ -428,6 +428,12 @@ class HexapodSim(ServoBus, SimulatedServos, PlantTables):
     def torque_enabled(self) -> np.ndarray:
         return self._rows < len(ALL_JOINTS)
 
+    @property
+    def writes_act_when_written(self) -> bool:
+        """Whether a goal write acts at the step it is written and takes no time: no goal latency
+        configured or pending, no write time (what :func:`~.write_schedule.replay_writes` needs)."""
+        return not self._goal_lag.any() and not self._write_steps and not self._pending
+
     # ------------------------------------------------------------------ sensors
     def imu(self) -> ImuReading | None:
         """The latest IMU sample (None before the first one)."""

@@ -83,7 +83,7 @@ def _run_writes(target, n_writes, w_step, w_start, w_idx, w_val, w_next, lim_lo,
 def can_replay(sim) -> bool:
     """Whether :func:`replay_writes` replays ``sim`` (a :class:`~.plant.HexapodSim`) as its Python loop
     would: goals act when written (no goal latency pending or configured) and a write takes no time."""
-    return not sim._goal_lag.any() and not sim._write_steps and not sim._pending
+    return sim.writes_act_when_written
 
 
 def replay_writes(sim, schedule: WriteSchedule, target_step: int, next_write: int) -> int:
