@@ -357,9 +357,10 @@ def test_reply_latency_holds_replies_back_without_blocking_instructions(robot):
         assert ping.t_reply - ping.t >= 0.3 and write.t_reply - write.t >= 0.3     # the log says when they went
 
 
-def test_a_held_reply_comes_late_and_the_replies_behind_it_wait(robot):
+@pytest.mark.parametrize('latency_s', [0.0, 0.001])     # behind the held reply, one due at once waits too
+def test_a_held_reply_comes_late_and_the_replies_behind_it_wait(robot, latency_s):
     with BusEmulator(robot) as emu:
-        emu.faults.set_reply_latency(0.001)
+        emu.faults.set_reply_latency(latency_s)
         emu.faults.hold_replies(0.2, ids=1, count=1)
         ser = _open(emu.port, robot.bus.baud_rate)
         ser.timeout = 5.0
