@@ -373,6 +373,19 @@ def test_a_held_reply_comes_late_and_the_replies_behind_it_wait(robot, latency_s
         assert held.t_reply - held.t >= 0.2 and behind.t_reply >= held.t_reply    # on the emulator's clock
 
 
+def test_a_hold_for_one_address_passes_other_replies_of_the_servo(robot):
+    with BusEmulator(robot) as emu:
+        emu.faults.hold_replies(0.2, ids=1, count=1, address=0)
+        ser = _open(emu.port, robot.bus.baud_rate)
+        ser.timeout = 5.0
+        for params in ([], [36, 2], [0, 2], [0, 2]):                # PING, READ 36, READ 0 (held), READ 0
+            ser.write(p.encode_instruction(1, p.READ if params else p.PING, params))
+            assert len(ser.read(6 + (params[1] if params else 0))) == 6 + (params[1] if params else 0)
+        ser.close()
+        waited = [e.t_reply - e.t >= 0.2 for e in list(emu.log)[-4:]]
+        assert waited == [False, False, True, False]                # on the emulator's clock
+
+
 def test_a_backend_that_is_not_installed_is_named_in_one_error_line(monkeypatch, capsys):
     """bus_emulator finds backends through an entry-point group; without hexapod_sim there is no `sim`."""
     from hexapod_driver.emulator import cli

@@ -470,7 +470,7 @@ class BusEmulator:
             pkt[-1] ^= 0x5A
         if self.faults._should_prepend_stale(s.servo_id):
             pkt[:0] = p.encode_status(s.servo_id, 0)
-        self._reply_hold = self.faults._hold_s(s.servo_id)
+        self._reply_hold = self.faults._hold_s(s.servo_id, entry.address)
         entry.replied = True
         entry.reply_params = bytes(params)
         entry.tx = bytes(pkt)
