@@ -231,9 +231,9 @@ class Transport:
     def reply_length(self, sid: int, n: int) -> int:
         """The data length a READ of ``n`` bytes from servo ``sid`` asks for: ``n`` while every
         request to the servo was answered, else the smallest length from ``n`` up that no
-        unanswered request to the servo asked for. When
-        the table has no such length left (a servo silent for dozens of reads with no other
-        servo answering in between), its unanswered requests are forgotten: ``n``."""
+        unanswered request to the servo asked for. When the table has no such length left (a
+        servo silent for dozens of reads with no other servo answering in between), its
+        unanswered requests are forgotten: ``n``."""
         busy = self._unanswered.get(sid)
         if not busy:
             return n
