@@ -398,6 +398,15 @@ def test_reads_keep_away_from_the_lengths_of_unanswered_requests_until_the_bus_a
     assert lengths == [2, 3, 4, 5, 2]
 
 
+def test_a_servo_silent_for_every_length_the_table_has_is_asked_for_its_own_again(emu, bus):
+    emu.faults.remove_servo(1)
+    for _ in range(p.TABLE_SIZE):
+        assert bus.read_register('leg1_coxa', 36, 2, retries=0).data is None
+    asked = [(e.address, e.data[0]) for e in emu.log if e.servo_id == 1 and e.instruction == p.READ][-p.TABLE_SIZE:]
+    assert [n for _a, n in asked] == [*range(2, p.TABLE_SIZE + 1), 2]      # 49 lengths, then none left
+    assert all(a + n <= p.TABLE_SIZE and a <= 36 for a, n in asked)       # inside the table, position included
+
+
 def test_vanished_servo_is_reported_skipped_and_welcomed_back(emu, bus):
     bus.set_schedule(['leg2_coxa', 'leg2_femur'])
     emu.faults.remove_servo(4)                                    # leg2_coxa
