@@ -169,12 +169,14 @@ def test_a_read_reply_that_comes_late_at_startup_is_not_taken_for_status_return_
     # write its EEPROM.
     from hexapod_driver.bus.transport import Transport
     real, held = Transport.transact, []
+    cfg = DriverConfig()                                             # the start-up reply timeout, ~52 ms
+    late_s = 1.5e-3 * (cfg.startup_timeout_margin_ms + 2.0 * cfg.latency_timer_ms)   # during the retry
 
     def transact(self, sid, instruction, params, n_reply, expect_reply=True):
         late = sid == 7 and instruction == p.READ and params[0] == 0 and not held
         if late:
             held.append(sid)
-            emu.faults.set_reply_latency(0.25)                       # after the start-up reply timeout
+            emu.faults.set_reply_latency(late_s)                     # after the start-up reply timeout
         try:
             return real(self, sid, instruction, params, n_reply, expect_reply)
         finally:
@@ -346,6 +348,63 @@ def test_a_late_reply_is_not_taken_for_the_answer(emu, bus):
     emu.faults.stale_replies(ids=2, count=1)
     theta, _ = bus.read_position('leg1_femur')
     assert theta == 0.0 and bus.timing.snapshot().failed_reads == 0 and emu.faults.stale == 2
+
+
+def test_a_reply_later_than_all_attempts_is_not_taken_for_the_next_read_of_the_servo(robot):
+    # Protocol 1.0 has no sequence numbers: the reply to a read that timed out on every attempt
+    # comes during the next read of the same servo, which asked for the same register.
+    from hexapod_driver.emulator.backends import IdealServoBackend
+
+    class Dial(IdealServoBackend):                                # the horn is where the test says
+        tick = None
+
+        def sample(self, t, slot):
+            return (float(self.tick), 0.0) if self.tick is not None else super().sample(t, slot)
+    dial = Dial(robot)
+    with BusEmulator(robot, backend=dial) as emu:
+        b = make_bus(robot, emu)
+        try:
+            dial.tick = 300
+            emu.faults.hold_replies(0.5, ids=1, count=1)            # past both attempts; the ones behind wait
+            with pytest.raises(BusError, match='no valid reply after 2 attempts'):
+                b.read_position('leg1_coxa')
+            dial.tick = 700
+            with b.transport.reply_margin(3000.0):                  # the held reply comes during this read
+                theta, _stamp = b.read_position('leg1_coxa')
+        finally:
+            b.close()
+        reads = [e for e in emu.log if e.servo_id == 1 and e.instruction == p.READ and e.address is not None
+                 and e.address <= 36 < e.address + e.data[0]][-3:]
+        first, nxt = reads[0], reads[2]
+        assert nxt.wall < first.wall_reply < nxt.wall_reply          # it came while the next read waited
+        assert first.reply_params == bytes([300 & 0xFF, 300 >> 8])
+        assert theta == b.to_theta('leg1_coxa', 700)                 # the next read's own answer
+        assert len(nxt.data) == 1 and nxt.data[0] not in {r.data[0] for r in reads[:2]}   # of its own length
+
+
+def test_reads_keep_away_from_the_lengths_of_unanswered_requests_until_the_bus_answers(emu, bus):
+    def asked():
+        return [e.data[0] for e in emu.log if e.servo_id == 1 and e.instruction == p.READ][-1]
+    emu.faults.remove_servo(1)
+    lengths = []
+    for _ in range(3):
+        assert bus.read_register('leg1_coxa', 36, 2, retries=0).data is None
+        lengths.append(asked())
+    emu.faults.restore_servo(1)
+    assert bus.read_register('leg1_coxa', 36, 2, retries=0).data is not None
+    lengths.append(asked())
+    assert bus.read_register('leg1_coxa', 36, 2, retries=0).data is not None    # answered: all came or never will
+    lengths.append(asked())
+    assert lengths == [2, 3, 4, 5, 2]
+
+
+def test_a_servo_silent_for_every_length_the_table_has_is_asked_for_its_own_again(emu, bus):
+    emu.faults.remove_servo(1)
+    for _ in range(p.TABLE_SIZE):
+        assert bus.read_register('leg1_coxa', 36, 2, retries=0).data is None
+    asked = [(e.address, e.data[0]) for e in emu.log if e.servo_id == 1 and e.instruction == p.READ][-p.TABLE_SIZE:]
+    assert [n for _a, n in asked] == [*range(2, p.TABLE_SIZE + 1), 2]      # 49 lengths, then none left
+    assert all(a + n <= p.TABLE_SIZE and a <= 36 for a, n in asked)       # inside the table, position included
 
 
 def test_vanished_servo_is_reported_skipped_and_welcomed_back(emu, bus):

@@ -357,9 +357,10 @@ def test_reply_latency_holds_replies_back_without_blocking_instructions(robot):
         assert ping.t_reply - ping.t >= 0.3 and write.t_reply - write.t >= 0.3     # the log says when they went
 
 
-def test_a_held_reply_comes_late_and_the_replies_behind_it_wait(robot):
+@pytest.mark.parametrize('latency_s', [0.0, 0.001])     # behind the held reply, one due at once waits too
+def test_a_held_reply_comes_late_and_the_replies_behind_it_wait(robot, latency_s):
     with BusEmulator(robot) as emu:
-        emu.faults.set_reply_latency(0.001)
+        emu.faults.set_reply_latency(latency_s)
         emu.faults.hold_replies(0.2, ids=1, count=1)
         ser = _open(emu.port, robot.bus.baud_rate)
         ser.timeout = 5.0
@@ -370,6 +371,19 @@ def test_a_held_reply_comes_late_and_the_replies_behind_it_wait(robot):
         ser.close()
         held, behind = list(emu.log)[-3:-1]
         assert held.t_reply - held.t >= 0.2 and behind.t_reply >= held.t_reply    # on the emulator's clock
+
+
+def test_a_hold_for_one_address_passes_other_replies_of_the_servo(robot):
+    with BusEmulator(robot) as emu:
+        emu.faults.hold_replies(0.2, ids=1, count=1, address=0)
+        ser = _open(emu.port, robot.bus.baud_rate)
+        ser.timeout = 5.0
+        for params in ([], [36, 2], [0, 2], [0, 2]):                # PING, READ 36, READ 0 (held), READ 0
+            ser.write(p.encode_instruction(1, p.READ if params else p.PING, params))
+            assert len(ser.read(6 + (params[1] if params else 0))) == 6 + (params[1] if params else 0)
+        ser.close()
+        waited = [e.t_reply - e.t >= 0.2 for e in list(emu.log)[-4:]]
+        assert waited == [False, False, True, False]                # on the emulator's clock
 
 
 def test_a_backend_that_is_not_installed_is_named_in_one_error_line(monkeypatch, capsys):

@@ -6,6 +6,12 @@ framed by the same :class:`hexapod_driver.protocol.PacketParser` the bus emulato
 of one exchange (:meth:`Transport.transact`) it offers a register read and write with a given
 number of attempts; how many is the caller's policy.
 
+Pairing replies with requests (Protocol 1.0 has no sequence numbers): bytes waiting before an
+instruction goes out are discarded (as dynamixel-sdk's ``clearPort``); a reply must have the ID and
+the LENGTH of the status packet its instruction asks for; and while a request is unanswered (timed
+out, its reply perhaps still on its way), no READ of that servo asks for its length, so a reply
+later than every attempt of a read is never taken for the answer to the next read.
+
 Stamps: the sample time of a read is the time its instruction packet was written to the port
 (the start of the transaction), taken from the injected ``clock``; T_com is the time from that
 write to the complete status packet.
@@ -68,6 +74,9 @@ class Transport:
         self._parser = p.PacketParser()
         self._skipped = 0                          # bytes of whole packets that answered something else
         self._packets: dict[tuple, bytes] = {}     # encoded READ instructions (the hot path)
+        # servo id -> data lengths of its status packets asked for, never received, since the bus
+        # last answered: one of them may still come, so no READ asks for that length meanwhile
+        self._unanswered: dict[int, set[int]] = {}
 
     @property
     def stale_bytes(self) -> int:
@@ -87,6 +96,7 @@ class Transport:
         self.port = port
         self.port_ok = True
         self._skipped += self._parser.clear()
+        self._unanswered.clear()
 
     def close(self) -> None:
         if self.port is not None and self.port.ser is not None:
@@ -127,7 +137,9 @@ class Transport:
         this instruction: the right ID, the LENGTH this instruction's status packet has
         (``n_reply`` data bytes + 2) and a valid checksum; any other packet is skipped and the wait
         goes on until the reply timeout. A corrupt reply of the right ID and length ends the wait
-        (COMM_RX_CORRUPT) so the caller can retry at once.
+        (COMM_RX_CORRUPT) so the caller can retry at once. A timeout leaves the request unanswered
+        (:meth:`reply_length` keeps READs away from its length) until any request is answered:
+        the adapter delivers replies in the order the servos sent them.
         """
         port = self._require_port()
         key = (sid, instruction, tuple(params))
@@ -147,11 +159,18 @@ class Transport:
                 return b'', COMM_SUCCESS, 0
             deadline = t0 + ((n_reply + 6) * BITS_TIMES_1000 / self.baud_rate + 2.0 * port.latency_timer_ms
                              + port.margin_ms) * 1e-3
-            return self._await_reply(fd, sid, n_reply, deadline)
+            data, result, err = self._await_reply(fd, sid, n_reply, deadline)
         except (serial.SerialException, OSError, ValueError, TypeError) as exc:
             self._parser.clear()
             self.port_ok = False
             raise PortLostError(f'{self.device}: {exc}') from None
+        if result == COMM_SUCCESS:
+            # the adapter is a FIFO: every reply sent before this one has come or never will
+            if self._unanswered:
+                self._unanswered.clear()
+        elif result == COMM_RX_TIMEOUT:
+            self._unanswered.setdefault(sid, set()).add(n_reply)
+        return data, result, err
 
     def _await_reply(self, fd: int, sid: int, n_reply: int, deadline: float) -> tuple[bytes, int, int]:
         chunk = b''
@@ -191,12 +210,14 @@ class Transport:
     def read(self, sid: int, address: int, n: int, attempts: int) -> ReadResult:
         """Read ``n`` bytes at ``address`` in up to ``attempts`` tries.
 
-        Each retry asks for one more byte than the attempt before (from an address moved down if
-        the table ends), so the late reply to an earlier attempt has another LENGTH and can never
-        be taken for the answer to this one."""
+        Protocol 1.0 has no sequence numbers: what tells replies apart is their LENGTH. Each
+        attempt asks for the fewest bytes, ``n`` or more, that no unanswered request to this servo
+        asked for (:meth:`reply_length`), from an address moved down if the table ends: a reply
+        later than its attempt, or than all of them, can never be taken for the answer to a later
+        read of the same servo."""
         out = ReadResult()
-        for k in range(attempts):
-            n_k = min(p.TABLE_SIZE, n + k)
+        for _ in range(attempts):
+            n_k = self.reply_length(sid, n)
             a_k = min(address, p.TABLE_SIZE - n_k)
             data, result, err = self.transact(sid, p.READ, [a_k, n_k], n_k)
             if result == COMM_SUCCESS:
@@ -206,6 +227,23 @@ class Transport:
                 return out
             out.failures.append('no reply (timeout)' if result == COMM_RX_TIMEOUT else 'corrupt reply')
         return out
+
+    def reply_length(self, sid: int, n: int) -> int:
+        """The data length a READ of ``n`` bytes from servo ``sid`` asks for: ``n`` while every
+        request to the servo was answered, else the smallest length from ``n`` up that no
+        unanswered request to the servo asked for. When the table has no such length left (a
+        servo silent for dozens of reads with no other servo answering in between), its
+        unanswered requests are forgotten: ``n``."""
+        busy = self._unanswered.get(sid)
+        if not busy:
+            return n
+        n_k = n
+        while n_k in busy:
+            n_k += 1
+        if n_k > p.TABLE_SIZE:
+            busy.clear()
+            return n
+        return n_k
 
     def write(self, sid: int, address: int, data: list[int], attempts: int, who: str) -> None:
         """Write and wait for the servo's confirmation; BusError (naming ``who``) after ``attempts``

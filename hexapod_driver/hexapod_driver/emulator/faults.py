@@ -24,7 +24,7 @@ class Faults:
         self._drop: list[tuple[set[int] | None, int | None, float]] = []
         self._corrupt: list[tuple[set[int] | None, int | None, float]] = []
         self._stale: list[tuple[set[int] | None, int | None, float]] = []
-        self._hold: list[tuple[set[int] | None, int | None, float, float]] = []   # ..., seconds
+        self._hold: list[tuple[set[int] | None, int | None, float, float, int | None]] = []   # ..., s, address
         self.missing: set[int] = set()
         self.temperature_override: dict[int, float] = {}   # servo id -> present temperature, over the backend's
         self._before_override: dict[int, float] = {}
@@ -78,13 +78,15 @@ class Faults:
         with self._emu.lock:
             self.reply_latency_s = float(seconds)
 
-    def hold_replies(self, seconds: float, ids=None, count: int | None = 1, probability: float = 1.0) -> tuple:
+    def hold_replies(self, seconds: float, ids=None, count: int | None = 1, probability: float = 1.0,
+                     address: int | None = None) -> tuple:
         """The next ``count`` replies (or each with ``probability`` if ``count`` is None) reach the host
         ``seconds`` later than the latency alone brings them, as in a USB stall; the replies behind
-        one wait for it (the adapter is a FIFO). Returns the rule, for :meth:`cancel`."""
+        one wait for it (the adapter is a FIFO). ``address``: only replies to a READ or WRITE of
+        that address. Returns the rule, for :meth:`cancel`."""
         if not seconds > 0:
             raise EmulatorError(f'hold must be > 0 s, got {seconds}')
-        rule = (self._ids(ids), count, probability, float(seconds))
+        rule = (self._ids(ids), count, probability, float(seconds), address)
         with self._emu.lock:
             self._hold.append(rule)
         return rule
@@ -156,15 +158,16 @@ class Faults:
             return True
         return False
 
-    def _hold_s(self, servo_id: int) -> float:
-        for i, (ids, count, prob, seconds) in enumerate(self._hold):
-            if ids is not None and servo_id not in ids or self._rng.random() >= prob:
+    def _hold_s(self, servo_id: int, address: int | None) -> float:
+        for i, (ids, count, prob, seconds, at) in enumerate(self._hold):
+            if (ids is not None and servo_id not in ids or at is not None and address != at
+                    or self._rng.random() >= prob):
                 continue
             if count is not None:
                 if count <= 1:
                     del self._hold[i]
                 else:
-                    self._hold[i] = (ids, count - 1, prob, seconds)
+                    self._hold[i] = (ids, count - 1, prob, seconds, at)
             return seconds
         return 0.0
 

@@ -147,7 +147,8 @@ class BusEmulator:
         return self
 
     def _deliver_late(self) -> None:
-        """Write the replies held back by ``Faults.set_reply_latency`` when they are due."""
+        """Write the replies held back (``Faults.set_reply_latency``, ``Faults.hold_replies``) when
+        they are due, in order."""
         while not self._stop.is_set():
             with self._late_cv:
                 if not self._late:
@@ -158,7 +159,6 @@ class BusEmulator:
                 if left > 2e-4:
                     self._late_cv.wait(left - 1.5e-4)
                     continue
-                heapq.heappop(self._late)
             _sleep_until(self.clock, due)
             fd = self._master
             if fd is not None:
@@ -167,6 +167,8 @@ class BusEmulator:
                     os.write(fd, reply)
                 except OSError:
                     pass
+            with self._late_cv:            # queued until written: a reply due at once cannot overtake it
+                heapq.heappop(self._late)
 
     def stop(self) -> None:
         self._stop.set()
@@ -284,12 +286,14 @@ class BusEmulator:
         if self.wire_time:
             delay += (n_instruction_bytes + len(reply)) * p.BITS_PER_BYTE / self.baud_rate
         latency = self.faults.reply_latency_s + hold
-        if latency > 0:                          # delivered by the late-reply thread, in order (a FIFO)
-            with self._late_cv:
+        with self._late_cv:
+            # delivered by the late-reply thread, in order (a FIFO): a reply due at once waits too
+            # while one before it is held back
+            if latency > 0 or self._late:
                 self._last_due = max(self._t0 + t_arrival + delay + latency, self._last_due)
                 heapq.heappush(self._late, (self._last_due, next(self._late_seq), reply, entry))
                 self._late_cv.notify()
-            return
+                return
         if delay > 0:
             _sleep_until(self.clock, self._t0 + t_arrival + delay)
         fd = self._master
@@ -466,7 +470,7 @@ class BusEmulator:
             pkt[-1] ^= 0x5A
         if self.faults._should_prepend_stale(s.servo_id):
             pkt[:0] = p.encode_status(s.servo_id, 0)
-        self._reply_hold = self.faults._hold_s(s.servo_id)
+        self._reply_hold = self.faults._hold_s(s.servo_id, entry.address)
         entry.replied = True
         entry.reply_params = bytes(params)
         entry.tx = bytes(pkt)
