@@ -229,3 +229,23 @@ def test_a_goal_latency_fitted_beside_a_punch_is_not_named_where_the_punch_alone
     assert found['viscous_damping'].params['b_nms_per_rad'] == pytest.approx(viscous.params['b_nms_per_rad'],
                                                                               rel=0.10)
     assert set(found['viscous_damping'].joints) == set(viscous.joints)
+
+
+def test_a_motor_damping_beside_a_weaker_motor_is_not_named_as_viscous_damping_of_single_joints(tmp_path):
+    """Case 0 of seed 0 (a one-leg stand, 1.28x motor damping and a weaker tibia motor): the dictionary's
+    weaker motor takes the tibia's share of the damping (0.54 of the no-load speed for 0.69), so beside it
+    the motor damping does not pass and 0.057 N m s/rad of viscous damping was named on the coxa and the
+    femur. Refitted beside the motor damping those twins stand for, the weaker motor lands on its values
+    and the motor damping is named in their place."""
+    from hexapod_model.description import load_robot
+    from hexapod_sim.discrepancy.analysis import analyse
+    case = rc.draw_case(0, 0)
+    damping, weak = case.effects
+    assert (damping.effect, weak.effect) == ('motor_damping', 'weak_motor')
+    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
+    a = analyse(rec, load_robot(), workers=1)
+    assert [f.effect.effect for f in a.effects] == ['motor_damping'], a.effects
+    assert a.effects[0].effect.params['ratio'] == pytest.approx(damping.params['ratio'], rel=0.03)
+    assert [t.effect.effect for t in a.terms] == ['weak_motor']
+    for key, value in weak.params.items():
+        assert a.terms[0].effect.params[key] == pytest.approx(value, rel=0.1), key

@@ -120,3 +120,20 @@ def test_a_term_that_replaced_a_list_effect_stays_when_small_terms_on_many_legs_
     assert on_few_legs([weak, load] + small, [load], 3) == [load]
     assert on_few_legs([weak, load] + small, [], 3) == []
     assert on_few_legs([weak, load, small[0]], [load], 3) == [weak, load, small[0]]
+
+
+def test_twins_stand_for_the_servo_law_term_at_their_median_value():
+    """Viscous damping named on a coxa and a femur at 0.057 N m s/rad is the twin of 1.28x motor damping on
+    every joint (as_twin's inverse); readout delays of a goal latency; no twin, no term."""
+    from hexapod_model.description import ALL_JOINTS, Effect, load_robot
+    from hexapod_sim.discrepancy.fit import as_twin, law_of_twins
+    robot = load_robot()
+    b = 0.28 * robot.servo.reflected_damping_nms_per_rad
+    twins = [Effect('viscous_damping', (Joint(4, role),), {'b_nms_per_rad': v})
+             for role, v in (('coxa', b), ('femur', 1.02 * b), ('tibia', 0.9 * b))]
+    law = law_of_twins(twins, robot, ALL_JOINTS)
+    assert law.effect == 'motor_damping' and [str(j) for j in law.joints] == [str(j) for j in ALL_JOINTS]
+    assert law.params['ratio'] == pytest.approx(1.28) and as_twin(law, robot) == pytest.approx(b)
+    delays = [Effect('readout_delay', (Joint(3, r),), {'delay_s': 0.002}) for r in ('coxa', 'femur')]
+    assert law_of_twins(delays, robot, ALL_JOINTS).params == {'delay_s': pytest.approx(0.002)}
+    assert law_of_twins([Effect('backlash', (Joint(3, 'femur'),), {'play_rad': 0.02})], robot, ALL_JOINTS) is None

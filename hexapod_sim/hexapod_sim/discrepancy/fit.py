@@ -84,6 +84,20 @@ def as_twin(law: Effect, robot: Robot) -> float:
     return law.params['delay_s']
 
 
+def law_of_twins(twins, robot: Robot, joints) -> Effect | None:
+    """The servo-law term on ``joints`` whose twin (:data:`TWIN_OF`) the joint effects ``twins`` are, at
+    their median value (the inverse of :func:`as_twin`; the kind most of them are); None without twins."""
+    kinds = [e.effect for e in twins if e.effect in ROBOT_WIDE_AS]
+    if not kinds:
+        return None
+    kind = max(set(kinds), key=kinds.count)
+    value = float(np.median([e.params[BY_NAME[kind].key] for e in twins if e.effect == kind]))
+    law = ROBOT_WIDE_AS[kind]
+    if law == 'motor_damping':
+        value = 1.0 + value / robot.servo.reflected_damping_nms_per_rad
+    return BY_NAME[law].make(tuple(joints), value)
+
+
 def uneven_parts(effects, robot: Robot) -> list[int]:
     """Indices of the effects in ``effects`` that are a larger one fitted unevenly (:data:`UNEVEN_SHARE`):
     a servo-law term's twin, or an effect of the same kind on some of another's joints."""
