@@ -230,6 +230,18 @@ def wait_for(ex, cond, timeout, proc, what):
     assert proc.poll() is None or what.startswith('exit'), f'driver_node exited while waiting for {what}'
 
 
+def comes_up_and_reads(node, ex, port, timeout=30.0) -> tuple[int, str]:
+    """Start the node on ``port``, wait until it has published 20 states, stop it: -> (exit code, its log)."""
+    proc, out = start_node_env(port)
+    inbox = Inbox(node)
+    try:
+        wait_for(ex, lambda: len(inbox.states) > 20, timeout, proc, 'reads')
+    finally:
+        rc, text = out.finish(proc, timeout=15.0)
+        inbox.close(node)
+    return rc, text
+
+
 def sample_tick(robot, msg):
     return int(round(float(servo_tick(msg.position[0], robot.servo, robot.bus.by_joint(msg.name[0])))))
 
@@ -419,13 +431,7 @@ def test_status_return_level_1_is_set_to_2_at_startup(robot, ros):
     with BusEmulator(robot) as emu:
         for s in emu.servos:
             s.set_register('status_return_level', 1)
-        proc, out = start_node_env(emu.port)
-        inbox = Inbox(node)
-        try:
-            wait_for(ex, lambda: len(inbox.states) > 20, 30.0, proc, 'reads')
-        finally:
-            rc, text = out.finish(proc, timeout=15.0)
-            inbox.close(node)
+        rc, text = comes_up_and_reads(node, ex, emu.port)
     assert rc == 0, text
     assert all(s.get('status_return_level') == 2 for s in emu.servos)
     assert len(testing.logged(text, EventKind.STATUS_RETURN_LEVEL_SET)) == 18, text

@@ -12,7 +12,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 from sensor_msgs.msg import JointState  # noqa: E402
-from test_driver_node import PARAMS, Inbox, command, request_of, sample_tick, start_node_env, wait_for  # noqa: E402
+from test_driver_node import PARAMS, Inbox, comes_up_and_reads, command, request_of, sample_tick, start_node_env, wait_for  # noqa: E402
 
 import hexapod_testing as testing  # noqa: E402
 from hexapod_driver import protocol as p  # noqa: E402
@@ -107,13 +107,7 @@ def test_a_startup_read_answered_after_its_timeout_is_not_taken_for_status_retur
     with BusEmulator(robot) as emu:
         emu.faults.hold_replies(late_s, ids=7, count=1, address=0)
         emu.faults.hold_replies(late_s, ids=8, count=1, address=16)
-        proc, out = start_node_env(emu.port)
-        inbox = Inbox(node)
-        try:
-            wait_for(ex, lambda: len(inbox.states) > 20, 60.0, proc, 'reads')
-        finally:
-            rc, text = out.finish(proc, timeout=15.0)
-            inbox.close(node)
+        rc, text = comes_up_and_reads(node, ex, emu.port, timeout=60.0)
     assert rc == 0, text
     assert not testing.logged(text, EventKind.NO_READ_REPLIES), text        # no "status return level 0?"
     assert not testing.logged(text, EventKind.STATUS_RETURN_LEVEL_SET), text
