@@ -119,17 +119,17 @@ class ServoLawSearch:
         def held_out(hs) -> tuple[float, int]:
             return self._sse(self.pred.predict(list(given) + [h.effect for h in hs], joints), joints, 'hold')
 
+        with_it, _ = held_out(accepted)
         for h in sorted([h for h in accepted if h.candidate.servo_law], key=lambda h: h.hold_gain):
             if sum(a.candidate.servo_law for a in accepted) < 2:
                 break
             rest = [a for a in accepted if a is not h]
             for _ in range(NEEDED_REFITS):       # refitted once, the first takes what the term left to it
                 rest = self.refine(rest, given)
-            with_it, _ = held_out(accepted)
             without, _ = held_out(rest)
             if without - with_it < self.s.min_gain_ticks2:
                 self.s.log.append(('servo_law_not_needed', h.candidate.effect, h.value, without - with_it))
-                accepted = rest
+                accepted, with_it = rest, without
         return accepted
 
     def _fit_together(self, effects, terms, alone) -> list[float]:
