@@ -23,7 +23,7 @@ from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, make_split,
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.segments import PHASES, gait_phases, replay_analysed
 from hexapod_sim.discrepancy.simulate import Replay
-from hexapod_sim.discrepancy.whole_walk_findings import add_loaded, whole_walk_agrees, whole_walk_check, widened
+from hexapod_sim.discrepancy.whole_walk_findings import add_loaded, whole_walk_agrees, whole_walk_check, widened, with_refits
 
 MODES = ('auto', 'stand', 'walk')
 
@@ -458,8 +458,8 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
             if whole_walk:
                 step('replaying the whole walk on the MuJoCo hexapod')
                 named = [f.effect for f in found] + [t.effect for t in terms]
-                whole, ww_notes, finds, wide, moved = whole_walk_check(rec_ww, robot, named, ground, ww_phases,
-                                                                       replay.joints, progress=step)
+                whole, ww_notes, finds, wide, moved, swaps = whole_walk_check(rec_ww, robot, named, ground,
+                                                                              ww_phases, replay.joints, progress=step)
                 if moved:
                     found, unexplained, res1, jfit, phase_fit = _on_whole_legs(replay, robot, split, cond, phases, found,
                                                                                terms, moved, res0, jfit, nearest)
@@ -467,6 +467,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                     notes.append(f'whole walk: replayed up to the first lost span, {rec_ww.duration_s:.1f} s')
                 notes.extend(ww_notes)
                 found, unexplained = widened(found, unexplained, wide, whole, replay.joints)
+                found, terms = with_refits(found, terms, swaps)
                 unexplained = whole_walk_agrees(unexplained, whole, rec_ww.duration_s)
                 found, blind = add_loaded(found, blind, finds, replay.joints)
         notes.append(_split_note(split, by_swing))

@@ -20,6 +20,7 @@ from hexapod_sim.discrepancy.whole_walk_search import (
     SEARCH_MIN_IN_STEP_S,
     SEARCH_MIN_RATIO,
     START_S,
+    SWING_PHASES,
     LoadedFind,
     Replays,
     WholeWalk,
@@ -95,18 +96,36 @@ def widened(found: list, unexplained: list, wide: dict, whole, joints) -> tuple[
 
 
 def whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
-    """Drop what the free-leg model leaves unexplained on joints that the MuJoCo hexapod, replaying the
-    whole walk with the effects found, follows to tick rounding in every phase over most of the walk:
-    the free leg is then the model that falls short (a swing that starts while the leg still sheds the
-    body's weight), not the robot's physics. A joint the replay judged on too few reads stays."""
+    """Drop what the free-leg model leaves unexplained on joints whose swings (the phases the free leg
+    judges) the MuJoCo hexapod, replaying the whole walk with the effects found, follows to tick rounding
+    over most of the walk: the free leg is then the model that falls short (a swing that starts while the
+    leg still sheds the body's weight, the trunk moving under it), not the robot's physics. What the
+    loaded phases leave is :func:`search_loaded`'s to judge: on the blocks a replay whose effects are a
+    fraction of a percent off its recording's takes a touchdown elsewhere, a few ticks on any leg. A joint
+    the replay judged on too few swing reads stays."""
     if whole is None:
         return unexplained
 
     def at_rounding(j):
-        rows = [(v.n_reads, v.rmse_ticks_fitted) for v in whole.phases.get(j, {}).values()]
+        rows = [(v.n_reads, v.rmse_ticks_fitted) for ph, v in whole.phases.get(j, {}).items() if ph in SWING_PHASES]
         return follows_to_rounding(whole.in_step_until_s, duration_s, rows)
 
     return [u for u in unexplained if not all(at_rounding(j) for j in u.joints)]
+
+
+def with_refits(found: list, terms: list, swaps: list) -> tuple[list, list]:
+    """The found effects and dictionary terms with the values the whole walk refitted (``swaps``:
+    (effect, refitted); :func:`~.whole_walk_search.search_loaded`)."""
+    from dataclasses import replace
+
+    from hexapod_model.dictionary import BY_TERM
+
+    def swap(e):
+        return next((n for o, n in swaps if o is e), e)
+    found = [replace(f, effect=swap(f.effect)) for f in found]
+    terms = [replace(t, effect=swap(t.effect), words=BY_TERM[t.effect.effect].describe(swap(t.effect).params))
+             if swap(t.effect) is not t.effect else t for t in terms]
+    return found, terms
 
 
 def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
@@ -127,12 +146,13 @@ def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
 
 def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
                      joints, search: bool = True, progress=lambda msg: None
-                     ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict, list]:
+                     ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict, list, list]:
     """The whole-walk comparison of :func:`analyse`'s walk path, the effects found on part of the robot
     that it puts on every joint (:func:`widen`) and on a whole leg (:func:`widen_to_legs`), what
-    :func:`search_loaded` finds in its loaded phases (with ``search``), and the notes for the report.
-    ``ground``: None takes the recording's (``/sim/scene``), else a flat floor.
-    -> (comparison, notes, loaded finds, {kind: robot-wide effect}, [(effect, on its whole leg)])."""
+    :func:`search_loaded` finds in its loaded phases (with ``search``) and the effects it refits instead,
+    and the notes for the report. ``ground``: None takes the recording's (``/sim/scene``), else a flat floor.
+    -> (comparison, notes, loaded finds, {kind: robot-wide effect}, [(effect, on its whole leg)],
+    [(effect, refitted)])."""
     ground, origin = walk_ground(rec, ground)
     fitted = robot.with_effects(effects) if effects else None
     replays = Replays(rec, robot, ground)
@@ -141,8 +161,10 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     effects, moved = widen_to_legs(replays, effects, joints, progress)
     if moved:
         ww = compare(replays, robot.with_effects(effects), phases, joints)
-    finds = search_loaded(replays, list(effects), ww, progress) if search else []
-    if finds:
+    finds, refitted = search_loaded(replays, list(effects), ww, progress) if search else ([], [])
+    if refitted:
+        effects = [next((n for o, n in refitted if o is e), e) for e in effects]
+    if finds or refitted:
         ww = compare(replays, robot.with_effects(list(effects) + [f.effect for f in finds]), phases, joints)
     notes = [f'whole walk: the recorded goals replayed through the MuJoCo hexapod on {ground.describe()} '
              f'({origin}), {ww.runtime_s:.1f} s']
@@ -159,10 +181,15 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     for e, leg in moved:
         notes.append(f'whole walk: {e.effect.replace("_", " ")} found on {", ".join(map(str, e.joints))} makes the '
                      f'whole walk follow the leg\'s other joints only on the whole leg: put on leg {leg.joints[0].leg}')
+    for e, n in refitted:
+        ((key, v0),), ((_, v),) = e.params.items(), n.params.items()
+        notes.append(f'whole walk: {e.effect.replace("_", " ")} on {", ".join(map(str, e.joints))} refitted on the '
+                     f'whole walk, {key} {v0:.4g} -> {v:.4g}: at that value it explains what the loaded phases left '
+                     'as well as a new effect would')
     for kind in wide:
         notes.append(f'whole walk: {kind.replace("_", " ")} found on part of the robot keeps the replay in step only '
                      'when it acts on every joint: put on the whole robot')
-    return ww, notes, finds, wide, moved
+    return ww, notes, finds, wide, moved, refitted
 
 
-__all__ = ['add_loaded', 'whole_walk_agrees', 'whole_walk_check', 'widen_to_legs', 'widened']
+__all__ = ['add_loaded', 'whole_walk_agrees', 'whole_walk_check', 'widen_to_legs', 'widened', 'with_refits']
