@@ -132,14 +132,14 @@ def test_a_replay_stopped_once_out_of_step_gives_the_whole_replays_verdict(rec, 
 
 def test_candidates_compared_lazily_give_the_minimum_of_the_whole_comparisons(rec, robot):
     until = 2.0
-    fit, _ = wws._masks(rec, SCOPE, until)
+    fit, _ = wws.search_masks(rec, SCOPE, until)
     cand = BY_NAME['viscous_damping']
     values = [0.01, 0.1, 0.3, 1.5]
     full = []
     replays = wws.Replays(rec, robot, rec.ground)
     for v in values:
         pred = ww.replay_walk(rec, robot.with_effects([cand.make(SCOPE, v)]), rec.ground, SCOPE, t_end_s=until)
-        full.append(wws._rms(replays, pred, SCOPE, fit))
+        full.append(wws.masked_rms(replays, pred, SCOPE, fit))
     trials = [wws._Trial(replays, robot.with_effects([cand.make(SCOPE, v)]), SCOPE, until, fit) for v in values]
     lazy = wws._settle(trials)
     k = int(np.argmin(full))
@@ -156,7 +156,7 @@ def _search_whole(rec, robot, cand, scope, until_s, fit):
 
     def cost(v):
         pred = ww.replay_walk(rec, robot.with_effects([cand.make(scope, v)]), rec.ground, scope, t_end_s=until_s)
-        return wws._rms(replays, pred, scope, fit)
+        return wws.masked_rms(replays, pred, scope, fit)
     grid = np.geomspace(cand.lo, cand.hi, wws.SEARCH_GRID)
     costs = [cost(float(v)) for v in grid]
     k = int(np.nanargmin(costs))
@@ -176,10 +176,10 @@ def _search_whole(rec, robot, cand, scope, until_s, fit):
 
 def test_the_search_with_its_shortcuts_finds_the_value_of_the_whole_search(rec, robot):
     until = 1.5
-    fit, hold = wws._masks(rec, SCOPE, until)
+    fit, hold = wws.search_masks(rec, SCOPE, until)
     cand = BY_NAME['viscous_damping']
     want_v, want_c = _search_whole(rec, robot, cand, SCOPE, until, fit)
-    v, c, r = wws._search_one(wws.Replays(rec, robot, rec.ground), [], cand, SCOPE, until, fit, lambda msg: None)
+    v, c, r = wws.search_one(wws.Replays(rec, robot, rec.ground), [], cand, SCOPE, until, fit, lambda msg: None)
     assert (v, c) == (want_v, want_c)
     pred = ww.replay_walk(rec, robot.with_effects([cand.make(SCOPE, v)]), rec.ground, SCOPE, t_end_s=until)
     assert np.array_equal(r.pred[SCOPE[0]], pred[SCOPE[0]])      # its replay is the best value's

@@ -11,6 +11,7 @@ import math
 from hexapod_model.description import Effect, Robot
 from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
 from hexapod_sim.discrepancy.findings import UNEXPLAINED_TICKS, FoundEffect
+from hexapod_sim.discrepancy.loaded_search import LoadedFind, search_loaded
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.whole_walk_search import (
     LOADED_PHASES,
@@ -21,13 +22,11 @@ from hexapod_sim.discrepancy.whole_walk_search import (
     SEARCH_MIN_RATIO,
     START_S,
     SWING_PHASES,
-    LoadedFind,
     Replays,
     WholeWalk,
     compare,
     follows_to_rounding,
     joint_rms,
-    search_loaded,
     walk_ground,
     widen,
 )
@@ -115,7 +114,7 @@ def whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
 
 def with_refits(found: list, terms: list, swaps: list) -> tuple[list, list]:
     """The found effects and dictionary terms with the values the whole walk refitted (``swaps``:
-    (effect, refitted); :func:`~.whole_walk_search.search_loaded`)."""
+    (effect, refitted); :func:`~.loaded_search.search_loaded`)."""
     from dataclasses import replace
 
     from hexapod_model.dictionary import BY_TERM

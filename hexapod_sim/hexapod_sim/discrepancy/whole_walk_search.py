@@ -7,8 +7,8 @@ the recording: :func:`in_step_until` finds that moment, and only reads before it
 ``LIFT_OFF_S`` of a swing-up (it gives the share up) told apart.
 
 Effects the swings found on part of the robot that the whole walk wants on every joint (:func:`widen`), and
-effects the loaded phases show (:func:`search_loaded`: backlash, break-away friction and the dead-band fitted
-on the whole walk's replay); :mod:`.whole_walk_findings` runs them in the analysis of a walk.
+the searches on the whole walk's replay that :mod:`.loaded_search` runs in its loaded phases;
+:mod:`.whole_walk_findings` runs them in the analysis of a walk.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_model.description import Effect, Robot
+from hexapod_model.description import Robot
 from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.segments import PHASES, LegPhases
@@ -227,8 +227,8 @@ def widen(replays: Replays, effects: list, phases: dict, joints, ww: WholeWalk,
         if ww2.in_step_until_s < ww.in_step_until_s + WIDEN_MIN_GAIN_S:
             continue
         until = min(ww2.in_step_until_s, START_S + SEARCH_HORIZON_S)       # the value, refitted on the whole walk
-        fit, _ = _masks(rec, joints, until)
-        v, _, _ = _search_one(replays, rest, BY_NAME[kind], tuple(joints), until, fit, progress,
+        fit, _ = search_masks(rec, joints, until)
+        v, _, _ = search_one(replays, rest, BY_NAME[kind], tuple(joints), until, fit, progress,
                               bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)))
         trial_e = BY_NAME[kind].make(joints, v)
         out, wide[kind] = rest + [trial_e], trial_e
@@ -292,50 +292,20 @@ def joint_rms(rec: Recording, res: dict, joints, until_s: float) -> float:
     return math.sqrt(sq / n) if n else math.inf
 
 
-# Effects that show where a leg carries the body (a load reversal, a hold under load) more than in a free
-# swing, searched for on the whole walk when its loaded phases leave more than tick rounding.
-LOADED_CANDIDATES = ('backlash', 'static_friction', 'compliance_deadband')
-ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope is tried too
+# The searches on the whole walk (:func:`search_one`; the loaded-phase search is :mod:`.loaded_search`'s)
 SEARCH_BLOCK_S = 2.0          # alternating fit / held-out blocks of the search [s]
 SEARCH_GRID = 9               # log-spaced values over the candidate's range, then golden-section steps
 SEARCH_REFINE = 4
 SEARCH_MIN_RATIO = 1.5        # held-out RMS improvement an effect must reach on its joints
 SEARCH_MIN_EXPLAINED = 0.75   # and the share of their excess over rounding it must explain
 ROUNDING_RMS = 0.29           # uniform tick rounding: 1/sqrt(12)
-EDGE_FACTOR = 1.5             # a fit within this factor of its range's low end is no measurement: not named
 WIDEN_BRACKET = 0.2           # a widened effect's value is refitted within +-20 % of the parts' mean
 SEARCH_CHECK_S = 0.5          # [s] of replay between two looks at a candidate's error so far
 SEARCH_HORIZON_S = 20.0       # [s] of the walk (in step) the search replays: its cost does not grow with the walk
 SEARCH_MIN_IN_STEP_S = 5.0    # [s] in step the search needs (fewer: the ground is likely not the walk's)
-MAX_JOINT_SCOPES = 3          # single-joint scopes tried: the joints with the largest loaded-phase error
-RIVAL_BRACKET = 0.05          # a named effect refitted within +-5 % of its value is a new loaded effect's rival
-RIVAL_MARGIN = 1.1            # and the new effect is named only when its held-out RMS beats the rival's by this
 
 
-@dataclass(frozen=True)
-class LoadedFind:
-    """An effect the whole walk shows: held-out RMS error on its joints [ticks] without and with it."""
-
-    effect: object                  # hexapod_model.description.Effect
-    phase: str                      # the loaded phase where its joints' error was largest
-    heldout_rmse_ticks_before: float
-    heldout_rmse_ticks_after: float
-
-
-def _loaded_excess(ww: WholeWalk) -> list[tuple[str, float]]:
-    """(joint, RMS) of the joints whose error over the loaded phases, with the effects found, is above tick
-    rounding, the largest first."""
-    out = []
-    for j, row in ww.phases.items():
-        rows = [row[ph] for ph in LOADED_PHASES if ph in row]
-        n = sum(r.n_reads for r in rows)
-        rms = math.sqrt(sum(r.n_reads * r.rmse_ticks_fitted ** 2 for r in rows) / n) if n else 0.0
-        if rms > ROUNDING_TICKS:
-            out.append((j, rms))
-    return sorted(out, key=lambda x: -x[1])
-
-
-def _masks(rec: Recording, joints, until_s: float):
+def search_masks(rec: Recording, joints, until_s: float):
     """(fit, held-out) read masks per joint: alternating ``SEARCH_BLOCK_S`` blocks after ``START_S``."""
     fit, hold = {}, {}
     for j in joints:
@@ -346,7 +316,7 @@ def _masks(rec: Recording, joints, until_s: float):
     return fit, hold
 
 
-def _rms(replays: Replays, pred: dict, joints, masks) -> float:
+def masked_rms(replays: Replays, pred: dict, joints, masks) -> float:
     sq, n = 0.0, 0
     for j in joints:
         r = (replays.meas(j)[:len(pred[j])] - pred[j])[masks[j][:len(pred[j])]]
@@ -377,7 +347,7 @@ class _Trial:
         self.t += SEARCH_CHECK_S
         self.replay.run_to(self.t)
         if self.replay.finished:
-            self.value = _rms(self.replays, self.replay.pred, self.scope, self.fit)
+            self.value = masked_rms(self.replays, self.replay.pred, self.scope, self.fit)
             return
         res = self.replays.residuals(self.replay, self.scope)
         self.sq = sum(float(np.nansum(res[j][self.masks[j]] ** 2)) for j in self.scope)
@@ -404,7 +374,7 @@ def _settle(trials: list[_Trial]) -> list[float]:
         min(open_, key=_Trial.bound).advance()
 
 
-def _search_one(replays: Replays, base: list, cand, scope, until_s, fit, progress,
+def search_one(replays: Replays, base: list, cand, scope, until_s, fit, progress,
                 bracket: tuple[float, float] | None = None) -> tuple[float, float, WalkReplay]:
     """(value, fit RMS, its replay) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole
     walk, over the candidate's range (or ``bracket``): a log-spaced grid, then golden-section steps between
@@ -445,116 +415,5 @@ def _search_one(replays: Replays, base: list, cand, scope, until_s, fit, progres
     return best[0], best[1], best[2].replay
 
 
-def _least_measured(cand, robot: Robot) -> float:
-    """The least value of a loaded-phase candidate the whole walk names: ``EDGE_FACTOR`` times its range's low
-    end (a fit that runs towards the smallest plausible value is no measurement: on walks it gave break-away
-    friction of 0.09 N m and play of 0.17 degrees on joints that have neither), and for play and the
-    dead-band at least one tick, the reads' resolution (the dead-band register holds whole ticks)."""
-    least = cand.lo * EDGE_FACTOR
-    if cand.effect == 'backlash':
-        least = max(least, robot.servo.rad_per_tick)
-    elif cand.effect == 'compliance_deadband':
-        least = max(least, 1.0)
-    return least
-
-
-@dataclass(frozen=True)
-class _Refit:
-    """A named effect of one parameter with that parameter free (the candidate interface of
-    :func:`_search_one`; it acts on its own joints whatever scope is judged)."""
-
-    named: Effect
-    key: str
-
-    @property
-    def effect(self) -> str:
-        return self.named.effect
-
-    def make(self, _joints, value: float) -> Effect:
-        return Effect(self.named.effect, self.named.joints, {self.key: float(value)})
-
-
-def _rival(replays: Replays, base: list, scope, until_s: float, fit: dict, hold: dict,
-           progress) -> tuple[float, list, tuple] | None:
-    """The best of the named one-parameter effects refitted within ``RIVAL_BRACKET`` of its value on the
-    whole walk (fitted on ``scope`` and its own joints): on the blocks a torque limit 0.5 % low left a tibia
-    1.3 ticks off in stance, and a load friction 0.5 % high moved another leg's touchdown by 3.7 ticks; a
-    new loaded effect must explain such an excess better than the named effects at their right values.
-    -> (held-out RMS on ``scope``, the effects with it refitted, (named, refitted)), or None."""
-    best = None
-    for i, e in enumerate(base):
-        ((key, v0),) = e.params.items() if len(e.params) == 1 else ((None, 0.0),)
-        if key is None or not v0 > 0:
-            continue
-        rest = base[:i] + base[i + 1:]
-        judged = tuple(dict.fromkeys(tuple(scope) + tuple(j for j in e.joints if j in fit)))
-        v, _, r = _search_one(replays, rest, _Refit(e, key), judged, until_s, fit, progress,
-                              bracket=(v0 * (1 - RIVAL_BRACKET), v0 * (1 + RIVAL_BRACKET)))
-        rms = _rms(replays, r.pred, scope, hold)
-        if best is None or rms < best[0]:
-            new = _Refit(e, key).make(e.joints, v)
-            best = (rms, rest[:i] + [new] + rest[i:], (e, new))
-    return best
-
-
-def _base_pred(replays: Replays, base: list, joints, until_s: float) -> dict:
-    r0 = replays.get(replays.robot.with_effects(base), joints, until_s)
-    r0.run_to(until_s)
-    return {j: r0.pred[j][:int(np.searchsorted(replays.rec.states[j].t_s, until_s, side='right'))] for j in joints}
-
-
-def search_loaded(replays: Replays, effects: list, ww: WholeWalk,
-                  progress=lambda msg: None) -> tuple[list[LoadedFind], list[tuple]]:
-    """Effects of :data:`LOADED_CANDIDATES` that explain what the whole walk's loaded phases leave, on the
-    joints that leave more than tick rounding (each alone; and the whole robot when many do), fitted on
-    alternate 2 s blocks of the whole walk and judged on the others. At most one effect per joint; none
-    where a named effect at a refitted value explains the excess as well (:func:`_rival`), which is refitted
-    instead. -> (finds, [(named effect, refitted)])."""
-    from hexapod_sim.discrepancy.effects import BY_NAME
-    rec, robot = replays.rec, replays.robot
-    excess = _loaded_excess(ww)
-    if not excess or ww.in_step_until_s < START_S + SEARCH_MIN_IN_STEP_S:
-        return [], []
-    joints = list(ww.phases)
-    until = min(ww.in_step_until_s, START_S + SEARCH_HORIZON_S)
-    fit, hold = _masks(rec, joints, until)
-    scopes = [(j,) for j, _ in excess[:MAX_JOINT_SCOPES]]
-    scopes += [tuple(joints)] if len(excess) >= ROBOT_WIDE_MIN_JOINTS else []
-    base = list(effects)
-    base_pred = _base_pred(replays, base, joints, until)
-    found: list[LoadedFind] = []
-    refitted: list[tuple] = []
-    for scope in sorted(scopes, key=len, reverse=True):
-        if any(j in f.effect.joints for f in found for j in scope):
-            continue
-        before = _rms(replays, base_pred, scope, hold)
-        trials = []
-        for name in LOADED_CANDIDATES:
-            cand = BY_NAME[name]
-            v, _, r = _search_one(replays, base, cand, scope, until, fit, progress)
-            trials.append((_rms(replays, r.pred, scope, hold), cand.make(scope, v)))
-        after, eff = min(trials, key=lambda x: x[0])
-        explained = (before ** 2 - after ** 2) / max(before ** 2 - ROUNDING_RMS ** 2, 1e-9)
-        c = BY_NAME[eff.effect]
-        at_edge = eff.params[c.key] < _least_measured(c, robot)
-        if before / max(after, 1e-9) >= SEARCH_MIN_RATIO and explained >= SEARCH_MIN_EXPLAINED and not at_edge:
-            rival = _rival(replays, base, scope, until, fit, hold, progress)
-            if rival is not None and rival[0] <= RIVAL_MARGIN * after:
-                base, swap = rival[1], rival[2]
-                again = [k for k, (_, n) in enumerate(refitted) if n is swap[0]]     # refitted before
-                if again:
-                    refitted[again[0]] = (refitted[again[0]][0], swap[1])
-                else:
-                    refitted.append(swap)
-                base_pred = _base_pred(replays, base, joints, until)
-                continue
-            worst = max(LOADED_PHASES, key=lambda ph: max((ww.phases[j][ph].rmse_ticks_fitted for j in scope
-                                                           if ph in ww.phases[j]), default=0.0))
-            found.append(LoadedFind(eff, worst, before, after))
-            base.append(eff)
-    return found, refitted
-
-
-__all__ = ['LoadedFind', 'PhaseRow', 'Replays', 'WHOLE_PHASES', 'WholeWalk', 'compare', 'follows',
-           'follows_to_rounding', 'in_step_until', 'joint_rms', 'search_loaded', 'walk_ground', 'whole_labels',
-           'widen']
+__all__ = ['PhaseRow', 'Replays', 'WHOLE_PHASES', 'WholeWalk', 'compare', 'follows', 'follows_to_rounding',
+           'in_step_until', 'joint_rms', 'walk_ground', 'whole_labels', 'widen']
