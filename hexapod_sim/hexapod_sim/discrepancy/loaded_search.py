@@ -113,6 +113,7 @@ def _rival(replays: Replays, base: list, scope, until_s: float, fit: dict, hold:
 
 
 def _base_pred(replays: Replays, base: list, joints, until_s: float) -> dict:
+    """The reads of ``joints`` up to ``until_s`` predicted by the whole walk replayed with ``base``."""
     r0 = replays.get(replays.robot.with_effects(base), joints, until_s)
     r0.run_to(until_s)
     return {j: r0.pred[j][:int(np.searchsorted(replays.rec.states[j].t_s, until_s, side='right'))] for j in joints}
@@ -202,5 +203,6 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk,
         found.append(LoadedFind(eff, worst, before, after))
         base.append(eff)
     return found, refitted
+
 
 __all__ = ['LOADED_CANDIDATES', 'LoadedFind', 'search_loaded']

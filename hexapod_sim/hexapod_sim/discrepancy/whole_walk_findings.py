@@ -1,14 +1,16 @@
 """What the whole walk adds to a walk's findings: the check :func:`~.analysis.analyse` runs on a walk
 (:func:`whole_walk_check`: the comparison, the effects it puts on every joint or on a whole leg, what the
-loaded phases show, the report's notes; the search itself is :mod:`.whole_walk_search`'s), and how that is
-carried into the analysis's findings (:mod:`.findings`): :func:`widened`, :func:`whole_walk_agrees` and
-:func:`add_loaded`.
+loaded phases show, the report's notes; the searches are :mod:`.whole_walk_search`'s and
+:mod:`.loaded_search`'s), and how that is carried into the analysis's findings (:mod:`.findings`):
+:func:`widened`, :func:`with_refits`, :func:`whole_walk_agrees` and :func:`add_loaded`.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from hexapod_model.description import Effect, Robot
+from hexapod_model.dictionary import BY_TERM
 from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
 from hexapod_sim.discrepancy.findings import UNEXPLAINED_TICKS, FoundEffect
 from hexapod_sim.discrepancy.loaded_search import LoadedFind, search_loaded
@@ -115,10 +117,6 @@ def whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
 def with_refits(found: list, terms: list, swaps: list) -> tuple[list, list]:
     """The found effects and dictionary terms with the values the whole walk refitted (``swaps``:
     (effect, refitted); :func:`~.loaded_search.search_loaded`)."""
-    from dataclasses import replace
-
-    from hexapod_model.dictionary import BY_TERM
-
     def swap(e):
         return next((n for o, n in swaps if o is e), e)
     found = [replace(f, effect=swap(f.effect)) for f in found]

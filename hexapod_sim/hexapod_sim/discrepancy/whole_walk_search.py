@@ -229,7 +229,7 @@ def widen(replays: Replays, effects: list, phases: dict, joints, ww: WholeWalk,
         until = min(ww2.in_step_until_s, START_S + SEARCH_HORIZON_S)       # the value, refitted on the whole walk
         fit, _ = search_masks(rec, joints, until)
         v, _, _ = search_one(replays, rest, BY_NAME[kind], tuple(joints), until, fit, progress,
-                              bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)))
+                             bracket=(mean * (1 - WIDEN_BRACKET), mean * (1 + WIDEN_BRACKET)))
         trial_e = BY_NAME[kind].make(joints, v)
         out, wide[kind] = rest + [trial_e], trial_e
         ww = compare(replays, robot.with_effects(out), phases, joints)
