@@ -90,12 +90,12 @@ class _Refit:
 
 
 def _rival(replays: Replays, base: list, scope, until_s: float, fit: dict, hold: dict,
-           progress) -> tuple[float, list, tuple] | None:
+           progress) -> tuple[float, list] | None:
     """The best of the named one-parameter effects refitted within ``RIVAL_BRACKET`` of its value on the
     whole walk (fitted on ``scope`` and its own joints): on the blocks a torque limit 0.5 % low left a tibia
     1.3 ticks off in stance, and a load friction 0.5 % high moved another leg's touchdown by 3.7 ticks; a
     new loaded effect must explain such an excess better than the named effects at their right values.
-    -> (held-out RMS on ``scope``, the effects with it refitted, (named, refitted)), or None."""
+    -> (held-out RMS on ``scope``, ``base`` with it refitted in its place), or None."""
     best = None
     for i, e in enumerate(base):
         ((key, v0),) = e.params.items() if len(e.params) == 1 else ((None, 0.0),)
@@ -107,8 +107,7 @@ def _rival(replays: Replays, base: list, scope, until_s: float, fit: dict, hold:
                               bracket=(v0 * (1 - RIVAL_BRACKET), v0 * (1 + RIVAL_BRACKET)))
         rms = masked_rms(replays, r.pred, scope, hold)
         if best is None or rms < best[0]:
-            new = _Refit(e, key).make(e.joints, v)
-            best = (rms, rest[:i] + [new] + rest[i:], (e, new))
+            best = (rms, rest[:i] + [_Refit(e, key).make(e.joints, v)] + rest[i:])
     return best
 
 
@@ -180,7 +179,6 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk,
     base = list(effects)
     base_pred = _base_pred(replays, base, joints, until)
     found: list[LoadedFind] = []
-    refitted: list[tuple] = []
     for scope in sorted(scopes, key=len, reverse=True):
         if any(j in f.effect.joints for f in found for j in scope):
             continue
@@ -190,19 +188,15 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk,
             continue
         rival = _rival(replays, base, scope, until, fit, hold, progress)
         if rival is not None and rival[0] <= RIVAL_MARGIN * after_hold:
-            base, swap = rival[1], rival[2]
-            again = [k for k, (_, n) in enumerate(refitted) if n is swap[0]]     # refitted before
-            if again:
-                refitted[again[0]] = (refitted[again[0]][0], swap[1])
-            else:
-                refitted.append(swap)
+            base = rival[1]
             base_pred = _base_pred(replays, base, joints, until)
             continue
         worst = max(LOADED_PHASES, key=lambda ph: max((ww.phases[j][ph].rmse_ticks_fitted for j in scope
                                                        if ph in ww.phases[j]), default=0.0))
         found.append(LoadedFind(eff, worst, before, after))
         base.append(eff)
-    return found, refitted
+    # a refit keeps its effect's place in ``base``, which starts as ``effects``
+    return found, [(o, n) for o, n in zip(effects, base) if n is not o]
 
 
 __all__ = ['LOADED_CANDIDATES', 'LoadedFind', 'search_loaded']

@@ -114,15 +114,19 @@ def whole_walk_agrees(unexplained: list, whole, duration_s: float) -> list:
     return [u for u in unexplained if not all(at_rounding(j) for j in u.joints)]
 
 
+def _refitted(e: Effect, swaps: list) -> Effect:
+    """``e``, or its refitted value (``swaps``: (effect, refitted); :func:`~.loaded_search.search_loaded`)."""
+    return next((n for o, n in swaps if o is e), e)
+
+
 def with_refits(found: list, terms: list, swaps: list) -> tuple[list, list]:
-    """The found effects and dictionary terms with the values the whole walk refitted (``swaps``:
-    (effect, refitted); :func:`~.loaded_search.search_loaded`)."""
-    def swap(e):
-        return next((n for o, n in swaps if o is e), e)
-    found = [replace(f, effect=swap(f.effect)) for f in found]
-    terms = [replace(t, effect=swap(t.effect), words=BY_TERM[t.effect.effect].describe(swap(t.effect).params))
-             if swap(t.effect) is not t.effect else t for t in terms]
-    return found, terms
+    """The found effects and dictionary terms with the values the whole walk refitted (:func:`_refitted`)."""
+    found = [replace(f, effect=_refitted(f.effect, swaps)) for f in found]
+    out = []
+    for t in terms:
+        e = _refitted(t.effect, swaps)
+        out.append(t if e is t.effect else replace(t, effect=e, words=BY_TERM[e.effect].describe(e.params)))
+    return found, out
 
 
 def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
@@ -160,7 +164,7 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
         ww = compare(replays, robot.with_effects(effects), phases, joints)
     finds, refitted = search_loaded(replays, list(effects), ww, progress) if search else ([], [])
     if refitted:
-        effects = [next((n for o, n in refitted if o is e), e) for e in effects]
+        effects = [_refitted(e, refitted) for e in effects]
     if finds or refitted:
         ww = compare(replays, robot.with_effects(list(effects) + [f.effect for f in finds]), phases, joints)
     notes = [f'whole walk: the recorded goals replayed through the MuJoCo hexapod on {ground.describe()} '
