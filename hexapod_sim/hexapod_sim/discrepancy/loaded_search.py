@@ -6,7 +6,7 @@ the effects already named, refitted, do not explain as much (:func:`_rival`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -165,7 +165,8 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk,
     joints that leave more than tick rounding (each alone; and the whole robot when many do), fitted on
     alternate 2 s blocks of the whole walk and judged on the others (:func:`_best_on_scope`). At most one
     effect per joint; none where a named effect at a refitted value explains the excess as well
-    (:func:`_rival`), which is refitted instead. -> (finds, [(named effect, refitted)])."""
+    (:func:`_rival`), which is refitted instead (a find of an earlier scope then takes its refitted value).
+    -> (finds, [(named effect, refitted)])."""
     from hexapod_sim.discrepancy.effects import BY_NAME
     rec, robot = replays.rec, replays.robot
     excess = _loaded_excess(ww)
@@ -195,8 +196,10 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk,
                                                        if ph in ww.phases[j]), default=0.0))
         found.append(LoadedFind(eff, worst, before, after))
         base.append(eff)
-    # a refit keeps its effect's place in ``base``, which starts as ``effects``
-    return found, [(o, n) for o, n in zip(effects, base) if n is not o]
+    # a refit keeps its effect's place in ``base``: ``effects``, then the finds in order
+    n = len(effects)
+    found = [f if b is f.effect else replace(f, effect=b) for f, b in zip(found, base[n:])]
+    return found, [(o, r) for o, r in zip(effects, base[:n]) if r is not o]
 
 
 __all__ = ['LOADED_CANDIDATES', 'LoadedFind', 'search_loaded']

@@ -1,0 +1,64 @@
+"""The loaded-phase search's bookkeeping (:func:`search_loaded`): which effects it returns at which values
+when a refit of an effect is the rival of a new one. The replays, fits and judgements are stood in for
+(each is tested on recorded walks elsewhere); what is checked is what the search does with their answers."""
+from types import SimpleNamespace
+
+import numpy as np
+
+from hexapod_model.description import Effect, Joint
+from hexapod_sim.discrepancy import loaded_search
+
+J1, J2, J3 = Joint(leg=1, role='tibia'), Joint(leg=2, role='tibia'), Joint(leg=3, role='femur')
+
+
+def _friction(joint, value):
+    return Effect('static_friction', (joint,), {'tau_s_nm': value})
+
+
+def _walk(excess: dict):
+    """A walk in step to 20 s whose stance leaves ``excess`` ({joint: RMS ticks}) on its joints."""
+    t = np.arange(0.0, 20.0, 0.01)
+    rec = SimpleNamespace(states={j: SimpleNamespace(t_s=t) for j in excess})
+    replays = SimpleNamespace(rec=rec, robot=SimpleNamespace(servo=SimpleNamespace(rad_per_tick=0.005)))
+    ww = SimpleNamespace(in_step_until_s=20.0,
+                         phases={j: {'stance': SimpleNamespace(n_reads=500, rmse_ticks_fitted=v)} for j, v in excess.items()})
+    return replays, ww
+
+
+def _search(monkeypatch, effects, new_on_scope: dict, rival_on_scope: dict):
+    """``search_loaded`` where the best candidate on a scope is ``new_on_scope[scope]`` (held out 1.0 -> 0.3
+    ticks) and the rival there, when given, is the effect list ``rival_on_scope[scope]`` (held out 0.3)."""
+    monkeypatch.setattr(loaded_search, '_base_pred', lambda replays, base, joints, until: {})
+    monkeypatch.setattr(loaded_search, '_best_on_scope',
+                        lambda replays, base, pred, scope, *a: (1.0, 0.3, new_on_scope[tuple(scope)], 0.3))
+
+    def rival(replays, base, scope, *a):
+        if tuple(scope) not in rival_on_scope:
+            return None
+        refit = rival_on_scope[tuple(scope)](base)
+        swapped = [(o, n) for o, n in zip(base, refit) if n is not o]
+        return 0.3, refit, swapped[0]
+
+    monkeypatch.setattr(loaded_search, '_rival', rival)
+    replays, ww = _walk({J1: 1.2, J2: 1.0})
+    return loaded_search.search_loaded(replays, list(effects), ww)
+
+
+def test_a_find_refitted_as_a_later_scopes_rival_is_returned_at_its_refitted_value(monkeypatch):
+    # leg 1's friction is found first; on leg 2's tibia its refit (0.20 -> 0.21) explains as much as a new
+    # friction there: nothing new, and leg 1's find carries the value the rest of the search used
+    first = _friction(J1, 0.20)
+    found, refitted = _search(monkeypatch, [], {(J1,): first, (J2,): _friction(J2, 0.25)},
+                              {(J2,): lambda base: [_friction(J1, 0.21) if e is first else e for e in base]})
+    assert [f.effect.params['tau_s_nm'] for f in found] == [0.21]
+    assert found[0].effect.joints == (J1,)
+    assert refitted == []          # a find is no named effect: no "refitted" note
+
+
+def test_a_named_effect_refitted_as_the_rival_is_reported_as_refitted(monkeypatch):
+    named = Effect('torque_saturation', (J3,), {'tau_max_nm': 0.77})
+    refit = Effect('torque_saturation', (J3,), {'tau_max_nm': 0.776})
+    found, refitted = _search(monkeypatch, [named], {(J1,): _friction(J1, 0.20), (J2,): _friction(J2, 0.25)},
+                              {(J1,): lambda base: [refit if e is named else e for e in base]})
+    assert [f.effect.joints for f in found] == [(J2,)]
+    assert refitted == [(named, refit)]
