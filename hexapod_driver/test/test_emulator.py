@@ -397,3 +397,24 @@ def test_a_backend_that_is_not_installed_is_named_in_one_error_line(monkeypatch,
     assert len(err) == 1
     assert "--backend sim: no such backend installed (installed: ideal)" in err[0]
     assert 'hexapod_driver.emulator_backends' in err[0] and 'hexapod_sim' in err[0]
+
+
+def test_the_reply_record_marks_dropped_and_corrupted_replies(emu, line, tmp_path):
+    """What a soak's checks are judged on: a position sent, a read left unanswered, a reply sent with a
+    broken checksum (never a position the host can take), each one row."""
+    from hexapod_driver.emulator.fault_schedule import CORRUPTED, PRESENT_POSITION, UNANSWERED, ReplyRecorder, load_replies
+    sid = emu.robot.bus.joints[0].servo_id
+    rec = ReplyRecorder(emu, tmp_path / 'replies.bin', period_s=60.0)
+    try:
+        emu.log.clear()
+        good = line.read(sid, PRESENT_POSITION, 2)
+        emu.faults.drop_replies([sid])
+        assert line.read(sid, PRESENT_POSITION, 2) is None
+        emu.faults.corrupt_replies([sid])
+        line.send(sid, p.READ, [PRESENT_POSITION, 2])
+        time.sleep(0.1)
+    finally:
+        rec.close()
+    rows = load_replies(tmp_path / 'replies.bin')
+    assert rows[:, 1].tolist() == [sid] * 3
+    assert rows[:, 2].tolist() == [u16(good.params), UNANSWERED, CORRUPTED]

@@ -187,3 +187,20 @@ def test_soak_ctrl_c_ends_with_the_report_so_far(tmp_path):
     assert 'PASS  torque off at the end' in text, text
     assert 'PASS  bag readable' in text and 'PASS  no invented positions' in text, text
     assert 'did not stop' not in text, text          # each child ended on its signal, none was killed
+
+
+def test_a_drop_or_corruption_that_drew_no_request_is_not_observable():
+    """Replies dropped or corrupted with p = 0.2 on a servo read 9 times in the fault's seconds: 13 % of
+    such faults touch no reply at all, and then the driver has nothing to report."""
+    bus = 'hexapod_driver: bus'
+    quiet = [_status(11.0, bus, 0, 'OK', reads=300, failed_reads=0),
+             _status(13.0, 'hexapod_driver: servo leg3_coxa (id 7)', responding='true')]
+    for kind, spoiled in (('drop', 'asked'), ('corrupt', 'corrupted')):
+        fault = [{'fault': 0, 'kind': kind, 'ids': [7], 'value': 0.2, 'duration_s': 2.0, 'start': 10.0, 'end': 12.0}]
+        v, = sc.judge_faults(fault, quiet, [7], 20.0, 'recover', **{spoiled: {7: np.array([3.0, 15.0])}})
+        assert v.seen is None, kind
+        v, = sc.judge_faults(fault, quiet, [7], 20.0, 'recover', **{spoiled: {7: np.array([11.0])}})
+        assert v.seen is False, kind                                  # it drew one: the driver must say so
+        told = quiet + [_status(11.5, bus, 1, 'failed reads', reads=300, failed_reads=1)]
+        v, = sc.judge_faults(fault, told, [7], 20.0, 'recover', **{spoiled: {7: np.array([11.0])}})
+        assert v.seen and v.recovered

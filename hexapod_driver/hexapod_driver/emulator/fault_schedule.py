@@ -9,9 +9,9 @@ and the record of every position the emulated servos reported.
   through its :class:`~.faults.Faults` (times from when :meth:`ScheduleRunner.begin` is called) and
   writes one JSON line per fault start and end (wall-clock time, what, which servos).
 * :class:`ReplyRecorder` appends every present position a servo sent (wall time, servo id, tick),
-  and every read or ping it left unanswered (tick :data:`UNANSWERED`), to a binary file as it goes, so a
-  checker can prove that each position a driver published was
-  one a servo reported (:func:`load_replies`).
+  every read or ping it left unanswered (tick :data:`UNANSWERED`) and every reply it sent corrupted (tick
+  :data:`CORRUPTED`), to a binary file as it goes, so a checker can prove that each position a driver
+  published was one a servo reported, and tell which injected faults touched a request (:func:`load_replies`).
 
 ``bus_emulator --fault-schedule FILE --events-out FILE --replies-out FILE`` wires them up.
 """
@@ -37,6 +37,7 @@ KINDS = ('drop', 'corrupt', 'overheat', 'voltage', 'silent', 'port')
 PRESENT_POSITION = 36                      # address of present_position (2 bytes)
 REPLY_ROW = 3                              # wall time, servo id, tick (float64 each)
 UNANSWERED = -1                            # the tick of a row for a request that got no reply
+CORRUPTED = -2                             # the tick of a row for a reply sent with a broken checksum
 
 
 class ScheduleError(ValueError):
@@ -233,7 +234,8 @@ def servo_registers(emu: 'BusEmulator') -> dict:
 
 class ReplyRecorder:
     """Appends each present position a servo sent to ``path``: rows of (wall time of the request,
-    servo id, tick) as float64, flushed every ``period_s`` from the emulator's transaction log (the
+    servo id, tick) as float64 (:data:`UNANSWERED` or :data:`CORRUPTED` for a read or ping without a
+    reply the host can take), flushed every ``period_s`` from the emulator's transaction log (the
     log must hold what arrives in that time: give the emulator a ``log_size`` of some 10,000)."""
 
     def __init__(self, emu: 'BusEmulator', path: str | Path, period_s: float = 0.2):
@@ -255,8 +257,8 @@ class ReplyRecorder:
             entries = [log.popleft() for _ in range(len(log))]
         rows = []
         for e in entries:
-            if not e.replied and e.instruction in (p.READ, p.PING) and e.servo_id != p.BROADCAST_ID:
-                rows.append((e.wall, e.servo_id, UNANSWERED))     # asked, no reply (silent, dropped)
+            if e.instruction in (p.READ, p.PING) and e.servo_id != p.BROADCAST_ID and (not e.replied or e.corrupted):
+                rows.append((e.wall, e.servo_id, CORRUPTED if e.replied else UNANSWERED))   # silent, dropped; corrupt
                 continue
             if e.instruction != p.READ or not e.replied or e.address is None:
                 continue
@@ -279,6 +281,6 @@ class ReplyRecorder:
 
 def load_replies(path: str | Path) -> np.ndarray:
     """The rows a :class:`ReplyRecorder` wrote: an (N, 3) array of wall time, servo id, tick
-    (:data:`UNANSWERED` for a request without a reply)."""
+    (:data:`UNANSWERED` for a request without a reply, :data:`CORRUPTED` for a reply sent corrupted)."""
     data = np.fromfile(path, dtype=np.float64)
     return data[:len(data) // REPLY_ROW * REPLY_ROW].reshape(-1, REPLY_ROW)

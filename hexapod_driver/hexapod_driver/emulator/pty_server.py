@@ -46,6 +46,7 @@ class LogEntry:
     rx: bytes = b''                    # the instruction packet exactly as received
     tx: bytes = b''                    # the bytes sent back (corrupted / with a stale packet ahead, as sent)
     note: str = ''                     # why there was no reply (status return level, baud mismatch, fault)
+    corrupted: bool = False            # the reply was sent with a broken checksum (fault injection)
 
 
 class BusEmulator:
@@ -468,6 +469,7 @@ class BusEmulator:
         pkt = bytearray(p.encode_status(s.servo_id, error, params))
         if self.faults._should_corrupt(s.servo_id):
             pkt[-1] ^= 0x5A
+            entry.corrupted = True
         if self.faults._should_prepend_stale(s.servo_id):
             pkt[:0] = p.encode_status(s.servo_id, 0)
         self._reply_hold = self.faults._hold_s(s.servo_id, entry.address)

@@ -412,12 +412,15 @@ class Soak:
         """Whether every injected fault was reported on /diagnostics and recovered from."""
         checks: list[sc.Check] = []
         faults = self._fault_lines()
-        from hexapod_driver.emulator.fault_schedule import UNANSWERED, load_replies
+        from hexapod_driver.emulator.fault_schedule import CORRUPTED, UNANSWERED, load_replies
         replies = load_replies(self.out / 'replies.bin')
-        silent = replies[replies[:, 2] == UNANSWERED]
-        asked = {int(i): silent[silent[:, 1] == i, 0] for i in np.unique(silent[:, 1])}
+
+        def times(tick):
+            rows = replies[replies[:, 2] == tick]
+            return {int(i): rows[rows[:, 1] == i, 0] for i in np.unique(rows[:, 1])}
+
         verdicts = sc.judge_faults(faults, [s for s in self.statuses if 'hexapod_driver' in s['name']],
-                                   self.all_ids, self.t_walk1, FAULT_POLICY, asked)
+                                   self.all_ids, self.t_walk1, FAULT_POLICY, times(UNANSWERED), times(CORRUPTED))
         unobservable = [v for v in verdicts if v.seen is None]
         verdicts = [v for v in verdicts if v.seen is not None]
         seen = sum(bool(v.seen) for v in verdicts)
@@ -426,8 +429,9 @@ class Soak:
         self.say(f'faults: {len(verdicts) + len(unobservable)} injected, {seen} reported on /diagnostics, {rec} of '
                  f'{len(due)} recovered (policy {FAULT_POLICY})')
         for v in unobservable:
-            self.say(f'  fault {v.fault} at {v.start - self.t_walk0:.1f} s: {v.text}: not observable, the driver sent '
-                     f'that servo no request while it was silent (a swing-down reads only the swinging femurs)')
+            why = ('the driver sent that servo no request while it was silent (a swing-down reads only the swinging '
+                   'femurs)' if v.text.startswith('silent') else 'no request of its seconds drew the fault')
+            self.say(f'  fault {v.fault} at {v.start - self.t_walk0:.1f} s: {v.text}: not observable, {why}')
         for v in verdicts:
             if not v.seen or v.recovered is False:
                 self.say(f'  fault {v.fault} at {v.start - self.t_walk0:.1f} s: {v.text}: '
@@ -457,7 +461,7 @@ class Soak:
         return checks
 
     def _bag_checks(self) -> list[sc.Check]:
-        from hexapod_driver.emulator.fault_schedule import UNANSWERED, load_replies
+        from hexapod_driver.emulator.fault_schedule import load_replies
         from hexapod_model.servo import servo_tick
         bag = self.out / 'bag'
         size = sum(f.stat().st_size for f in bag.rglob('*') if f.is_file()) if bag.exists() else 0
@@ -491,7 +495,7 @@ class Soak:
                sc.Check('bag up to the end', last >= self.t_walk1 - 2.0,
                         f'last message {self.t_walk1 - last:+.1f} s before the end of walking')]
         replies = load_replies(self.out / 'replies.bin')
-        replies = replies[replies[:, 2] != UNANSWERED]
+        replies = replies[replies[:, 2] >= 0]              # positions, not the rows of requests without one
         reported = {int(i): replies[replies[:, 1] == i, 2] for i in np.unique(replies[:, 1])}
         bad, examples = sc.invented_positions({k: np.asarray(v) for k, v in published.items()}, reported)
         n = sum(len(v) for v in published.values())
