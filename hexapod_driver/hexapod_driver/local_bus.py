@@ -16,10 +16,10 @@ import threading
 from typing import Callable, Mapping, Sequence
 
 from hexapod_driver.bus import DynamixelBus, PortLostError, StepResult
-from hexapod_model.bus import BusError, Scheduled, ServoBus, Stoppable
+from hexapod_model.bus import BusError, ReadsObserved, Scheduled, ServoBus, Stoppable
 
 
-class LocalDriverBus(ServoBus, Scheduled, Stoppable):
+class LocalDriverBus(ServoBus, Scheduled, Stoppable, ReadsObserved):
     """:class:`hexapod_model.bus.ServoBus` over a :class:`DynamixelBus`, called in the caller's thread.
 
     ``on_read(joint, theta, stamp)``, ``on_write(stamp, goals_rad)`` and ``on_step(StepResult)``
@@ -34,6 +34,7 @@ class LocalDriverBus(ServoBus, Scheduled, Stoppable):
         self.t_com_s = core.t_com_s
         self.on_read, self.on_write, self.on_step = on_read, on_write, on_step
         self.stopped = threading.Event()
+        self._observers: list[Callable] = []
 
     def _check(self) -> None:
         if self.stopped.is_set():
@@ -71,14 +72,24 @@ class LocalDriverBus(ServoBus, Scheduled, Stoppable):
                     raise
                 self._while_port_lost()
         self.on_read(joint, theta, stamp)
+        for cb in self._observers:
+            cb((joint,), (theta,), stamp)
         return theta, stamp
+
+    def _step(self) -> None:
+        """One step of the driver's own loop, published, its reads observed."""
+        res = self.core.step()
+        self.on_step(res)
+        for s in res.samples:
+            for cb in self._observers:
+                cb((s.joint,), (s.theta_rad,), s.stamp)
 
     def _while_port_lost(self) -> None:
         """A lost port is reopened by the driver's loop (every ``reconnect_period_s``): run a step of
         it, which also reports the loss, rather than failing the controller while the adapter is
         away for less than ``read_timeout_s``."""
         if not self.core.port_ok:
-            self.on_step(self.core.step())
+            self._step()
 
     def wait_until(self, t: float) -> None:
         """The driver's own loop until ``t``: scheduled reads, diagnostics, reconnects.
@@ -87,8 +98,11 @@ class LocalDriverBus(ServoBus, Scheduled, Stoppable):
         controller's femur reads included) and then takes up to ``t_com_s``; it is started only if
         it ends by ``t``, so the controller's next write is never delayed by a background read."""
         while not self.stopped.is_set() and max(self.core.now(), self.core.next_read_t) + self.t_com_s <= t:
-            self.on_step(self.core.step())
+            self._step()
         self.core.wait_until(t)
 
     def set_schedule(self, joints: Sequence[str]) -> None:
         self.core.set_schedule(joints)
+
+    def observe_reads(self, callback: Callable[[Sequence[str], Sequence[float], float], None]) -> None:
+        self._observers.append(callback)

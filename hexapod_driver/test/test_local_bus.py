@@ -69,3 +69,25 @@ def test_a_slow_bus_skips_the_idle_read_rather_than_delay_the_controller():
             bus.read_position(j)
         bus.wait_until(k * 3e-3)
         assert core.now() == k * 3e-3
+
+
+def test_every_read_is_observed_the_controllers_and_the_loops_own():
+    """What the driver publishes on /joint_states, handed to an observer in the reading thread: the
+    controller's reads and the loop's background reads, each once, in order."""
+    from hexapod_driver.bus.policy import Sample
+    core = FakeCore()
+
+    def step():
+        FakeCore.step(core)
+        return StepResult(samples=[Sample('leg2_tibia', 0.5, 512, core.t - core.t_read, core.t_read, 0)])
+
+    core.step = step
+    published, seen = [], []
+    bus = LocalDriverBus(core, on_read=lambda j, th, t: published.append((j, th, t)), on_write=lambda *a: None,
+                         on_step=lambda r: published.extend((s.joint, s.theta_rad, s.stamp) for s in r.samples))
+    bus.observe_reads(lambda names, pos, t: seen.extend(zip(names, pos, [t] * len(names))))
+    bus.read_position('leg1_femur')
+    bus.wait_until(5e-3)
+    bus.read_position('leg3_femur')
+    assert [j for j, _, _ in seen] == ['leg1_femur'] + ['leg2_tibia'] * 4 + ['leg3_femur']
+    assert seen == published

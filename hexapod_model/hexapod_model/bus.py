@@ -17,6 +17,8 @@ reader sees at the class line what it offers), callers test for one with ``isins
                         ``read_age_s`` (how old the last read was when it arrived)
 :class:`SimulatedServos`  the plant's own view: ``sample_position`` (a read without its
                         transaction cost), ``servo_state()``, ``set_torque_enabled(on, joints)``
+:class:`ReadsObserved`  ``observe_reads(callback)``: every position the bus master reads, its own
+                        background reads included, handed to ``callback(names, positions, stamp)``
 ======================  ==========================================================================
 """
 from __future__ import annotations
@@ -80,4 +82,13 @@ class SimulatedServos(Protocol):
         """Torque on or off for these joints (all when None)."""
 
 
-CAPABILITIES = (Scheduled, Stoppable, MasterClocked, SimulatedServos)
+@runtime_checkable
+class ReadsObserved(Protocol):
+    def observe_reads(self, callback: Callable[[Sequence[str], Sequence[float], float], None]) -> None:
+        """Call ``callback(names, positions [rad], stamp [s])`` with every position the bus master reads
+        from now on, its own background reads included: what it publishes on ``/joint_states``, handed
+        over without a subscription to it (a controller composed with the bus master in one process paid
+        a DDS round trip and an executor wake-up per read for it)."""
+
+
+CAPABILITIES = (Scheduled, Stoppable, MasterClocked, SimulatedServos, ReadsObserved)

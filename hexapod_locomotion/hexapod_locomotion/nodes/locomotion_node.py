@@ -46,7 +46,7 @@ from hexapod_locomotion.core.read_timing import ReadTiming
 from hexapod_locomotion.nodes.params import NODE, LocomotionNodeParams
 from hexapod_locomotion.nodes.ros_bus import RosBus
 from hexapod_model import diagnostics
-from hexapod_model.bus import BusError, MasterClocked
+from hexapod_model.bus import BusError, MasterClocked, ReadsObserved
 from hexapod_model.contract import CMD_VEL, DIAGNOSTICS, GROUND_DETECTION, SWING_DOWN, stamp_msg, stamp_parts
 from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
 from hexapod_model.node_params import NodeParams, node_help, run_node
@@ -122,7 +122,10 @@ class LocomotionNode(Node):
                                imu=lambda: self._imu, on_estimate=self._publish_odom)
         self.keeper = CourseKeeper.for_gait(self.controller.gait) if heading_correction else None
         self.create_subscription(Imu, IMU, self._on_imu, 50)
-        self.create_subscription(JointState, JOINT_STATES, self._on_joint_states, 500)
+        if isinstance(self.bus, ReadsObserved):     # every read the bus master makes, without a subscription
+            self.bus.observe_reads(self.tap.observe)
+        else:
+            self.create_subscription(JointState, JOINT_STATES, self._on_joint_states, 500)
 
     def _on_imu(self, msg) -> None:
         q, w = msg.orientation, msg.angular_velocity

@@ -31,15 +31,16 @@ from __future__ import annotations
 import collections
 import threading
 import time
+from typing import Callable, Sequence
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
-from hexapod_model.bus import BusError, MasterClocked, Scheduled, ServoBus, Stoppable
+from hexapod_model.bus import BusError, MasterClocked, ReadsObserved, Scheduled, ServoBus, Stoppable
 from hexapod_model.contract import JOINT_COMMANDS, JOINT_STATES, READ_SCHEDULE, SET_READ_SCHEDULE, stamp_parts, stamp_seconds
 from hexapod_model.description import ALL_JOINTS
 
 
-class RosBus(ServoBus, Scheduled, Stoppable, MasterClocked):
+class RosBus(ServoBus, Scheduled, Stoppable, MasterClocked, ReadsObserved):
     def __init__(self, node, t_com_s: float, read_timeout_s: float = 0.5, lockstep: bool = False):
         from sensor_msgs.msg import JointState
 
@@ -73,6 +74,7 @@ class RosBus(ServoBus, Scheduled, Stoppable, MasterClocked):
         node.create_subscription(JointState, JOINT_STATES, self._on_state, 1000,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.stopped = threading.Event()
+        self._observers: list[Callable] = []
 
     # -- subscription callback (executor thread)
     def _on_state(self, msg, info) -> None:
@@ -86,6 +88,12 @@ class RosBus(ServoBus, Scheduled, Stoppable, MasterClocked):
                 self._newest, self._newest_mono = t, time.monotonic()
             self._owed = max(0, self._owed - 1)
             self._cv.notify_all()
+        for cb in self._observers:
+            cb(msg.name, msg.position, t)
+
+    def observe_reads(self, callback: Callable[[Sequence[str], Sequence[float], float], None]) -> None:
+        """``callback`` is called in the executor's thread, with each ``/joint_states`` message."""
+        self._observers.append(callback)
 
     def now(self) -> float:
         """The bus master's time (see the module doc); waits for its first read if none came yet."""

@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
-from hexapod_model.bus import BusError, Scheduled, ServoBus, Stoppable
+from hexapod_model.bus import BusError, ReadsObserved, Scheduled, ServoBus, Stoppable
 from hexapod_sim.node.bus_master_loop import JointSample, SimBusLoop
 from hexapod_sim.physics.plant import SimError
 
@@ -75,7 +75,7 @@ class Pacer:
         return 0.0 if target is None else (sim_t - target) / self.rtf
 
 
-class LocalSimBus(ServoBus, Scheduled, Stoppable):
+class LocalSimBus(ServoBus, Scheduled, Stoppable, ReadsObserved):
     """:class:`hexapod_model.bus.ServoBus` over a :class:`SimBusLoop` in the caller's thread, paced."""
 
     def __init__(self, loop: SimBusLoop, emit: Callable[[list], None], pacer: Pacer, lock: threading.RLock,
@@ -90,6 +90,7 @@ class LocalSimBus(ServoBus, Scheduled, Stoppable):
         self.on_lag = on_lag
         self.stopped = threading.Event()
         self._started = False
+        self._observers: list[Callable] = []
 
     def _enter(self) -> None:
         """Before a transaction: wait for the wall clock if early; if late, let the bus idle to now."""
@@ -130,8 +131,15 @@ class LocalSimBus(ServoBus, Scheduled, Stoppable):
         with self.lock:
             events = self.loop.read(joint)
             self.emit(events)
+        self._observe(events)
         sample = next(e for e in events if isinstance(e, JointSample))
         return sample.theta_rad, sample.t_s
+
+    def _observe(self, events) -> None:
+        for e in events:
+            if isinstance(e, JointSample):
+                for cb in self._observers:
+                    cb((e.joint,), (e.theta_rad,), e.t_s)
 
     def wait_until(self, t: float) -> None:
         """Background reads per the schedule until ``t``, paced (as a driver's idle bus does)."""
@@ -140,8 +148,12 @@ class LocalSimBus(ServoBus, Scheduled, Stoppable):
             with self.lock:
                 events = self.loop.run(until_s=min(t, self.sim.now() + IDLE_CHUNK_S))
                 self.emit(events)
+            self._observe(events)
 
     def set_schedule(self, joints: Sequence[str]) -> None:
         with self.lock:
             self.loop.set_schedule(joints)
             self.emit([ScheduleSample(self.sim.now(), self.loop.schedule)])
+
+    def observe_reads(self, callback: Callable[[Sequence[str], Sequence[float], float], None]) -> None:
+        self._observers.append(callback)
