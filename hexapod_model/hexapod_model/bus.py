@@ -19,12 +19,17 @@ reader sees at the class line what it offers), callers test for one with ``isins
                         transaction cost), ``servo_state()``, ``set_torque_enabled(on, joints)``
 :class:`ReadsObserved`  ``observe_reads(callback)``: every position the bus master reads, its own
                         background reads included, handed to ``callback(names, positions, stamp)``
+:class:`ImuObserved`    ``observe_imu(callback)``: every sample of the bus master's body IMU
+                        (:class:`~hexapod_model.imu.ImuReading`), handed to ``callback(reading)``
 ======================  ==========================================================================
 """
 from __future__ import annotations
 
 import threading
-from typing import Callable, Mapping, Protocol, Sequence, runtime_checkable
+from typing import TYPE_CHECKING, Callable, Mapping, Protocol, Sequence, runtime_checkable
+
+if TYPE_CHECKING:
+    from hexapod_model.imu import ImuReading
 
 
 class BusError(RuntimeError):
@@ -91,4 +96,13 @@ class ReadsObserved(Protocol):
         a DDS round trip and an executor wake-up per read for it)."""
 
 
-CAPABILITIES = (Scheduled, Stoppable, MasterClocked, SimulatedServos, ReadsObserved)
+
+@runtime_checkable
+class ImuObserved(Protocol):
+    def observe_imu(self, callback: Callable[[ImuReading], None]) -> None:
+        """Call ``callback(reading)`` with every sample of the bus master's body IMU from now on: what it
+        publishes on ``/imu``, handed over without a subscription to it (the sim's 400 Hz IMU woke a
+        composed controller's executor 400 times a second)."""
+
+
+CAPABILITIES = (Scheduled, Stoppable, MasterClocked, SimulatedServos, ReadsObserved, ImuObserved)

@@ -46,7 +46,7 @@ from hexapod_locomotion.core.read_timing import ReadTiming
 from hexapod_locomotion.nodes.params import NODE, LocomotionNodeParams
 from hexapod_locomotion.nodes.ros_bus import RosBus
 from hexapod_model import diagnostics
-from hexapod_model.bus import BusError, MasterClocked, ReadsObserved
+from hexapod_model.bus import BusError, ImuObserved, MasterClocked, ReadsObserved
 from hexapod_model.contract import CMD_VEL, DIAGNOSTICS, GROUND_DETECTION, SWING_DOWN, stamp_msg, stamp_parts
 from hexapod_model.description import ALL_JOINTS, DescriptionError, joint_name
 from hexapod_model.node_params import NodeParams, node_help, run_node
@@ -121,7 +121,10 @@ class LocomotionNode(Node):
         self.tap = OdometryTap(self.bus, self.robot, self.controller.contact_legs, [(LegOdometry(), True)],
                                imu=lambda: self._imu, on_estimate=self._publish_odom)
         self.keeper = CourseKeeper.for_gait(self.controller.gait) if heading_correction else None
-        self.create_subscription(Imu, IMU, self._on_imu, 50)
+        if isinstance(self.bus, ImuObserved):       # the bus master's IMU in this process
+            self.bus.observe_imu(self._take_imu)
+        else:
+            self.create_subscription(Imu, IMU, self._on_imu, 50)
         if isinstance(self.bus, ReadsObserved):     # every read the bus master makes, without a subscription
             self.bus.observe_reads(self.tap.observe)
         else:
@@ -133,6 +136,9 @@ class LocomotionNode(Node):
         # sensor_msgs/Imu: orientation covariance[0] = -1 means no orientation
         self._imu = self._ImuReading(quat_wxyz=None if msg.orientation_covariance[0] == -1 or not any(quat) else quat,
                                      gyro=[w.x, w.y, w.z])
+
+    def _take_imu(self, reading) -> None:
+        self._imu = reading
 
     def _on_joint_states(self, msg) -> None:
         if len(msg.name) == len(msg.position):

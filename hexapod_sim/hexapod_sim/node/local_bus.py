@@ -24,7 +24,8 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
-from hexapod_model.bus import BusError, ReadsObserved, Scheduled, ServoBus, Stoppable
+from hexapod_model.bus import BusError, ImuObserved, ReadsObserved, Scheduled, ServoBus, Stoppable
+from hexapod_model.imu import ImuReading
 from hexapod_sim.node.bus_master_loop import JointSample, SimBusLoop
 from hexapod_sim.physics.plant import SimError
 
@@ -75,7 +76,7 @@ class Pacer:
         return 0.0 if target is None else (sim_t - target) / self.rtf
 
 
-class LocalSimBus(ServoBus, Scheduled, Stoppable, ReadsObserved):
+class LocalSimBus(ServoBus, Scheduled, Stoppable, ReadsObserved, ImuObserved):
     """:class:`hexapod_model.bus.ServoBus` over a :class:`SimBusLoop` in the caller's thread, paced."""
 
     def __init__(self, loop: SimBusLoop, emit: Callable[[list], None], pacer: Pacer, lock: threading.RLock,
@@ -91,6 +92,7 @@ class LocalSimBus(ServoBus, Scheduled, Stoppable, ReadsObserved):
         self.stopped = threading.Event()
         self._started = False
         self._observers: list[Callable] = []
+        self._imu_observers: list[Callable] = []
 
     def _enter(self) -> None:
         """Before a transaction: wait for the wall clock if early; if late, let the bus idle to now."""
@@ -140,6 +142,9 @@ class LocalSimBus(ServoBus, Scheduled, Stoppable, ReadsObserved):
             if isinstance(e, JointSample):
                 for cb in self._observers:
                     cb((e.joint,), (e.theta_rad,), e.t_s)
+            elif isinstance(e, ImuReading):
+                for cb in self._imu_observers:
+                    cb(e)
 
     def wait_until(self, t: float) -> None:
         """Background reads per the schedule until ``t``, paced (as a driver's idle bus does)."""
@@ -157,3 +162,6 @@ class LocalSimBus(ServoBus, Scheduled, Stoppable, ReadsObserved):
 
     def observe_reads(self, callback: Callable[[Sequence[str], Sequence[float], float], None]) -> None:
         self._observers.append(callback)
+
+    def observe_imu(self, callback: Callable[[ImuReading], None]) -> None:
+        self._imu_observers.append(callback)
