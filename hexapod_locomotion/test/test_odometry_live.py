@@ -125,3 +125,21 @@ def test_locomotion_node_refuses_a_bad_odometry_parameter_in_one_line(param, nam
     out = p.communicate(timeout=120)[0]
     assert p.returncode != 0, out
     assert named in out and 'Traceback' not in out, out
+
+
+def test_odom_advances_when_the_locomotion_node_runs_apart_from_the_sim():
+    """Over DDS the odometry takes the bus master's background reads from the bus's own /joint_states
+    subscription (RosBus.observe_reads): without them no foot is ever fresh and /odom stays at the start."""
+    procs = [_start('hexapod_sim', 'sim_node', 'terrain:=flat'), _start('hexapod_locomotion', 'locomotion_node')]
+    probe = TfProbe()
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and not (probe.odom and probe.odom[-1].pose.pose.position.x > 0.03):
+            for p in procs:
+                assert p.poll() is None, p.communicate()[0][-3000:]
+            time.sleep(0.25)
+    finally:
+        outs = _stop(procs)
+        probe.close()
+    assert probe.odom and probe.odom[-1].pose.pose.position.x > 0.03, (len(probe.odom), outs[1][-2000:])
+    assert 'Traceback' not in outs[0] + outs[1]
