@@ -165,9 +165,13 @@ def test_a_reply_later_than_every_attempt_is_not_published_as_the_next_reads_pos
         try:
             wait_for(ex, lambda: len(inbox.states) > 20, 60.0, proc, 'first reads')
             # now and then a position reply stalled past all of its read's attempts: it comes
-            # while the next read of the servo, for the same register, waits for its answer
-            emu.faults.hold_replies((attempts + 0.5) * timeout_s, ids=1, count=None, probability=0.05, address=36)
-            run_reads_of_a_moving_joint(robot, node, ex, emu, proc, inbox, 150)
+            # while the next read of the servo, for the same register, waits for its answer. When the
+            # next read starts after the last attempt's timeout depends on the host's load, so the
+            # stalls are of several lengths: some land inside a next read's wait on a busy machine too
+            for extra in (0.25, 0.5, 1.0, 2.0):
+                emu.faults.hold_replies((attempts + extra) * timeout_s, ids=1, count=None, probability=0.015,
+                                        address=36)
+            run_reads_of_a_moving_joint(robot, node, ex, emu, proc, inbox, 200)
         finally:
             rc, text = out.finish(proc, timeout=15.0)
             inbox.close(node)
