@@ -16,7 +16,7 @@ from hexapod_model.description import Effect, Robot, load_robot
 from hexapod_model.joints import Joint
 from hexapod_sim.discrepancy import structure
 from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
-from hexapod_sim.discrepancy.findings import UNEXPLAINED_TICKS, FoundEffect, JointFit, PhaseFit, Unexplained
+from hexapod_sim.discrepancy.findings import DOUBTFUL_TICKS, UNEXPLAINED_TICKS, FoundEffect, JointFit, PhaseFit, Unexplained
 from hexapod_sim.discrepancy.fit import TWIN_OF, FitSettings, Hypothesis, Namer, law_of_twins, uneven_parts
 from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, make_split, unobservable
@@ -99,18 +99,29 @@ def _unexplained(replay: Replay, split, cond: dict, res1: dict, jfit: dict, near
     return out
 
 
+def _doubtful(found, jfit: dict, unexplained) -> list:
+    """The joints a list effect of their own (one joint, no servo-law term) explains but leaves above
+    :data:`DOUBTFUL_TICKS` held out, and no unexplained entry lists."""
+    left = {j for u in unexplained for j in u.joints}
+    return [f.effect.joints[0] for f in found
+            if len(f.effect.joints) == 1 and not BY_NAME[f.effect.effect].servo_law and f.effect.joints[0] not in left
+            and f.effect.joints[0] in jfit and jfit[f.effect.joints[0]].heldout_rmse_ticks_after > DOUBTFUL_TICKS]
+
+
 def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found, unexplained, res1, jfit, nearest,
                       settings: FitSettings, step, choose=None):
     """The dictionary's structure search (:mod:`.structure`) on the joints the named effects leave
-    unexplained; returns the terms found, the named effects they leave (a list effect a term displaced is
+    unexplained, and in place of a list effect that leaves its joint above rounding (:func:`_doubtful`);
+    returns the terms found, the named effects they leave (a list effect a term displaced is
     dropped), and the unexplained list, residuals and joint fits with them. ``choose(effects, terms)``
     (a walk: :func:`~.structure.choose_terms`) picks between terms the swings fit alike."""
-    if not unexplained or not settings.dictionary:
+    doubtful = _doubtful(found, jfit, unexplained)
+    if not (unexplained or doubtful) or not settings.dictionary:
         return [], found, unexplained, res1, jfit
     step('searching the dictionary of physical terms')
-    joints = list(dict.fromkeys(j for u in unexplained for j in u.joints))
+    joints = list(dict.fromkeys([j for u in unexplained for j in u.joints] + doubtful))
     terms, displaced = structure.search(replay, robot, split, tuple(effects), joints, scope_name,
-                                        _search_settings(settings))
+                                        _search_settings(settings), doubtful=tuple(doubtful))
     law_first = not terms and not effects
     if law_first:
         terms = _terms_beside_a_servo_law(replay, robot, split, settings, joints, step)

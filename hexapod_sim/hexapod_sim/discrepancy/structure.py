@@ -56,6 +56,9 @@ class FoundTerm:
         return 1.0 if excess <= 0 else (self.heldout_rmse_ticks_before ** 2 - self.heldout_rmse_ticks_after ** 2) / excess
 
 
+PERIODS, PHASES = 24, 8      # an angle-periodic friction's starting periods (log-spaced) and phases
+
+
 @dataclass
 class SearchSettings:
     min_ratio: float = 1.5
@@ -67,15 +70,18 @@ class SearchSettings:
     pair_from: float = 0.3           # a term explaining this share alone is tried with a second one
     max_evals: int = 120             # Nelder-Mead evaluations per term
     max_legs: int = 3                # joint terms on this many legs are not named (a robot-wide cause)
+    # a term in place of a list effect that explains its joint but not to rounding must leave this many
+    # times less than the effect does (:func:`search`'s ``doubtful``)
+    doubt_margin: float = 1.3
 
 
 def _starts(term: Term) -> list[tuple[float, ...]]:
     """Physically distinct starting values: stiffness x rest angle, period x phase, torque x speed."""
     if term.name == 'cable_spring':
         return list(itertools.product((0.1, 0.4, 1.2), (-1.0, 0.0, 1.0)))
-    if term.name == 'periodic_friction':
-        periods = np.geomspace(0.08, 1.2, 8)
-        return [(0.1, float(p), ph) for p in periods for ph in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi)]
+    if term.name == 'periodic_friction':     # the error is many-valleyed in the period: 12 % apart
+        periods = np.geomspace(0.08, 1.2, PERIODS)
+        return [(0.1, float(p), ph) for p in periods for ph in np.linspace(0.0, 2.0 * math.pi, PHASES, endpoint=False)]
     if term.name == 'weak_motor':
         return list(itertools.product((0.5, 0.8, 1.2), (0.5, 0.8, 1.2)))
     return [term.start]
@@ -151,11 +157,14 @@ def _judge(obj: _Objective, x, own, before_own: float, before_aff: dict, n_own: 
 
 
 def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, scope_name,
-           settings: SearchSettings | None = None) -> tuple[list[FoundTerm], list[Effect]]:
+           settings: SearchSettings | None = None, doubtful=()) -> tuple[list[FoundTerm], list[Effect]]:
     """Dictionary terms that explain what ``named`` (the accepted list effects) leaves on ``joints``, and the
     named effects they displace: a list effect only on unexplained joints is the nearest candidate to the
     physics there (load-proportional friction was fitted as viscous damping, leaving 1.2 ticks), so terms
-    are also fitted without it, and one that passes without it and leaves less than it does replaces it."""
+    are also fitted without it, and one that passes without it and leaves less than it does replaces it.
+    On the ``doubtful`` joints (of ``joints``: explained by a list effect of their own, but not to
+    rounding) a term is only tried in place of that effect, and replaces it where it leaves at most
+    1 / ``doubt_margin`` of what the effect leaves."""
     s = settings or SearchSettings()
     pred = Predictor(replay, robot, workers=1)
     meas = {j: replay.reads[j].tick for j in replay.joints}
@@ -164,7 +173,9 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
     displaced: list[Effect] = []
     beat_a_rival: list[FoundTerm] = []      # terms that replaced a named list effect on their joints
     todo = [j for j in joints if j in replay.reads]
-    base, sag, gone = _supply_sag(pred, split, meas, base, named, todo, s)
+    unexplained = [j for j in todo if j not in doubtful]
+    base, sag, gone = (_supply_sag(pred, split, meas, base, named, unexplained, s) if unexplained
+                       else (base, None, ()))
     if sag:
         _g, _ok, _e, obj, x, own, rb, ra = sag
         e = obj.effect(x)
@@ -179,10 +190,11 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
         if rivals:               # first without them: where they are the nearest candidate, that is the answer
             without = tuple(e for e in base if e not in rivals)
             alt = _round(pred, split, meas, without, j, todo, s)
-            if alt and alt[-1][7] < _current(pred, split, meas, base, alt[-1][5]):
+            margin = s.doubt_margin if j in doubtful else 1.0
+            if alt and alt[-1][7] * margin < _current(pred, split, meas, base, alt[-1][5]):
                 chosen, base, won = alt, without, True
                 displaced.extend(rivals)
-        if not chosen:
+        if not chosen and j not in doubtful:
             chosen = _round(pred, split, meas, base, j, todo, s)
         if not chosen:
             todo.pop(0)
