@@ -84,6 +84,20 @@ def _stop(procs):
     return outs
 
 
+def _run_until(procs, probe, done, timeout_s: float = 240.0) -> list[str]:
+    """Wait until ``done()`` (or ``timeout_s``), every process alive meanwhile; stop them, close the
+    probe, and return their outputs."""
+    try:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not done():
+            for p in procs:
+                assert p.poll() is None, p.communicate()[0][-3000:]
+            time.sleep(0.25)
+    finally:
+        outs = _stop(procs)
+        probe.close()
+    return outs
+
 def test_live_tf_from_odom_to_every_foot_while_the_robot_walks(tmp_path):
     bag = tmp_path / 'walk'
     procs = [_start('hexapod_locomotion', 'robot', 'terrain:=flat', f'record:={bag}'),
@@ -94,15 +108,7 @@ def test_live_tf_from_odom_to_every_foot_while_the_robot_walks(tmp_path):
     def done():
         return (len(probe.odom) > 5 and probe.odom[-1].pose.pose.position.x > 0.03
                 and all(probe.chain(f)[-1] == 'odom' for f in feet))
-    try:
-        deadline = time.monotonic() + 240
-        while time.monotonic() < deadline and not done():
-            for p in procs:
-                assert p.poll() is None, p.communicate()[0][-3000:]
-            time.sleep(0.25)
-    finally:
-        outs = _stop(procs)
-        probe.close()
+    outs = _run_until(procs, probe, done)
     assert done(), (probe.chain('leg1_foot'), len(probe.odom), outs[0][-2000:])
     chain = probe.chain('leg1_foot')
     assert chain[-2:] == ['base_link', 'odom'], chain
@@ -132,14 +138,9 @@ def test_odom_advances_when_the_locomotion_node_runs_apart_from_the_sim():
     subscription (RosBus.observe_reads): without them no foot is ever fresh and /odom stays at the start."""
     procs = [_start('hexapod_sim', 'sim_node', 'terrain:=flat'), _start('hexapod_locomotion', 'locomotion_node')]
     probe = TfProbe()
-    try:
-        deadline = time.monotonic() + 240
-        while time.monotonic() < deadline and not (probe.odom and probe.odom[-1].pose.pose.position.x > 0.03):
-            for p in procs:
-                assert p.poll() is None, p.communicate()[0][-3000:]
-            time.sleep(0.25)
-    finally:
-        outs = _stop(procs)
-        probe.close()
-    assert probe.odom and probe.odom[-1].pose.pose.position.x > 0.03, (len(probe.odom), outs[1][-2000:])
+
+    def moved():
+        return bool(probe.odom) and probe.odom[-1].pose.pose.position.x > 0.03
+    outs = _run_until(procs, probe, moved)
+    assert moved(), (len(probe.odom), outs[1][-2000:])
     assert 'Traceback' not in outs[0] + outs[1]
