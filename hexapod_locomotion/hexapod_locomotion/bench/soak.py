@@ -401,12 +401,15 @@ class Soak:
         wins = sc.windows(ts, ps, self.t_walk0, self.window_s)
         self.say(f'control period per {self.window_s:g} s window (t_con between reads of a leg in a swing-down):')
         cores = os.cpu_count() or 1
+
+        def whole(w0: float) -> bool:
+            return w0 + self.window_s <= walked + 1e-6
         for w0, n, med, p99 in wins:
             la = [v for t, v in self.load if w0 <= t < w0 + self.window_s]
-            part = '' if w0 + self.window_s <= walked + 1e-6 else f'  (a partial window: {walked - w0:.1f} s, not judged)'
+            part = '' if whole(w0) else f'  (a partial window: {walked - w0:.1f} s, not judged)'
             self.say(f'  {w0 / 60:6.1f} min  n={n:6d}  median {med * 1e3:7.2f} ms  p99 {p99 * 1e3:7.2f} ms  '
                      f'load average {np.mean(la) if la else math.nan:5.1f} on {cores} cores{part}')
-        full = [w for w in wins if w[0] + self.window_s <= walked + 1e-6]
+        full = [w for w in wins if whole(w[0])]
         if len(full) >= 2:
             d = sc.drift(full[0], full[-1], self.args.period_tolerance)
             if walked >= DRIFT_MIN_S:

@@ -174,8 +174,7 @@ def search(replay: Replay, robot: Robot, split: Split, named: tuple, joints, sco
     beat_a_rival: list[FoundTerm] = []      # terms that replaced a named list effect on their joints
     todo = [j for j in joints if j in replay.reads]
     unexplained = [j for j in todo if j not in doubtful]
-    base, sag, gone = (_supply_sag(pred, split, meas, base, named, unexplained, s) if unexplained
-                       else (base, None, ()))
+    base, sag, gone = _supply_sag(pred, split, meas, base, named, unexplained, s)
     if sag:
         _g, _ok, _e, obj, x, own, rb, ra = sag
         e = obj.effect(x)
@@ -252,6 +251,8 @@ def _supply_sag(pred, split, meas, base, named, todo, s: SearchSettings):
     """The supply sag on the whole robot, judged on every unexplained joint: first without the named
     effects of a leg or the whole robot that touch them (a torque limit is the list's nearest candidate to a
     sag; fitted over it, the sag cannot pass), then over them. Returns (base, result or None, displaced)."""
+    if not todo:
+        return base, None, ()
     wide = tuple(e for e in named if len(e.joints) > 1 and set(e.joints) & set(todo))
     # a rival is displaced only if the sag leaves less on every joint the rival explains, not only on the
     # unexplained ones (1.33x motor damping took a walk's 18 joints 2.43 -> 0.40 ticks; the sag replaced
