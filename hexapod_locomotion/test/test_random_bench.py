@@ -302,3 +302,25 @@ def test_an_angle_periodic_friction_is_not_named_as_the_coulomb_friction_of_its_
     assert term.effect.joints == periodic.joints
     assert term.effect.params['period_rad'] == pytest.approx(periodic.params['period_rad'], rel=0.1)
     assert term.effect.params['amplitude_nm'] == pytest.approx(periodic.params['amplitude_nm'], rel=0.25)
+
+
+def test_a_torque_limit_named_on_part_of_a_leg_is_tried_on_the_rest_beside_the_terms(tmp_path):
+    """Case 55 of seed 0 (a one-leg stand, a 0.62 N m torque limit on every servo and a cable spring on the
+    femur): the femur's 92 ticks of spring swamp the limit's fit on the femur and the tibia, so the limit
+    was named on the coxa only and load friction stood for it on the tibia. Tried on the leg's other joints
+    beside the terms (the spring fitted again with it), the limit takes the whole leg, the spring lands on
+    its values and the load friction is dropped."""
+    from hexapod_model.description import load_robot
+    from hexapod_sim.discrepancy.analysis import analyse
+    case = rc.draw_case(0, 55)
+    limit, spring = case.effects
+    assert (limit.effect, spring.effect) == ('torque_saturation', 'cable_spring')
+    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
+    a = analyse(rec, load_robot(), workers=1)
+    assert [f.effect.effect for f in a.effects] == ['torque_saturation'], a.effects
+    assert set(a.effects[0].effect.joints) == set(rec.joints), a.effects
+    assert a.effects[0].effect.params['tau_max_nm'] == pytest.approx(limit.params['tau_max_nm'], rel=0.02)
+    assert [(t.effect.effect, t.effect.joints) for t in a.terms] == [('cable_spring', spring.joints)], a.terms
+    for key, value in spring.params.items():
+        assert a.terms[0].effect.params[key] == pytest.approx(value, rel=0.05), key
+    assert not a.unexplained, a.unexplained

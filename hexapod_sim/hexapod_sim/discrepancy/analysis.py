@@ -135,6 +135,7 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
     if law_first and not found:          # the terms were found beside a servo-law term that is not confirmed
         return [], found, unexplained, res1, jfit
     found, terms = _twins_as_servo_law(replay, robot, split, cond, settings, found, terms, step)
+    found, terms = _beside_the_terms(replay, robot, split, cond, settings, found, terms, joints, step)
     return (terms, found) + _judged_with(replay, robot, split, cond, [f.effect for f in found] + [t.effect for t in terms],
                                          jfit, nearest)
 
@@ -148,13 +149,10 @@ def _judged_with(replay: Replay, robot: Robot, split, cond, effects, jfit, neare
     return _unexplained(replay, split, cond, res1, jfit, nearest), res1, jfit
 
 
-def _on_whole_legs(replay: Replay, robot: Robot, split, cond, phases, found, terms, moved, res0, jfit, nearest):
-    """The findings with the effects the whole walk put on their whole leg (``moved``: (effect, widened);
-    :func:`~.whole_walk_findings.widen_to_legs`), each judged on the held-out reads of its leg as
-    :func:`_found_effects` judges (its condition kept), and what they leave. -> (found, unexplained,
-    residuals, joint fits, phase table)."""
+def _rejudged(pred: Predictor, replay: Replay, split, cond, found, terms, moved) -> list:
+    """``found`` with each effect of ``moved`` ((effect, widened) pairs) widened, and judged on the held-out
+    reads of its joints as :func:`_found_effects` judges (its condition kept)."""
     out = [replace(f, effect=next((n for o, n in moved if o is f.effect), f.effect)) for f in found]
-    pred = Predictor(replay, robot, workers=1)
     every = [f.effect for f in out] + [t.effect for t in terms]
     pred_w = pred.predict(every, replay.joints)
     for i, f in enumerate(out):
@@ -164,6 +162,29 @@ def _on_whole_legs(replay: Replay, robot: Robot, split, cond, phases, found, ter
             (judged,) = _found_effects(pred, replay, split, cond, [e], [Hypothesis(c, e.joints, value=e.params[c.key])],
                                        None, pred_w, [x for x in every if x is not e])
             out[i] = replace(judged, condition=f.condition)
+    return out
+
+
+def _beside_the_terms(replay: Replay, robot: Robot, split, cond, settings: FitSettings, found, terms, joints,
+                      step) -> tuple[list, list]:
+    """The named list effects tried on the other joints of their legs beside the terms
+    (:func:`~.structure.spread`); -> (found, terms), the widened effects judged again."""
+    step('the named effects beside the terms on the rest of their legs')
+    moved, terms = structure.spread(replay, robot, split, tuple(f.effect for f in found), terms, joints, scope_name,
+                                    _search_settings(settings))
+    if not moved:
+        return found, terms
+    return _rejudged(Predictor(replay, robot, workers=1), replay, split, cond, found, terms, moved), terms
+
+
+def _on_whole_legs(replay: Replay, robot: Robot, split, cond, phases, found, terms, moved, res0, jfit, nearest):
+    """The findings with the effects the whole walk put on their whole leg (``moved``: (effect, widened);
+    :func:`~.whole_walk_findings.widen_to_legs`), each judged on the held-out reads of its leg as
+    :func:`_found_effects` judges (its condition kept), and what they leave. -> (found, unexplained,
+    residuals, joint fits, phase table)."""
+    pred = Predictor(replay, robot, workers=1)
+    out = _rejudged(pred, replay, split, cond, found, terms, moved)
+    every = [f.effect for f in out] + [t.effect for t in terms]
     unexplained, res1, jfit = _judged_with(replay, robot, split, cond, every, jfit, nearest, pred)
     _, phase_fit = _locate_phases(replay, phases, [], res0, res1)
     return out, unexplained, res1, jfit, phase_fit

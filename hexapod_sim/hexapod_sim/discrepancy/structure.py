@@ -30,6 +30,7 @@ from scipy.optimize import minimize, minimize_scalar
 
 from hexapod_model.description import Effect, Robot
 from hexapod_model.dictionary import BY_TERM, TERMS, Term
+from hexapod_sim.discrepancy.effects import BY_NAME
 from hexapod_sim.discrepancy.hypothesis import FitSettings
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, Split, affected_joints
 from hexapod_sim.discrepancy.recording import Recording
@@ -245,6 +246,55 @@ def refit(replay: Replay, robot: Robot, split: Split, named: tuple, terms: list,
                          heldout_rmse_ticks_before=_current(pred, split, meas, base, own),
                          heldout_rmse_ticks_after=_current(pred, split, meas, base + (new,), own))
     return out
+
+
+def spread(replay: Replay, robot: Robot, split: Split, named: tuple, terms: list, joints, scope_name,
+           settings: SearchSettings | None = None) -> tuple[list[tuple[Effect, Effect]], list[FoundTerm]]:
+    """A named list effect (not a servo-law term) tried on the other joints of its legs that the
+    dictionary searched (``joints``), at its value, with the terms on that leg fitted again beside it: a
+    term can hide the list effect on its joint when the list's fit there was swamped by the physics the
+    term stands for (a one-leg stand whose femur carries a cable spring: the robot-wide torque limit was
+    named on the coxa only, load friction on the tibia). A joint takes the effect where its held-out RMS
+    error falls below 1 / ``doubt_margin`` of what it is and the leg's held-out squared error falls; a term
+    on it that then removes less than ``min_gain_ticks2`` is dropped. -> ((effect, widened) pairs, terms)."""
+    s = settings or SearchSettings()
+    pred = Predictor(replay, robot, workers=1)
+    meas = {j: replay.reads[j].tick for j in replay.joints}
+    named, terms, moved = list(named), list(terms), []
+    todo = [j for j in joints if j in replay.reads]
+    for i in range(len(named)):
+        first = named[i]
+        if BY_NAME[first.effect].servo_law:
+            continue
+        for k in [j for j in todo if j.leg in {a.leg for a in named[i].joints} and j not in named[i].joints]:
+            wide = replace(named[i], joints=tuple(j for j in replay.joints if j in named[i].joints or j == k))
+            trial = named[:i] + [wide] + named[i + 1:]
+            leg = [j for j in replay.joints if j.leg == k.leg]
+            mine = [t for t in terms if any(j.leg == k.leg for j in t.effect.joints)]
+            rest = tuple(t.effect for t in terms if t not in mine)
+            ref = refit(replay, robot, split, tuple(trial) + rest, mine, scope_name, s)
+            tried = [t for t in ref if not _idle(pred, split, meas, tuple(trial) + rest
+                                                 + tuple(u.effect for u in ref if u is not t), t, k, s)]
+            now = tuple(named) + tuple(t.effect for t in terms)
+            then = tuple(trial) + rest + tuple(t.effect for t in tried)
+            if (_current(pred, split, meas, then, [k]) * s.doubt_margin < _current(pred, split, meas, now, [k])
+                    and _current(pred, split, meas, then, leg) < _current(pred, split, meas, now, leg)):
+                named[i] = wide
+                terms = [t for t in terms if t not in mine] + tried
+        if named[i] is not first:
+            moved.append((first, named[i]))
+    return moved, terms
+
+
+def _idle(pred, split, meas, base, term: FoundTerm, k, s: SearchSettings) -> bool:
+    """Whether ``term``, on joint ``k``, removes less than ``min_gain_ticks2`` of its joints' held-out squared
+    error beside ``base``."""
+    if k not in term.effect.joints:
+        return False
+    own = [j for j in term.effect.joints if j in meas]
+    n = sum(int(np.count_nonzero(split.hold[j])) for j in own)
+    without = _current(pred, split, meas, base, own) ** 2 * n
+    return without - _current(pred, split, meas, base + (term.effect,), own) ** 2 * n < s.min_gain_ticks2
 
 
 def _supply_sag(pred, split, meas, base, named, todo, s: SearchSettings):
