@@ -13,7 +13,8 @@ held-out gain) is named; where none passes alone but the best explains part, a s
 with it in place and the pair is judged together. A named list effect that touches only unexplained
 joints (for the sag: any of a leg or the whole robot touching them) is the nearest candidate to the
 physics there, so the terms are fitted without it first, and one that passes and leaves less than it
-replaces it. What stays unexplained is reported as before.
+replaces it. With the terms found, a named list effect on part of a leg is tried on the leg's other
+searched joints beside them (:func:`spread`). What stays unexplained is reported as before.
 
 On a walk the terms the swings gave are judged on the whole walk's replay as well (:func:`choose_terms`):
 a joint term the whole walk does not need is dropped, and of terms that fit the swings alike the one the
