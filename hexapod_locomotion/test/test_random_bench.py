@@ -211,18 +211,24 @@ def test_a_short_stand_case_through_the_real_tool(tmp_path):
     assert r['rows'][0]['how'] == 'effect' and abs(r['rows'][0]['fitted'] - 0.5) < 0.05
 
 
+def _analysed(index: int, tmp_path, **kw):
+    """Case ``index`` of seed 0 recorded (its routine or walk with its effects) and analysed by the tool.
+    -> (case, recording, analysis); ``kw`` goes to :func:`~hexapod_sim.discrepancy.analysis.analyse`."""
+    from hexapod_model.description import load_robot
+    from hexapod_sim.discrepancy.analysis import analyse
+    case = rc.draw_case(0, index)
+    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
+    return case, rec, analyse(rec, load_robot(), workers=1, **kw)
+
+
 def test_a_goal_latency_fitted_beside_a_punch_is_not_named_where_the_punch_alone_does_better(tmp_path):
     """Case 51 of seed 0 (a pentapod calibration walk with 0.048 N m more punch and 0.19 N m s/rad of viscous
     damping on leg 3): the servo law's bundle is fitted while the leg's damping is still short, and a 2 ms
     goal latency came with 0.072 N m of punch. With the damping refitted, the punch alone leaves less on the
     held-out reads: it is named at its value, and no goal latency."""
-    from hexapod_model.description import load_robot
-    from hexapod_sim.discrepancy.analysis import analyse
-    case = rc.draw_case(0, 51)
+    case, _, a = _analysed(51, tmp_path, whole_walk=False)
     punch, viscous = case.effects
     assert (punch.effect, viscous.effect) == ('punch', 'viscous_damping')
-    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
-    a = analyse(rec, load_robot(), workers=1, whole_walk=False)
     found = {f.effect.effect: f.effect for f in a.effects}
     assert set(found) == {'punch', 'viscous_damping'}, found
     assert found['punch'].params['extra_punch_nm'] == pytest.approx(punch.params['extra_punch_nm'], rel=0.15)
@@ -237,13 +243,9 @@ def test_a_motor_damping_beside_a_weaker_motor_is_not_named_as_viscous_damping_o
     the motor damping does not pass and 0.057 N m s/rad of viscous damping was named on the coxa and the
     femur. Refitted beside the motor damping those twins stand for, the weaker motor lands on its values
     and the motor damping is named in their place."""
-    from hexapod_model.description import load_robot
-    from hexapod_sim.discrepancy.analysis import analyse
-    case = rc.draw_case(0, 0)
+    case, _, a = _analysed(0, tmp_path)
     damping, weak = case.effects
     assert (damping.effect, weak.effect) == ('motor_damping', 'weak_motor')
-    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
-    a = analyse(rec, load_robot(), workers=1)
     assert [f.effect.effect for f in a.effects] == ['motor_damping'], a.effects
     assert a.effects[0].effect.params['ratio'] == pytest.approx(damping.params['ratio'], rel=0.03)
     assert [t.effect.effect for t in a.terms] == ['weak_motor']
@@ -256,13 +258,9 @@ def test_a_torque_limit_fitted_a_little_low_is_refitted_not_joined_by_a_break_aw
     swings fit the limit 0.5 % low, and at that value the whole walk leaves the tibia 1.3 ticks off in
     stance, which a break-away friction of 0.13 N m explained. The limit refitted on the whole walk
     explains it as well: the limit alone is named, closer to its value."""
-    from hexapod_model.description import load_robot
-    from hexapod_sim.discrepancy.analysis import analyse
-    case = rc.draw_case(0, 65)
+    case, _, a = _analysed(65, tmp_path)
     (limit,) = case.effects
     assert limit.effect == 'torque_saturation'
-    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
-    a = analyse(rec, load_robot(), workers=1)
     assert [f.effect.effect for f in a.effects] == ['torque_saturation'], a.effects
     assert not a.terms, a.terms
     assert a.effects[0].effect.params['tau_max_nm'] == pytest.approx(limit.params['tau_max_nm'], rel=0.005)
@@ -274,13 +272,9 @@ def test_a_break_away_friction_the_held_out_blocks_barely_show_is_judged_on_both
     tibia): the friction holds the tibia in a few stances, 0.95 ticks on the search's fit blocks and 0.39
     on the held-out ones, so the held-out blocks alone never pass it. Fitted on each half and judged on
     the other, it is named on the tibia within the bench's tolerance."""
-    from hexapod_model.description import load_robot
-    from hexapod_sim.discrepancy.analysis import analyse
-    case = rc.draw_case(0, 76)
+    case, _, a = _analysed(76, tmp_path)
     (friction,) = case.effects
     assert friction.effect == 'static_friction'
-    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
-    a = analyse(rec, load_robot(), workers=1)
     assert [(f.effect.effect, [str(j) for j in f.effect.joints]) for f in a.effects] == [
         ('static_friction', [str(j) for j in friction.joints])], a.effects
     assert a.effects[0].effect.params['tau_s_nm'] == pytest.approx(friction.params['tau_s_nm'], rel=0.25)
@@ -291,12 +285,8 @@ def test_an_angle_periodic_friction_is_not_named_as_the_coulomb_friction_of_its_
     on leg 3's tibia, beside a payload on leg 5): Coulomb friction of the periodic friction's mean passes
     on the swings (1.58 -> 0.53 ticks held out), above rounding but below the unexplained level. The
     dictionary's terms tried in its place find the periodic friction, which leaves less than half."""
-    from hexapod_model.description import load_robot
-    from hexapod_sim.discrepancy.analysis import analyse
-    case = rc.draw_case(0, 94)
+    case, _, a = _analysed(94, tmp_path)
     (periodic,) = [e for e in case.effects if e.effect == 'periodic_friction']
-    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
-    a = analyse(rec, load_robot(), workers=1)
     assert 'coulomb_friction' not in [f.effect.effect for f in a.effects], a.effects
     (term,) = [t for t in a.terms if t.effect.effect == 'periodic_friction']
     assert term.effect.joints == periodic.joints
@@ -310,13 +300,9 @@ def test_a_torque_limit_named_on_part_of_a_leg_is_tried_on_the_rest_beside_the_t
     was named on the coxa only and load friction stood for it on the tibia. Tried on the leg's other joints
     beside the terms (the spring fitted again with it), the limit takes the whole leg, the spring lands on
     its values and the load friction is dropped."""
-    from hexapod_model.description import load_robot
-    from hexapod_sim.discrepancy.analysis import analyse
-    case = rc.draw_case(0, 55)
+    case, rec, a = _analysed(55, tmp_path)
     limit, spring = case.effects
     assert (limit.effect, spring.effect) == ('torque_saturation', 'cable_spring')
-    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
-    a = analyse(rec, load_robot(), workers=1)
     assert [f.effect.effect for f in a.effects] == ['torque_saturation'], a.effects
     assert set(a.effects[0].effect.joints) == set(rec.joints), a.effects
     assert a.effects[0].effect.params['tau_max_nm'] == pytest.approx(limit.params['tau_max_nm'], rel=0.02)
@@ -332,13 +318,9 @@ def test_a_second_effect_on_a_joint_is_dropped_where_the_first_alone_refitted_do
     punch a Coulomb friction on the femur kept it at 3.5 ms. Without the friction, the delay fitted again
     from its whole range lands on its value and predicts the held-out reads better: the friction is not
     named."""
-    from hexapod_model.description import load_robot
-    from hexapod_sim.discrepancy.analysis import analyse
-    case = rc.draw_case(0, 29)
+    case, _, a = _analysed(29, tmp_path, whole_walk=False)
     delay, punch = case.effects
     assert (delay.effect, punch.effect) == ('readout_delay', 'punch')
-    _, rec = rb._record(case, 'case', case.effects, tmp_path, rb.WALK_S)
-    a = analyse(rec, load_robot(), workers=1, whole_walk=False)
     found = {f.effect.effect: f.effect for f in a.effects}
     assert set(found) == {'readout_delay', 'punch'}, a.effects
     assert found['readout_delay'].joints == delay.joints
