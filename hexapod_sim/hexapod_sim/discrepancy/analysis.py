@@ -135,9 +135,10 @@ def _outside_the_list(replay: Replay, robot: Robot, split, cond, effects, found,
     if law_first and not found:          # the terms were found beside a servo-law term that is not confirmed
         return [], found, unexplained, res1, jfit
     found, terms = _twins_as_servo_law(replay, robot, split, cond, settings, found, terms, step)
-    found, terms = _beside_the_terms(replay, robot, split, cond, settings, found, terms, joints, step)
+    pred = Predictor(replay, robot, workers=1)
+    found, terms = _beside_the_terms(pred, replay, robot, split, cond, settings, found, terms, joints, step)
     return (terms, found) + _judged_with(replay, robot, split, cond, [f.effect for f in found] + [t.effect for t in terms],
-                                         jfit, nearest)
+                                         jfit, nearest, pred)
 
 
 def _judged_with(replay: Replay, robot: Robot, split, cond, effects, jfit, nearest, pred: Predictor | None = None):
@@ -165,16 +166,16 @@ def _rejudged(pred: Predictor, replay: Replay, split, cond, found, terms, moved)
     return out
 
 
-def _beside_the_terms(replay: Replay, robot: Robot, split, cond, settings: FitSettings, found, terms, joints,
-                      step) -> tuple[list, list]:
+def _beside_the_terms(pred: Predictor, replay: Replay, robot: Robot, split, cond, settings: FitSettings, found,
+                      terms, joints, step) -> tuple[list, list]:
     """The named list effects tried on the other joints of their legs beside the terms
-    (:func:`~.structure.spread`); -> (found, terms), the widened effects judged again."""
+    (:func:`~.structure.spread`); -> (found, terms), the widened effects judged again (with ``pred``)."""
     step('the named effects beside the terms on the rest of their legs')
     moved, terms = structure.spread(replay, robot, split, tuple(f.effect for f in found), terms, joints, scope_name,
                                     _search_settings(settings))
     if not moved:
         return found, terms
-    return _rejudged(Predictor(replay, robot, workers=1), replay, split, cond, found, terms, moved), terms
+    return _rejudged(pred, replay, split, cond, found, terms, moved), terms
 
 
 def _on_whole_legs(replay: Replay, robot: Robot, split, cond, phases, found, terms, moved, res0, jfit, nearest):

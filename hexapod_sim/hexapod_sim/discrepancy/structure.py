@@ -228,11 +228,12 @@ def on_few_legs(found: list[FoundTerm], beat_a_rival: list[FoundTerm], max_legs:
 
 
 def refit(replay: Replay, robot: Robot, split: Split, named: tuple, terms: list, scope_name,
-          settings: SearchSettings | None = None) -> list[FoundTerm]:
+          settings: SearchSettings | None = None, pred: Predictor | None = None) -> list[FoundTerm]:
     """``terms`` (found by :func:`search`) fitted again in turn with ``named`` and the other terms in place
-    (from the values they had), with their joints' held-out RMS error without and with them."""
+    (from the values they had), with their joints' held-out RMS error without and with them (``pred``: a
+    predictor of ``replay`` and ``robot`` whose cache to use)."""
     s = settings or SearchSettings()
-    pred = Predictor(replay, robot, workers=1)
+    pred = pred or Predictor(replay, robot, workers=1)
     meas = {j: replay.reads[j].tick for j in replay.joints}
     out = list(terms)
     for i, t in enumerate(out):
@@ -273,7 +274,7 @@ def spread(replay: Replay, robot: Robot, split: Split, named: tuple, terms: list
             leg = [j for j in replay.joints if j.leg == k.leg]
             mine = [t for t in terms if any(j.leg == k.leg for j in t.effect.joints)]
             rest = tuple(t.effect for t in terms if t not in mine)
-            ref = refit(replay, robot, split, tuple(trial) + rest, mine, scope_name, s)
+            ref = refit(replay, robot, split, tuple(trial) + rest, mine, scope_name, s, pred)
             tried = [t for t in ref if not _idle(pred, split, meas, tuple(trial) + rest
                                                  + tuple(u.effect for u in ref if u is not t), t, k, s)]
             now = tuple(named) + tuple(t.effect for t in terms)
@@ -293,9 +294,8 @@ def _idle(pred, split, meas, base, term: FoundTerm, k, s: SearchSettings) -> boo
     if k not in term.effect.joints:
         return False
     own = [j for j in term.effect.joints if j in meas]
-    n = sum(int(np.count_nonzero(split.hold[j])) for j in own)
-    without = _current(pred, split, meas, base, own) ** 2 * n
-    return without - _current(pred, split, meas, base + (term.effect,), own) ** 2 * n < s.min_gain_ticks2
+    without, _ = _held_out_sse(pred, split, meas, base, own)
+    return without - _held_out_sse(pred, split, meas, base + (term.effect,), own)[0] < s.min_gain_ticks2
 
 
 def _supply_sag(pred, split, meas, base, named, todo, s: SearchSettings):
@@ -327,11 +327,17 @@ def _supply_sag(pred, split, meas, base, named, todo, s: SearchSettings):
     return base, None, ()
 
 
-def _current(pred, split, meas, base, own) -> float:
-    """Held-out RMS error of ``own`` with the effects ``base``."""
+def _held_out_sse(pred, split, meas, base, own) -> tuple[float, int]:
+    """(squared error, number) of the held-out reads of ``own`` with the effects ``base``."""
     p = pred.predict(base, own)
     d = np.concatenate([(meas[a] - p[a])[split.hold[a]] for a in own])
-    return math.sqrt(float(d @ d) / max(len(d), 1))
+    return float(d @ d), len(d)
+
+
+def _current(pred, split, meas, base, own) -> float:
+    """Held-out RMS error of ``own`` with the effects ``base``."""
+    sse, n = _held_out_sse(pred, split, meas, base, own)
+    return math.sqrt(sse / max(n, 1))
 
 
 def _round(pred, split, meas, base, j, todo, s: SearchSettings):
