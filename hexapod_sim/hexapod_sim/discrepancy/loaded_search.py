@@ -32,7 +32,7 @@ from hexapod_sim.discrepancy.whole_walk_search import (
 LOADED_CANDIDATES = ('backlash', 'static_friction', 'compliance_deadband')
 ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope is tried too
 EDGE_FACTOR = 1.5             # a fit within this factor of its range's low end is no measurement: not named
-MAX_JOINT_SCOPES = 3          # single-joint scopes tried: the joints with the largest loaded-phase error
+MAX_JOINT_SCOPES = 4          # single-joint scopes tried: the joints with the largest loaded-phase error
 RIVAL_BRACKET = 0.05          # a named effect refitted within +-5 % of its value is a new loaded effect's rival
 RIVAL_MARGIN = 1.1            # and the new effect is named only when its held-out RMS beats the rival's by this
 
