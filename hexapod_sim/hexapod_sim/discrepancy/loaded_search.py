@@ -30,6 +30,13 @@ from hexapod_sim.discrepancy.whole_walk_search import (
 # Effects that show where a leg carries the body (a load reversal, a hold under load) more than in a free
 # swing, searched for on the whole walk when its loaded phases leave more than tick rounding.
 LOADED_CANDIDATES = ('backlash', 'static_friction', 'compliance_deadband')
+# Swing effects fitted again on the whole walk on one joint where the swings fitted them on that joint and did
+# not name them: beside a larger effect on its leg, a small friction changes the swings by less than the walk's
+# bar, but the whole walk shows it at every load reversal of the joint. Named only where the whole walk's value
+# is within SWING_AGREEMENT of the swings' (the same friction in both): on a walk whose supply sags, Coulomb
+# friction the swings never fitted passed on one tibia of the whole walk.
+SWING_CANDIDATES = ('coulomb_friction',)
+SWING_AGREEMENT = 1.5
 ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope is tried too
 EDGE_FACTOR = 1.5             # a fit within this factor of its range's low end is no measurement: not named
 MAX_JOINT_SCOPES = 4          # single-joint scopes tried: the joints with the largest loaded-phase error
@@ -131,20 +138,23 @@ def _pooled(scope, masks: tuple[dict, dict], rms: tuple[float, float]) -> float:
 
 
 def _best_on_scope(replays: Replays, base: list, base_pred: dict, scope, until_s: float, fit: dict, hold: dict,
-                   progress) -> tuple[float, float, Effect, float]:
+                   progress, swing_values: dict) -> tuple[float, float, Effect, float]:
     """The candidate that best explains ``scope``'s held-out reads: (RMS before, after, the effect, its RMS on
     the held-out blocks). Each candidate is fitted on the fit blocks and judged on the held-out ones. When
     that does not pass (:func:`_passes`) but a candidate explains the fit blocks by the ratio, the
     held-out blocks may hold little of what the fit blocks show (a break-away friction that holds a tibia in
     a few stances: 0.95 ticks on the fit blocks, 0.39 on the others); that candidate is then also fitted on
     the held-out blocks and judged on the fit blocks, both halves judged together, at the geometric mean of
-    its two values."""
+    its two values. ``swing_values``: {swing candidate: the value the swings fitted on ``scope``}, tried
+    too and kept only where the whole walk's value agrees (:data:`SWING_AGREEMENT`)."""
     from hexapod_sim.discrepancy.effects import BY_NAME
     before = masked_rms(replays, base_pred, scope, hold)
     trials = []
-    for name in LOADED_CANDIDATES:
+    for name in LOADED_CANDIDATES + tuple(swing_values):
         cand = BY_NAME[name]
         v, c_fit, r = search_one(replays, base, cand, scope, until_s, fit, progress)
+        if name in swing_values and not 1 / SWING_AGREEMENT <= v / swing_values[name] <= SWING_AGREEMENT:
+            continue
         trials.append((masked_rms(replays, r.pred, scope, hold), c_fit, cand, v))
     after, _, cand, v = min(trials, key=lambda x: x[0])
     if _passes(before, after):
@@ -159,14 +169,15 @@ def _best_on_scope(replays: Replays, base: list, base_pred: dict, scope, until_s
             cand2.make(scope, math.sqrt(v1 * v2)), a_hold)
 
 
-def search_loaded(replays: Replays, effects: list, ww: WholeWalk,
-                  progress=lambda msg: None) -> tuple[list[LoadedFind], list[tuple]]:
+def search_loaded(replays: Replays, effects: list, ww: WholeWalk, progress=lambda msg: None,
+                  swing_fits: dict | None = None) -> tuple[list[LoadedFind], list[tuple]]:
     """Effects of :data:`LOADED_CANDIDATES` that explain what the whole walk's loaded phases leave, on the
     joints that leave more than tick rounding (each alone; and the whole robot when many do), fitted on
     alternate 2 s blocks of the whole walk and judged on the others (:func:`_best_on_scope`). At most one
     effect per joint; none where a named effect at a refitted value explains the excess as well
     (:func:`_rival`), which is refitted instead (a find of an earlier scope then takes its refitted value).
-    -> (finds, [(named effect, refitted)])."""
+    ``swing_fits``: {(effect, joint): value} the swings fitted on one joint and did not name; those of
+    :data:`SWING_CANDIDATES` are tried on their joint too. -> (finds, [(named effect, refitted)])."""
     from hexapod_sim.discrepancy.effects import BY_NAME
     rec, robot = replays.rec, replays.robot
     excess = _loaded_excess(ww)
@@ -183,7 +194,10 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk,
     for scope in sorted(scopes, key=len, reverse=True):
         if any(j in f.effect.joints for f in found for j in scope):
             continue
-        before, after, eff, after_hold = _best_on_scope(replays, base, base_pred, scope, until, fit, hold, progress)
+        hints = {name: (swing_fits or {})[name, scope[0]] for name in SWING_CANDIDATES
+                 if len(scope) == 1 and (name, scope[0]) in (swing_fits or {})}
+        before, after, eff, after_hold = _best_on_scope(replays, base, base_pred, scope, until, fit, hold, progress,
+                                                        hints)
         c = BY_NAME[eff.effect]
         if not _passes(before, after) or eff.params[c.key] < _least_measured(c, robot):
             continue
@@ -202,4 +216,4 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk,
     return found, [(o, r) for o, r in zip(effects, base[:n]) if r is not o]
 
 
-__all__ = ['LOADED_CANDIDATES', 'LoadedFind', 'search_loaded']
+__all__ = ['LOADED_CANDIDATES', 'LoadedFind', 'SWING_CANDIDATES', 'search_loaded']

@@ -146,12 +146,12 @@ def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
 
 
 def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
-                     joints, search: bool = True, progress=lambda msg: None
+                     joints, search: bool = True, progress=lambda msg: None, swing_fits: dict | None = None
                      ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict, list, list]:
     """The whole-walk comparison of :func:`analyse`'s walk path, the effects found on part of the robot
     that it puts on every joint (:func:`widen`) and on a whole leg (:func:`widen_to_legs`), what
-    :func:`search_loaded` finds in its loaded phases (with ``search``) and the effects it refits instead,
-    and the notes for the report. ``ground``: None takes the recording's (``/sim/scene``), else a flat floor.
+    :func:`search_loaded` finds in its loaded phases (with ``search``; ``swing_fits`` as it takes them) and
+    the effects it refits instead, and the notes for the report. ``ground``: None takes the recording's (``/sim/scene``), else a flat floor.
     -> (comparison, notes, loaded finds, {kind: robot-wide effect}, [(effect, on its whole leg)],
     [(effect, refitted)])."""
     ground, origin = walk_ground(rec, ground)
@@ -162,7 +162,7 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     effects, moved = widen_to_legs(replays, effects, joints, progress)
     if moved:
         ww = compare(replays, robot.with_effects(effects), phases, joints)
-    finds, refitted = search_loaded(replays, list(effects), ww, progress) if search else ([], [])
+    finds, refitted = search_loaded(replays, list(effects), ww, progress, swing_fits) if search else ([], [])
     if refitted:
         effects = [_refitted(e, refitted) for e in effects]
     if finds or refitted:
