@@ -62,3 +62,27 @@ def test_a_named_effect_refitted_as_the_rival_is_reported_as_refitted(monkeypatc
                               {(J1,): lambda base: [refit if e is named else e for e in base]})
     assert [f.effect.joints for f in found] == [(J2,)]
     assert refitted == [(named, refit)]
+
+
+def _searched_kinds(monkeypatch, base, scope):
+    """The candidate kinds :func:`_best_on_scope` fits on ``scope`` beside ``base`` (its fits stood in for)."""
+    kinds = []
+
+    def search_one(replays, base_, cand, scope_, until_s, fit, progress, **kw):
+        kinds.append(cand.effect)
+        return 0.1, 1.0, SimpleNamespace(pred={})
+
+    monkeypatch.setattr(loaded_search, 'search_one', search_one)
+    monkeypatch.setattr(loaded_search, 'masked_rms', lambda replays, pred, joints, masks: 1.0)
+    best = loaded_search._best_on_scope(None, base, {}, scope, 20.0, {}, {}, lambda msg: None, {})
+    return kinds, best
+
+
+def test_a_kind_named_on_every_joint_of_the_scope_is_not_tried_again(monkeypatch):
+    kinds, best = _searched_kinds(monkeypatch, [_friction(J1, 0.2)], (J1,))
+    assert kinds == ['backlash', 'compliance_deadband'] and best is not None
+    kinds, _ = _searched_kinds(monkeypatch, [_friction(J1, 0.2)], (J1, J2))      # not on J2: tried
+    assert kinds == list(loaded_search.LOADED_CANDIDATES)
+    named = [Effect(k, (J1,), {'x': 1.0}) for k in loaded_search.LOADED_CANDIDATES]
+    kinds, best = _searched_kinds(monkeypatch, named, (J1,))
+    assert kinds == [] and best is None

@@ -183,3 +183,17 @@ def test_the_search_with_its_shortcuts_finds_the_value_of_the_whole_search(rec, 
     assert (v, c) == (want_v, want_c)
     pred = ww.replay_walk(rec, robot.with_effects([cand.make(SCOPE, v)]), rec.ground, SCOPE, t_end_s=until)
     assert np.array_equal(r.pred[SCOPE[0]], pred[SCOPE[0]])      # its replay is the best value's
+
+
+def test_a_grid_whose_best_is_not_below_refine_below_is_not_refined(rec, robot):
+    until = 1.5
+    fit, _ = wws.search_masks(rec, SCOPE, until)
+    cand = BY_NAME['viscous_damping']
+    replays = wws.Replays(rec, robot, rec.ground)
+    tried = []
+    v, c, _ = wws.search_one(replays, [], cand, SCOPE, until, fit, tried.append, refine_below=0.0)
+    grid = np.geomspace(cand.lo, cand.hi, wws.SEARCH_GRID)
+    assert len(tried) == wws.SEARCH_GRID and v in grid
+    refined = []
+    v2, c2, _ = wws.search_one(replays, [], cand, SCOPE, until, fit, refined.append, refine_below=c + 1e-9)
+    assert len(refined) > wws.SEARCH_GRID and c2 <= c

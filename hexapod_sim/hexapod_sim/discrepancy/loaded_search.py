@@ -40,6 +40,9 @@ SWING_AGREEMENT = 1.5
 ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope is tried too
 EDGE_FACTOR = 1.5             # a fit within this factor of its range's low end is no measurement: not named
 MAX_JOINT_SCOPES = 4          # single-joint scopes tried: the joints with the largest loaded-phase error
+# A candidate whose grid does not explain the fit blocks by this ratio is not refined: it is named only for a
+# 1.5x improvement, and on a scope where nothing is found every grid value replays to the end.
+REFINE_MIN_RATIO = 1.1
 RIVAL_BRACKET = 0.05          # a named effect refitted within +-5 % of its value is a new loaded effect's rival
 RIVAL_MARGIN = 1.1            # and the new effect is named only when its held-out RMS beats the rival's by this
 
@@ -138,7 +141,7 @@ def _pooled(scope, masks: tuple[dict, dict], rms: tuple[float, float]) -> float:
 
 
 def _best_on_scope(replays: Replays, base: list, base_pred: dict, scope, until_s: float, fit: dict, hold: dict,
-                   progress, swing_values: dict) -> tuple[float, float, Effect, float]:
+                   progress, swing_values: dict) -> tuple[float, float, Effect, float] | None:
     """The candidate that best explains ``scope``'s held-out reads: (RMS before, after, the effect, its RMS on
     the held-out blocks). Each candidate is fitted on the fit blocks and judged on the held-out ones. When
     that does not pass (:func:`_passes`) but a candidate explains the fit blocks by the ratio, the
@@ -146,20 +149,28 @@ def _best_on_scope(replays: Replays, base: list, base_pred: dict, scope, until_s
     a few stances: 0.95 ticks on the fit blocks, 0.39 on the others); that candidate is then also fitted on
     the held-out blocks and judged on the fit blocks, both halves judged together, at the geometric mean of
     its two values. ``swing_values``: {swing candidate: the value the swings fitted on ``scope``}, tried
-    too and kept only where the whole walk's value agrees (:data:`SWING_AGREEMENT`)."""
+    too and kept only where the whole walk's value agrees (:data:`SWING_AGREEMENT`). A kind named on every
+    joint of ``scope`` already is not tried again (its value is :func:`_rival`'s to refit). None: no
+    candidate left."""
     from hexapod_sim.discrepancy.effects import BY_NAME
     before = masked_rms(replays, base_pred, scope, hold)
+    before_fit = masked_rms(replays, base_pred, scope, fit)
+    named = {(e.effect, j) for e in base for j in e.joints}
     trials = []
     for name in LOADED_CANDIDATES + tuple(swing_values):
+        if all((name, j) in named for j in scope):
+            continue
         cand = BY_NAME[name]
-        v, c_fit, r = search_one(replays, base, cand, scope, until_s, fit, progress)
+        v, c_fit, r = search_one(replays, base, cand, scope, until_s, fit, progress,
+                                 refine_below=before_fit / REFINE_MIN_RATIO)
         if name in swing_values and not 1 / SWING_AGREEMENT <= v / swing_values[name] <= SWING_AGREEMENT:
             continue
         trials.append((masked_rms(replays, r.pred, scope, hold), c_fit, cand, v))
+    if not trials:
+        return None
     after, _, cand, v = min(trials, key=lambda x: x[0])
     if _passes(before, after):
         return before, after, cand.make(scope, v), after
-    before_fit = masked_rms(replays, base_pred, scope, fit)
     a_hold, c_fit, cand2, v1 = min(trials, key=lambda x: x[1])
     if not before_fit / max(c_fit, 1e-9) >= SEARCH_MIN_RATIO:
         return before, after, cand.make(scope, v), after
@@ -196,8 +207,10 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk, progress=lambd
             continue
         hints = {name: (swing_fits or {})[name, scope[0]] for name in SWING_CANDIDATES
                  if len(scope) == 1 and (name, scope[0]) in (swing_fits or {})}
-        before, after, eff, after_hold = _best_on_scope(replays, base, base_pred, scope, until, fit, hold, progress,
-                                                        hints)
+        best = _best_on_scope(replays, base, base_pred, scope, until, fit, hold, progress, hints)
+        if best is None:
+            continue
+        before, after, eff, after_hold = best
         c = BY_NAME[eff.effect]
         if not _passes(before, after) or eff.params[c.key] < _least_measured(c, robot):
             continue

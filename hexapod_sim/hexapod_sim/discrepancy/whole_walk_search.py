@@ -375,13 +375,15 @@ def _settle(trials: list[_Trial]) -> list[float]:
 
 
 def search_one(replays: Replays, base: list, cand, scope, until_s, fit, progress,
-                bracket: tuple[float, float] | None = None) -> tuple[float, float, WalkReplay]:
+                bracket: tuple[float, float] | None = None,
+                refine_below: float = math.inf) -> tuple[float, float, WalkReplay]:
     """(value, fit RMS, its replay) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole
     walk, over the candidate's range (or ``bracket``): a log-spaced grid, then golden-section steps between
     the best point's neighbours. Each comparison replays its candidates only as far as it needs
     (:func:`_settle`), and a golden-section step reuses the interior point it keeps where the logarithms give
     it exactly again (about every other step; a value one rounding away is replayed, as the walk's replay
-    is that sensitive)."""
+    is that sensitive). The golden-section steps run only where the grid's best fit RMS is below
+    ``refine_below``."""
     robot = replays.robot
     made: list[tuple[float, _Trial]] = []
 
@@ -402,7 +404,8 @@ def search_one(replays: Replays, base: list, cand, scope, until_s, fit, progress
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
     best = (float(grid[k]), costs[k], trials[k])
     g = (math.sqrt(5) - 1) / 2
-    for _ in range(SEARCH_REFINE):               # golden section in log space between the neighbours
+    # golden section in log space between the neighbours
+    for _ in range(SEARCH_REFINE if costs[k] < refine_below else 0):
         la, lb = math.log(a), math.log(b)
         x1, x2 = math.exp(lb - g * (lb - la)), math.exp(la + g * (lb - la))
         t1, t2 = trial(x1), trial(x2)
