@@ -151,7 +151,8 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     """The whole-walk comparison of :func:`analyse`'s walk path, the effects found on part of the robot
     that it puts on every joint (:func:`widen`) and on a whole leg (:func:`widen_to_legs`), what
     :func:`search_loaded` finds in its loaded phases (with ``search``; ``swing_fits`` as it takes them) and
-    the effects it refits instead, and the notes for the report. ``ground``: None takes the recording's (``/sim/scene``), else a flat floor.
+    the effects it refits instead, and the notes for the report. ``ground``: None takes the recording's
+    (``/sim/scene``), else a flat floor.
     -> (comparison, notes, loaded finds, {kind: robot-wide effect}, [(effect, on its whole leg)],
     [(effect, refitted)])."""
     ground, origin = walk_ground(rec, ground)
