@@ -405,12 +405,10 @@ def _name_effects(replay: Replay, robot: Robot, split, settings: FitSettings, pr
     return effects, found, nearest, blind, pred1
 
 
-def _swing_fits(log: list, named: list) -> dict:
-    """{(effect, joint): value} of the effects the swings fitted on one joint (the namer's last round on it,
-    in ``log``) where no effect of that kind is named on the joint."""
-    taken = {(e.effect, j) for e in named for j in e.joints}
-    fits = {(entry[2], entry[3][0]): entry[4] for entry in log if entry[0] == 'round' and len(entry[3]) == 1}
-    return {k: v for k, v in fits.items() if k not in taken}
+def _swing_fits(log: list) -> dict:
+    """{(effect, joint): value} of the effects the swings fitted on one joint: the namer's last round on it, in
+    ``log`` (the loaded search leaves out a kind already named on the joint)."""
+    return {(entry[2], entry[3][0]): entry[4] for entry in log if entry[0] == 'round' and len(entry[3]) == 1}
 
 
 def _whole_walk_recording(rec: Recording, replay: Replay, phases: dict, mode_used: str):
@@ -501,7 +499,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                 named = [f.effect for f in found] + [t.effect for t in terms]
                 whole, ww_notes, finds, wide, moved, swaps = whole_walk_check(
                     rec_ww, robot, named, ground, ww_phases, replay.joints, progress=step,
-                    swing_fits=_swing_fits(settings.log, named))
+                    swing_fits=_swing_fits(settings.log))
                 if moved:
                     found, unexplained, res1, jfit, phase_fit = _on_whole_legs(replay, robot, split, cond, phases, found,
                                                                                terms, moved, res0, jfit, nearest)

@@ -201,12 +201,13 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk, progress=lambd
     scopes += [tuple(joints)] if len(excess) >= ROBOT_WIDE_MIN_JOINTS else []
     base = list(effects)
     base_pred = _base_pred(replays, base, joints, until)
+    swing_fits = swing_fits or {}
     found: list[LoadedFind] = []
     for scope in sorted(scopes, key=len, reverse=True):
         if any(j in f.effect.joints for f in found for j in scope):
             continue
-        hints = {name: (swing_fits or {})[name, scope[0]] for name in SWING_CANDIDATES
-                 if len(scope) == 1 and (name, scope[0]) in (swing_fits or {})}
+        hints = {name: swing_fits[name, scope[0]] for name in SWING_CANDIDATES
+                 if len(scope) == 1 and (name, scope[0]) in swing_fits}
         best = _best_on_scope(replays, base, base_pred, scope, until, fit, hold, progress, hints)
         if best is None:
             continue
