@@ -173,6 +173,15 @@ class LegModel:
             return np.zeros(2)
         return 0.5 * widths * np.sign(self.gravity_torque_nm(np.asarray(q0_rad, dtype=float)))
 
+    def start_gap_rad(self, q0_rad, gap0_rad=None) -> np.ndarray:
+        """The initial backlash gap of a rollout: ``gap0_rad`` when given, else :meth:`default_gap_rad`
+        (zeros without backlash)."""
+        if gap0_rad is not None:
+            return np.ascontiguousarray(gap0_rad, dtype=np.float64).reshape(2)
+        if self.params[P_BL2] > 0.0 or self.params[P_BL3] > 0.0:
+            return self.default_gap_rad(q0_rad)
+        return _NO_GAP
+
     def rollout(self, q0_rad, qd0_rad_s, goal_ticks, gap0_rad=None, i_ext=None) -> Rollout:
         """Simulate from ``q0`` with integer goal ticks per control period (array of shape (n, 2)).
 
@@ -194,12 +203,7 @@ class LegModel:
             from hexapod_model.swing_terms import rollout_terms
             q, qd, tau = rollout_terms(p, self.terms, self.supply, q0, qd0, goals, i_ext)
             return Rollout(self.dt_s, q, qd, tau, np.zeros_like(q))
-        if gap0_rad is not None:
-            gap0 = np.ascontiguousarray(gap0_rad, dtype=np.float64).reshape(2)
-        elif p[P_BL2] > 0.0 or p[P_BL3] > 0.0:
-            gap0 = self.default_gap_rad(q0)
-        else:
-            gap0 = _NO_GAP
+        gap0 = self.start_gap_rad(q0, gap0_rad)
         n = len(goals)
         q = np.empty((1, n + 1, 2))
         qd = np.empty((1, n + 1, 2))
@@ -275,7 +279,7 @@ class CoxaModel(LegModel):
         e = robot.joint_effects(Joint(leg, 'coxa'))
         p = self.params
         p[[P_M1, P_LC1, P_M2, P_LC2, P_I2, P_A2, P_G]] = 0.0
-        p[P_I1] = coxa_axis_inertia_kgm2(robot, leg, float(femur_tibia_rad[0]), float(femur_tibia_rad[1]))
+        p[P_I1] = self._axis_inertia(femur_tibia_rad)
         fc = s.reflected_coulomb_nm + e.extra_coulomb_nm
         self.terms = np.array([joint_terms(robot, Joint(leg, 'coxa')), joint_terms(robot, None)])
         p[P_B2] = joint_damping_nms_per_rad(s, e, self.terms[0, T_DS])
@@ -294,6 +298,16 @@ class CoxaModel(LegModel):
         p[P_BL3] = 0.0
         self.center_tick = float(s.center_tick)
 
+    def _axis_inertia(self, femur_tibia_rad) -> float:
+        return coxa_axis_inertia_kgm2(self.robot, self.leg, float(femur_tibia_rad[0]), float(femur_tibia_rad[1]))
+
+    def params_at(self, femur_tibia_rad) -> np.ndarray:
+        """The parameter vector with the leg at another femur/tibia pose (only the inertia about the axis
+        depends on it): one model serves every pose of :func:`rollout_batch`."""
+        p = self.params.copy()
+        p[P_I1] = self._axis_inertia(femur_tibia_rad)
+        return p
+
     def rollout_coxa(self, q0_rad: float, qd0_rad_s: float, goal_ticks, gap0_rad: float = 0.0, i_ext=None) -> Rollout:
         """Simulate the coxa from ``q0`` with integer goal ticks per control period (shape (n,)).
 
@@ -306,6 +320,38 @@ class CoxaModel(LegModel):
         two[:, 0] = goals
         two[:, 1] = self.center_tick
         return self.rollout([q0_rad, 0.0], [qd0_rad_s, 0.0], two, gap0_rad=[gap0_rad, 0.0], i_ext=i_ext)
+
+
+def rollout_batch(params: np.ndarray, q0_rad: np.ndarray, qd0_rad_s: np.ndarray, goal_ticks: list,
+                  gap0_rad: np.ndarray) -> list[np.ndarray]:
+    """``q`` (n_i + 1, 2) of each of L rollouts of :meth:`LegModel.rollout` without dictionary terms, bit for
+    bit: ``params`` (L, N_PARAMS) the models' parameter vectors, ``q0_rad``, ``qd0_rad_s``, ``gap0_rad``
+    (L, 2) (the gap as :meth:`LegModel.start_gap_rad` gives it), ``goal_ticks`` L arrays (n_i, 2) of goal
+    ticks per period. The kernel steps three legs side by side (:func:`_rollout_legs`; one rollout alone
+    is stepped three times over), so the rollouts go in threes of similar length."""
+    q0, qd0 = np.asarray(q0_rad, dtype=np.float64), np.asarray(qd0_rad_s, dtype=np.float64)
+    if not (np.all(np.isfinite(q0)) and np.all(np.isfinite(qd0))
+            and all(np.all(np.isfinite(g)) for g in goal_ticks)):
+        raise ValueError('swing-down model inputs contain NaN or infinity')
+    lengths = np.array([len(g) for g in goal_ticks], dtype=np.int64)
+    order = np.argsort(lengths, kind='stable')
+    out: list = [None] * len(goal_ticks)
+    for at in range(0, len(order), 3):
+        group = order[at:at + 3]
+        n = int(lengths[group].max())
+        goals = np.empty((len(group), max(n, 1), 2))
+        for slot, i in enumerate(group):
+            g = goal_ticks[i]
+            goals[slot, :len(g)] = g
+            goals[slot, len(g):] = g[-1] if len(g) else 0.0
+        q = np.empty((len(group), n + 1, 2))
+        gap = np.empty((len(group), n + 1, 2))
+        _rollout_legs(np.ascontiguousarray(params[group]), np.ascontiguousarray(q0[group]),
+                      np.ascontiguousarray(qd0[group]), goals, 1, q, np.empty_like(q), np.empty((len(group), n, 2)),
+                      np.ascontiguousarray(gap0_rad[group], dtype=np.float64), gap, np.empty(len(group), np.int64))
+        for slot, i in enumerate(group):
+            out[i] = q[slot, :lengths[i] + 1]
+    return out
 
 
 # ----------------------------------------------------------------------------- CalcModel

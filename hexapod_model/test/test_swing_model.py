@@ -7,12 +7,14 @@ import pytest
 from hexapod_model.description import Effect, load_robot
 from hexapod_model.servo import theta_to_tick
 from hexapod_model.swing_model import (
+    CoxaModel,
     LegModel,
     SwingDownError,
     goal_fraction,
     goals_per_period,
     interpolated_goals,
     predict_swing_down,
+    rollout_batch,
     steps_to_fin,
 )
 
@@ -227,6 +229,37 @@ def test_fused_kernel_equals_one_rollout_per_leg(robot, legs):
         assert np.max(np.abs(p.theta_est_tick[:, slot] - est)) < 1e-9
         assert np.array_equal(p.theta_des_tick[:, slot], steps[:, slot, 0])
     assert np.allclose(p.t_read_s, np.arange(n_steps)[:, None] * t_con + np.arange(L)[None, :] * 0.001, atol=0, rtol=0)
+
+
+def test_a_batch_of_rollouts_is_each_rollout_alone_bit_for_bit(robot):
+    # rollout_batch steps three rollouts side by side where LegModel.rollout steps one three times over;
+    # lengths differ (the shorter ones padded), so do models (break-away friction, backlash with its
+    # default gap, a coxa at two poses) and starts (one at rest on a gravity reversal)
+    rng = np.random.default_rng(7)
+    sticky = robot.with_effects([Effect('static_friction', ('leg2_femur',), {'tau_s_nm': 0.25}),
+                                 Effect('backlash', ('leg3_tibia',), {'width_rad': 0.02})])
+    coxa = CoxaModel(sticky, 4)
+    cases = [(LegModel(sticky, 2), None), (LegModel(sticky, 3), None), (LegModel(robot, 1), None),
+             (coxa, (0.3, -0.4)), (coxa, (-0.2, 0.5)), (LegModel(sticky, 3), None), (LegModel(sticky, 2), None)]
+    params, q0, qd0, gap0, goals, alone = [], [], [], [], [], []
+    for i, (model, pose) in enumerate(cases):
+        n = int(rng.integers(50, 400))
+        start = rng.uniform(-0.4, 0.4, 2) if i else np.zeros(2)
+        g = np.rint(theta_to_tick(start + rng.uniform(-0.3, 0.3, 2), robot.servo)) + np.zeros((n, 2))
+        v0 = rng.normal(0.0, 0.3, 2) if i else np.zeros(2)
+        if pose is None:
+            p, gap = model.params, model.start_gap_rad(start)
+            ro = model.rollout(start, v0, g)
+        else:
+            p, gap = model.params_at(pose), np.zeros(2)
+            start[1], v0[1], g[:, 1] = 0.0, 0.0, model.center_tick
+            ro = CoxaModel(sticky, 4, pose).rollout_coxa(start[0], v0[0], g[:, 0])
+        params.append(p), q0.append(start), qd0.append(v0), gap0.append(gap), goals.append(g), alone.append(ro.q_rad)
+    got = rollout_batch(np.array(params), np.array(q0), np.array(qd0), goals, np.array(gap0))
+    for q, ref in zip(got, alone):
+        assert q.shape == ref.shape and np.array_equal(q, ref)
+    with pytest.raises(ValueError, match='NaN'):
+        rollout_batch(np.array(params[:1]), np.array([[np.nan, 0.0]]), np.array(qd0[:1]), goals[:1], np.array(gap0[:1]))
 
 
 _BITS_SCRIPT = """

@@ -6,14 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexapod_model.description import load_robot
+from hexapod_model.description import Effect, load_robot
 from hexapod_model.imu import ImuSeries
 from hexapod_model.joints import Joint
 from hexapod_sim.bagio import BagReader
 from hexapod_sim.discrepancy.analysis import analyse
 from hexapod_sim.discrepancy.recording import load_recording
 from hexapod_sim.discrepancy.report import to_json
-from hexapod_sim.discrepancy.segments import gait_phases
+from hexapod_sim.discrepancy.segments import gait_phases, swing_segments
+from hexapod_sim.discrepancy.simulate import Replay
 
 BAG = Path(__file__).resolve().parents[2] / 'bags' / 'tripod_blocks_adaptive'
 
@@ -296,3 +297,20 @@ def test_a_joint_effect_the_whole_walk_wants_on_its_whole_leg_is_put_there(tmp_p
                                    [Joint.of(j) for j in rec.states])
     assert moved == ([(femur, viscous(LEG_JOINTS[5]))] if widened else [])
     assert effects == ([elsewhere, viscous(LEG_JOINTS[5])] if widened else [femur, elsewhere])
+
+
+def test_the_swings_of_a_leg_rolled_out_together_are_each_swing_alone(rec, robot):
+    # Replay.rollout_segments rolls a leg's swings out in one batch: bit for bit each swing's own rollout,
+    # with an effect that takes the backlash kernel and one that takes the rigid one
+    replay = Replay(robot, rec)
+    replay = Replay(robot, rec, segments=swing_segments(rec, replay.legs, phases=gait_phases(rec, replay.legs)),
+                    moving_start=True)
+    model = robot.with_effects([Effect('backlash', ('leg2_tibia', 'leg5_coxa'), {'width_rad': 0.02}),
+                                Effect('static_friction', ('leg1_femur',), {'tau_s_nm': 0.3})])
+    for leg in (1, 2, 5):
+        for which in ('ft', 'coxa'):
+            together = replay.rollout_segments(model, leg, which)
+            assert len(together) == len(replay.segments[leg]) > 3
+            for i, (k0, q) in enumerate(together):
+                k1, q1 = replay.rollout_leg(model, leg, i, which)
+                assert k0 == k1 and np.array_equal(q, q1)

@@ -130,7 +130,7 @@ class Predictor:
             if hit is not None:
                 self.cache.move_to_end(key)
                 return hit
-        val = [self.rep.rollout_leg(robot, leg, i, which) for i in range(len(self.rep.segments[leg]))]
+        val = self.rep.rollout_segments(robot, leg, which)
         with self.lock:
             self.n_rollouts += 1
             self.cache[key] = val

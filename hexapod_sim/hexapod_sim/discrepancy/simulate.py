@@ -26,7 +26,7 @@ from hexapod_model.description import Robot
 from hexapod_model.dictionary import supply_resistance_ohm
 from hexapod_model.joints import LEG_JOINTS, Joint, joint_names
 from hexapod_model.servo import firmware_torque_nm, joint_tick_of_servo_tick, quantize_tick, servo_tick, theta_to_tick, tick_to_theta
-from hexapod_model.swing_model import CoxaModel, LegModel
+from hexapod_model.swing_model import CoxaModel, LegModel, rollout_batch
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
 
 
@@ -192,6 +192,30 @@ class Replay:
             q0[0], float(self.dq0[(leg, seg)][0]), self.goals[Joint(leg, 'coxa')][ka:kb], i_ext=i_ext)
         return ka, ro.q_rad
 
+    def rollout_segments(self, robot: Robot, leg: int, which: str) -> list[tuple[int, np.ndarray]]:
+        """:meth:`rollout_leg` of every segment of ``leg``, from one model: without dictionary terms the
+        segments are rolled out together (:func:`~hexapod_model.swing_model.rollout_batch`)."""
+        segs = range(len(self.segments[leg]))
+        model = LegModel(robot, leg) if which == 'ft' else CoxaModel(robot, leg)
+        if model.has_terms:
+            return [self.rollout_leg(robot, leg, i, which) for i in segs]
+        k0 = [self.segments[leg][i][0] for i in segs]
+        if which == 'ft':
+            params = np.repeat(model.params[None], len(segs), axis=0)
+            q0 = np.array([self.q0[(leg, i)][1:] for i in segs]).reshape(-1, 2)
+            qd0 = np.array([self.dq0[(leg, i)][1:] for i in segs]).reshape(-1, 2)
+            gap0 = np.array([model.start_gap_rad(x) for x in q0]).reshape(-1, 2)
+            gf, gt = self.goals[Joint(leg, 'femur')], self.goals[Joint(leg, 'tibia')]
+            goals = [np.column_stack((gf[ka:kb], gt[ka:kb])) for ka, kb in self.segments[leg]]
+        else:
+            params = np.array([model.params_at(self.coxa_pose[(leg, i)]) for i in segs]).reshape(-1, len(model.params))
+            q0 = np.array([(self.q0[(leg, i)][0], 0.0) for i in segs]).reshape(-1, 2)
+            qd0 = np.array([(self.dq0[(leg, i)][0], 0.0) for i in segs]).reshape(-1, 2)
+            gap0 = np.zeros((len(segs), 2))
+            gc = self.goals[Joint(leg, 'coxa')]
+            goals = [np.column_stack((gc[ka:kb], np.full(kb - ka, model.center_tick))) for ka, kb in self.segments[leg]]
+        return list(zip(k0, rollout_batch(params, q0, qd0, goals, gap0)))
+
     def other_current_a(self, leg: int, which: str) -> np.ndarray:
         """Per firmware period, the stall current [A] the firmware of every other recorded servo asks for
         (``|torque(goal - latest read)| / (K R)`` of the nominal law), for a supply sag
@@ -228,7 +252,7 @@ class Replay:
             if 'coxa' in roles:
                 jobs.append(('coxa', (('coxa', 0),)))
             for which, cols in jobs:
-                per_seg = [self.rollout_leg(robot, leg, i, which) for i in range(len(self.segments[leg]))]
+                per_seg = self.rollout_segments(robot, leg, which)
                 for role, col in cols:
                     j = Joint(leg, role)
                     if j not in self.reads or role not in roles:
@@ -266,9 +290,8 @@ class Replay:
     def trajectory(self, robot: Robot, leg: int):
         """Full 1 kHz predicted trajectories of a leg (coxa, femur, tibia) for plots: (t_s, theta (n, 3)), NaN outside segments."""
         q = np.full((self.n_periods, 3), np.nan)
-        for i, (ka, kb) in enumerate(self.segments[leg]):
-            _, ft = self.rollout_leg(robot, leg, i, 'ft')
-            _, cx = self.rollout_leg(robot, leg, i, 'coxa')
+        for (ka, kb), (_, ft), (_, cx) in zip(self.segments[leg], self.rollout_segments(robot, leg, 'ft'),
+                                              self.rollout_segments(robot, leg, 'coxa')):
             q[ka:kb + 1, 1:] = ft[: kb + 1 - ka]
             q[ka:kb + 1, 0] = cx[: kb + 1 - ka, 0]
         return np.arange(self.n_periods) * self.dt, q
