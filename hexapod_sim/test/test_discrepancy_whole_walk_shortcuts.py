@@ -185,15 +185,26 @@ def test_the_search_with_its_shortcuts_finds_the_value_of_the_whole_search(rec, 
     assert np.array_equal(r.pred[SCOPE[0]], pred[SCOPE[0]])      # its replay is the best value's
 
 
-def test_a_grid_whose_best_is_not_below_refine_below_is_not_refined(rec, robot):
-    until = 1.5
+def test_a_grid_with_no_value_below_worth_below_gives_nothing_and_is_cut_short(rec, robot, monkeypatch):
+    until = 4.0
     fit, _ = wws.search_masks(rec, SCOPE, until)
     cand = BY_NAME['viscous_damping']
     replays = wws.Replays(rec, robot, rec.ground)
+    made = []
+    init = wws._Trial.__init__
+
+    def counted(self, *a, **k):
+        init(self, *a, **k)
+        made.append(self)
+    monkeypatch.setattr(wws._Trial, '__init__', counted)
+    v, c, _ = wws.search_one(replays, [], cand, SCOPE, until, fit, lambda msg: None)
+    grid_s = sum(t.t for t in made[:wws.SEARCH_GRID])
+    grid_best = min(t.value for t in made[:wws.SEARCH_GRID] if t.finished)
+    # a grid value below it: the search of old, bit for bit
+    assert wws.search_one(replays, [], cand, SCOPE, until, fit, lambda msg: None,
+                          worth_below=grid_best * (1 + 1e-6))[:2] == (v, c)
+    made.clear()
     tried = []
-    v, c, _ = wws.search_one(replays, [], cand, SCOPE, until, fit, tried.append, refine_below=0.0)
-    grid = np.geomspace(cand.lo, cand.hi, wws.SEARCH_GRID)
-    assert len(tried) == wws.SEARCH_GRID and v in grid
-    refined = []
-    v2, c2, _ = wws.search_one(replays, [], cand, SCOPE, until, fit, refined.append, refine_below=c + 1e-9)
-    assert len(refined) > wws.SEARCH_GRID and c2 <= c
+    assert wws.search_one(replays, [], cand, SCOPE, until, fit, tried.append, worth_below=0.5 * grid_best) is None
+    assert len(tried) == wws.SEARCH_GRID               # the grid only, no golden-section steps
+    assert max(t.t for t in made) < until and sum(t.t for t in made) < grid_s      # no value replayed whole

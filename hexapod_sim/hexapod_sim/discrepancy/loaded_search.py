@@ -40,9 +40,11 @@ SWING_AGREEMENT = 1.5
 ROBOT_WIDE_MIN_JOINTS = 6     # this many joints in excess: a robot-wide scope is tried too
 EDGE_FACTOR = 1.5             # a fit within this factor of its range's low end is no measurement: not named
 MAX_JOINT_SCOPES = 4          # single-joint scopes tried: the joints with the largest loaded-phase error
-# A candidate whose grid does not explain the fit blocks by this ratio is not refined: it is named only for a
-# 1.5x improvement, and on a scope where nothing is found every grid value replays to the end.
-REFINE_MIN_RATIO = 1.1
+# A candidate whose grid does not explain the fit blocks by this ratio is not named (an effect shows on the
+# blocks it is fitted on), and its grid values replay only until each is known to be above it: on a scope
+# where nothing is found, a value that changes the open-loop replay at all leaves the walk's step and its
+# error grows with the replay, so these replays would otherwise run to the end of the search horizon.
+FIT_MIN_RATIO = 1.1
 RIVAL_BRACKET = 0.05          # a named effect refitted within +-5 % of its value is a new loaded effect's rival
 RIVAL_MARGIN = 1.1            # and the new effect is named only when its held-out RMS beats the rival's by this
 
@@ -148,10 +150,10 @@ def _best_on_scope(replays: Replays, base: list, base_pred: dict, scope, until_s
     held-out blocks may hold little of what the fit blocks show (a break-away friction that holds a tibia in
     a few stances: 0.95 ticks on the fit blocks, 0.39 on the others); that candidate is then also fitted on
     the held-out blocks and judged on the fit blocks, both halves judged together, at the geometric mean of
-    its two values. ``swing_values``: {swing candidate: the value the swings fitted on ``scope``}, tried
-    too and kept only where the whole walk's value agrees (:data:`SWING_AGREEMENT`). A kind named on every
-    joint of ``scope`` already is not tried again (its value is :func:`_rival`'s to refit). None: no
-    candidate left."""
+    its two values. A candidate that does not explain the fit blocks by :data:`FIT_MIN_RATIO` is left out.
+    ``swing_values``: {swing candidate: the value the swings fitted on ``scope``}, tried too and kept only
+    where the whole walk's value agrees (:data:`SWING_AGREEMENT`). A kind named on every joint of ``scope``
+    already is not tried again (its value is :func:`_rival`'s to refit). None: no candidate left."""
     from hexapod_sim.discrepancy.effects import BY_NAME
     before = masked_rms(replays, base_pred, scope, hold)
     before_fit = masked_rms(replays, base_pred, scope, fit)
@@ -161,8 +163,10 @@ def _best_on_scope(replays: Replays, base: list, base_pred: dict, scope, until_s
         if all((name, j) in named for j in scope):
             continue
         cand = BY_NAME[name]
-        v, c_fit, r = search_one(replays, base, cand, scope, until_s, fit, progress,
-                                 refine_below=before_fit / REFINE_MIN_RATIO)
+        got = search_one(replays, base, cand, scope, until_s, fit, progress, worth_below=before_fit / FIT_MIN_RATIO)
+        if got is None:
+            continue
+        v, c_fit, r = got
         if name in swing_values and not 1 / SWING_AGREEMENT <= v / swing_values[name] <= SWING_AGREEMENT:
             continue
         trials.append((masked_rms(replays, r.pred, scope, hold), c_fit, cand, v))

@@ -360,15 +360,15 @@ class _Trial:
         return self.n > 0 and self.sq > c * c * self.n * (1.0 + 1e-9)
 
 
-def _settle(trials: list[_Trial]) -> list[float]:
+def _settle(trials: list[_Trial], worth_below: float = math.inf) -> list[float]:
     """The trials' RMS errors, each trial replayed only until it is known to be above the smallest of them
-    (then inf: above it). Always the one with the smallest lower bound runs next, so the smallest is
-    replayed whole and the others stop once their error so far passes it; the minimum and its position
-    are those of the whole replays."""
+    or above ``worth_below`` (then inf: above it). Always the one with the smallest lower bound runs next,
+    so the smallest is replayed whole and the others stop once their error so far passes it; the minimum
+    and its position are those of the whole replays wherever the minimum is below ``worth_below``."""
     while True:
         done = [t.value for t in trials if t.finished and not math.isnan(t.value)]
-        least = min(done) if done else None
-        open_ = [t for t in trials if not t.finished and not (least is not None and t.exceeds(least))]
+        limit = min([*done, worth_below])
+        open_ = [t for t in trials if not t.finished and not t.exceeds(limit)]
         if not open_:
             return [t.value if t.finished else math.inf for t in trials]
         min(open_, key=_Trial.bound).advance()
@@ -376,14 +376,14 @@ def _settle(trials: list[_Trial]) -> list[float]:
 
 def search_one(replays: Replays, base: list, cand, scope, until_s, fit, progress,
                 bracket: tuple[float, float] | None = None,
-                refine_below: float = math.inf) -> tuple[float, float, WalkReplay]:
+                worth_below: float = math.inf) -> tuple[float, float, WalkReplay] | None:
     """(value, fit RMS, its replay) of ``cand`` on ``scope`` minimising the fit reads' RMS error of the whole
     walk, over the candidate's range (or ``bracket``): a log-spaced grid, then golden-section steps between
     the best point's neighbours. Each comparison replays its candidates only as far as it needs
     (:func:`_settle`), and a golden-section step reuses the interior point it keeps where the logarithms give
     it exactly again (about every other step; a value one rounding away is replayed, as the walk's replay
-    is that sensitive). The golden-section steps run only where the grid's best fit RMS is below
-    ``refine_below``."""
+    is that sensitive). None where no grid value's fit RMS is below ``worth_below``: the grid's values are
+    then replayed only until each is known to be above it."""
     robot = replays.robot
     made: list[tuple[float, _Trial]] = []
 
@@ -399,13 +399,15 @@ def search_one(replays: Replays, base: list, cand, scope, until_s, fit, progress
     lo, hi = bracket or (cand.lo, cand.hi)
     grid = np.geomspace(max(lo, 1e-6), hi, SEARCH_GRID)
     trials = [trial(float(v)) for v in grid]
-    costs = _settle(trials)
+    costs = _settle(trials, worth_below)
     k = int(np.nanargmin(costs))
+    if not costs[k] < worth_below:
+        return None
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
     best = (float(grid[k]), costs[k], trials[k])
     g = (math.sqrt(5) - 1) / 2
     # golden section in log space between the neighbours
-    for _ in range(SEARCH_REFINE if costs[k] < refine_below else 0):
+    for _ in range(SEARCH_REFINE):
         la, lb = math.log(a), math.log(b)
         x1, x2 = math.exp(lb - g * (lb - la)), math.exp(la + g * (lb - la))
         t1, t2 = trial(x1), trial(x2)
