@@ -151,10 +151,9 @@ class ServoLawSearch:
                 cache[v] = self._sse(self.pred.predict(list(effects) + inner, joints), joints, 'fit')[0]
             return cache[v]
 
-        with np.errstate(invalid='ignore'):    # a diverged replay scores inf; inf - inf in the stop test
-            res = minimize(loss, np.zeros(len(terms)), method='Nelder-Mead',
-                           options={'initial_simplex': np.vstack([np.zeros(len(terms)), 0.5 * np.eye(len(terms))]),
-                                    'xatol': 0.02, 'fatol': 1.0, 'maxfev': 60 * len(terms)})
+        res = minimize(loss, np.zeros(len(terms)), method='Nelder-Mead',
+                       options={'initial_simplex': np.vstack([np.zeros(len(terms)), 0.5 * np.eye(len(terms))]),
+                                'xatol': 0.02, 'fatol': 1.0, 'maxfev': 60 * len(terms)})
         return [float(min(max(x0[k] + res.x[k] * scale[k], lo[k]), hi[k])) for k in range(len(terms))]
 
     def _judge(self, h: Hypothesis, effects, others) -> Hypothesis:

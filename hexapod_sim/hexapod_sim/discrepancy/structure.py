@@ -124,15 +124,16 @@ def fit_term(obj: _Objective, max_evals: int, start=None) -> np.ndarray:
                             options={'xatol': 1e-3 * (obj.hi[0] - obj.lo[0]), 'maxiter': 40})
         return np.array([r.x])
     starts = sorted(_starts(term) + ([tuple(start)] if start is not None else []), key=lambda x: obj.sse(x))[:2]
-    span = obj.hi - obj.lo
     best, best_f = np.asarray(starts[0], dtype=float), math.inf
+    if obj.sse(best) == math.inf:     # the model cannot take the term beside these effects at any value
+        return best                   # (a dictionary term on a leg with gear backlash): nothing to search
+    span = obj.hi - obj.lo
     for x0 in starts:
         u0 = (np.asarray(x0) - obj.lo) / span
-        with np.errstate(invalid='ignore'):    # a diverged replay scores inf; inf - inf in the stop test
-            r = minimize(lambda u: obj.sse(obj.lo + np.clip(u, 0, 1) * span), u0, method='Nelder-Mead',
-                         options={'maxfev': max_evals // 2, 'xatol': 1e-3, 'fatol': 1e-3,
-                                  'initial_simplex': np.vstack([u0] + [u0 + 0.1 * np.eye(len(u0))[i]
-                                                                       for i in range(len(u0))])})
+        r = minimize(lambda u: obj.sse(obj.lo + np.clip(u, 0, 1) * span), u0, method='Nelder-Mead',
+                     options={'maxfev': max_evals // 2, 'xatol': 1e-3, 'fatol': 1e-3,
+                              'initial_simplex': np.vstack([u0] + [u0 + 0.1 * np.eye(len(u0))[i]
+                                                                   for i in range(len(u0))])})
         if r.fun < best_f:
             best, best_f = obj.lo + np.clip(r.x, 0, 1) * span, r.fun
     return best
