@@ -86,3 +86,41 @@ def test_a_kind_named_on_every_joint_of_the_scope_is_not_tried_again(monkeypatch
     named = [Effect(k, (J1,), {'x': 1.0}) for k in loaded_search.LOADED_CANDIDATES]
     kinds, best = _searched_kinds(monkeypatch, named, (J1,))
     assert kinds == [] and best is None
+
+
+def _scope_searches(monkeypatch, before: tuple[float, float], cand_fit: float, cand_hold: float):
+    """The searches :func:`_best_on_scope` runs on one joint whose fit and held-out blocks the nominal replay
+    leaves at ``before`` (fit, held out) ticks, where every candidate's fit leaves them at ``cand_fit`` and
+    ``cand_hold``: [(candidate, 'fit' or 'hold')], and its answer."""
+    fit, hold = {J1: np.ones(50, dtype=bool)}, {J1: np.ones(50, dtype=bool)}
+    base_pred, cand_pred = {}, {}
+    rms = {(id(base_pred), id(fit)): before[0], (id(base_pred), id(hold)): before[1],
+           (id(cand_pred), id(fit)): cand_fit, (id(cand_pred), id(hold)): cand_hold}
+    runs = []
+
+    def search_one(replays, base_, cand, scope_, until_s, masks, progress, **kw):
+        runs.append((cand.effect, 'fit' if masks is fit else 'hold'))
+        return 0.1, (cand_fit if masks is fit else cand_hold), SimpleNamespace(pred=cand_pred)
+
+    monkeypatch.setattr(loaded_search, 'search_one', search_one)
+    monkeypatch.setattr(loaded_search, 'masked_rms', lambda replays, pred, joints, masks: rms[id(pred), id(masks)])
+    best = loaded_search._best_on_scope(None, [], base_pred, (J1,), 20.0, fit, hold, lambda msg: None, {})
+    return runs, best
+
+
+def test_a_scope_both_halves_of_which_are_near_tick_rounding_is_not_searched(monkeypatch):
+    floor = loaded_search.FLOOR_RATIO * loaded_search.ROUNDING_RMS
+    runs, best = _scope_searches(monkeypatch, (0.99 * floor, 0.9 * floor), 0.29, 0.29)
+    assert runs == [] and best is None
+    runs, best = _scope_searches(monkeypatch, (0.9 * floor, 1.01 * floor), 0.29, 0.29)      # one half above it
+    assert len(runs) == len(loaded_search.LOADED_CANDIDATES) and best is not None
+
+
+def test_the_held_out_blocks_are_fitted_only_where_both_halves_could_then_pass(monkeypatch):
+    # the fit blocks explained 1.7x, the held-out ones barely: with the fit blocks at 0.7 ticks, both
+    # halves together go from 1.06 to 0.78 ticks, under the 1.5x an effect needs
+    runs, best = _scope_searches(monkeypatch, (1.2, 0.9), 0.7, 0.85)
+    assert all(kind == 'fit' for _, kind in runs) and not loaded_search._passes(best[0], best[1])
+    # with the fit blocks at 0.4 ticks they could (1.06 -> 0.51): the held-out blocks are fitted too
+    runs, best = _scope_searches(monkeypatch, (1.2, 0.9), 0.4, 0.6)
+    assert runs[-1][1] == 'hold' and sum(kind == 'hold' for _, kind in runs) == 1
