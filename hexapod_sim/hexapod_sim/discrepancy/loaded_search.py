@@ -47,10 +47,10 @@ MAX_JOINT_SCOPES = 4          # single-joint scopes tried: the joints with the l
 FIT_MIN_RATIO = 1.1
 # A scope is searched only where the fit or the held-out blocks leave at least this multiple of tick rounding
 # (ROUNDING_RMS): an effect must bring its error down by SEARCH_MIN_RATIO, and a prediction follows reads
-# rounded to whole ticks better than their rounding only by chance (the smallest error before of an effect
-# named on the fixed and random benches: 0.46 ticks). On walks whose loaded phases sit a little above
-# rounding on many joints (the blocks; a servo law fitted robot-wide) these scopes took most of the
-# analysis and never named anything.
+# rounded to whole ticks better than their rounding only by chance (the smallest held-out error before of an
+# effect named on the walks of the walk and random benches: 0.49 ticks). On walks whose loaded phases sit a
+# little above rounding on many joints (the blocks; a servo law fitted robot-wide) these scopes took most of
+# the analysis and never named anything.
 FLOOR_RATIO = SEARCH_MIN_RATIO
 RIVAL_BRACKET = 0.05          # a named effect refitted within +-5 % of its value is a new loaded effect's rival
 RIVAL_MARGIN = 1.1            # and the new effect is named only when its held-out RMS beats the rival's by this
