@@ -123,9 +123,11 @@ def fit_term(obj: _Objective, max_evals: int, start=None) -> np.ndarray:
         r = minimize_scalar(lambda v: obj.sse([v]), bounds=(obj.lo[0], obj.hi[0]), method='bounded',
                             options={'xatol': 1e-3 * (obj.hi[0] - obj.lo[0]), 'maxiter': 40})
         return np.array([r.x])
-    starts = sorted(_starts(term) + ([tuple(start)] if start is not None else []), key=lambda x: obj.sse(x))[:2]
+    cands = _starts(term) + ([tuple(start)] if start is not None else [])
+    scored = sorted(zip(map(obj.sse, cands), cands), key=lambda p: p[0])[:2]     # each start scored once
+    starts = [x for _, x in scored]
     best, best_f = np.asarray(starts[0], dtype=float), math.inf
-    if obj.sse(best) == math.inf:     # the model cannot take the term beside these effects at any value
+    if scored[0][0] == math.inf:      # the model cannot take the term beside these effects at any value
         return best                   # (a dictionary term on a leg with gear backlash): nothing to search
     span = obj.hi - obj.lo
     for x0 in starts:
