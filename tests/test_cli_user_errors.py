@@ -39,6 +39,8 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_sim', 'discrepancy', ['nonexistent_bag']),
     ('hexapod_sim', 'discrepancy', ['BAG', '--overlay', 'OVERLAY']),
     ('hexapod_sim', 'discrepancy', ['BAG', '--min-ratio', '0.5']),
+    ('hexapod_sim', 'discrepancy', ['BAG', '--search-budget', '0']),
+    ('hexapod_sim', 'discrepancy', ['BAG', '--search-budget', 'nan']),
     ('hexapod_locomotion', 'discrepancy_bench', ['--seed', 'x']),
     ('hexapod_locomotion', 'discrepancy_bench', ['--reuse']),
     ('hexapod_sim', 'replay', ['nonexistent_bag']),

@@ -87,6 +87,14 @@ def positive_float(text: str) -> float:
     return v
 
 
+def positive_or_inf(text: str) -> float:
+    """argparse type: a number > 0, ``inf`` included (no limit)."""
+    v = _float(text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f'must be > 0 (inf: no limit), got {text}')
+    return v
+
+
 def positive_float_at_most(limit: float) -> Callable[[str], float]:
     """argparse type: a finite number in (0, limit]."""
     def check(text: str) -> float:

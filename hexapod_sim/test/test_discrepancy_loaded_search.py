@@ -1,6 +1,7 @@
 """The loaded-phase search's bookkeeping (:func:`search_loaded`): which effects it returns at which values
 when a refit of an effect is the rival of a new one. The replays, fits and judgements are stood in for
 (each is tested on recorded walks elsewhere); what is checked is what the search does with their answers."""
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -19,7 +20,8 @@ def _walk(excess: dict):
     """A walk in step to 20 s whose stance leaves ``excess`` ({joint: RMS ticks}) on its joints."""
     t = np.arange(0.0, 20.0, 0.01)
     rec = SimpleNamespace(states={j: SimpleNamespace(t_s=t) for j in excess})
-    replays = SimpleNamespace(rec=rec, robot=SimpleNamespace(servo=SimpleNamespace(rad_per_tick=0.005)))
+    replays = SimpleNamespace(rec=rec, robot=SimpleNamespace(servo=SimpleNamespace(rad_per_tick=0.005)),
+                              replayed_s=0.0)
     ww = SimpleNamespace(in_step_until_s=20.0,
                          phases={j: {'stance': SimpleNamespace(n_reads=500, rmse_ticks_fitted=v)} for j, v in excess.items()})
     return replays, ww
@@ -48,8 +50,8 @@ def test_a_find_refitted_as_a_later_scopes_rival_is_returned_at_its_refitted_val
     # leg 1's friction is found first; on leg 2's tibia its refit (0.20 -> 0.21) explains as much as a new
     # friction there: nothing new, and leg 1's find carries the value the rest of the search used
     first = _friction(J1, 0.20)
-    found, refitted = _search(monkeypatch, [], {(J1,): first, (J2,): _friction(J2, 0.25)},
-                              {(J2,): lambda base: [_friction(J1, 0.21) if e is first else e for e in base]})
+    found, refitted, _ = _search(monkeypatch, [], {(J1,): first, (J2,): _friction(J2, 0.25)},
+                                 {(J2,): lambda base: [_friction(J1, 0.21) if e is first else e for e in base]})
     assert [f.effect.params['tau_s_nm'] for f in found] == [0.21]
     assert found[0].effect.joints == (J1,)
     assert refitted == []          # a find is no named effect: no "refitted" note
@@ -58,10 +60,31 @@ def test_a_find_refitted_as_a_later_scopes_rival_is_returned_at_its_refitted_val
 def test_a_named_effect_refitted_as_the_rival_is_reported_as_refitted(monkeypatch):
     named = Effect('torque_saturation', (J3,), {'tau_max_nm': 0.77})
     refit = Effect('torque_saturation', (J3,), {'tau_max_nm': 0.776})
-    found, refitted = _search(monkeypatch, [named], {(J1,): _friction(J1, 0.20), (J2,): _friction(J2, 0.25)},
-                              {(J1,): lambda base: [refit if e is named else e for e in base]})
+    found, refitted, _ = _search(monkeypatch, [named], {(J1,): _friction(J1, 0.20), (J2,): _friction(J2, 0.25)},
+                                 {(J1,): lambda base: [refit if e is named else e for e in base]})
     assert [f.effect.joints for f in found] == [(J2,)]
     assert refitted == [(named, refit)]
+
+
+def test_no_scope_is_begun_once_the_search_has_replayed_its_budget(monkeypatch):
+    # each scope's search replays 100 s of walk and names nothing; the joints come largest error first
+    searched = []
+
+    def best_on_scope(replays, base, pred, scope, *a):
+        searched.append(tuple(scope))
+        replays.replayed_s += 100.0
+        return None
+
+    monkeypatch.setattr(loaded_search, '_base_pred', lambda replays, base, joints, until: {})
+    monkeypatch.setattr(loaded_search, '_best_on_scope', best_on_scope)
+    replays, ww = _walk({J1: 1.2, J2: 0.8, J3: 1.0})
+    found, refitted, left = loaded_search.search_loaded(replays, [], ww, budget_s=150.0)
+    assert searched == [(J1,), (J3,)] and found == [] and refitted == []
+    assert left == [((J2,), 0.8)]                  # 200 s replayed when leg 2's tibia came: not begun
+    searched.clear()
+    replays, ww = _walk({J1: 1.2, J2: 0.8, J3: 1.0})
+    assert loaded_search.search_loaded(replays, [], ww, budget_s=math.inf)[2] == []
+    assert searched == [(J1,), (J3,), (J2,)]
 
 
 def _searched_kinds(monkeypatch, base, scope):

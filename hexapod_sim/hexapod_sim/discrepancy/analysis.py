@@ -18,6 +18,7 @@ from hexapod_sim.discrepancy import structure
 from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
 from hexapod_sim.discrepancy.findings import DOUBTFUL_TICKS, UNEXPLAINED_TICKS, FoundEffect, JointFit, PhaseFit, Unexplained
 from hexapod_sim.discrepancy.fit import TWIN_OF, FitSettings, Hypothesis, Namer, law_of_twins, uneven_parts
+from hexapod_sim.discrepancy.loaded_search import SEARCH_BUDGET_S
 from hexapod_sim.discrepancy.locate import Mismatch, dominant_condition, mismatch_windows, read_conditions
 from hexapod_sim.discrepancy.predict import ROUNDING_VAR, Predictor, make_split, unobservable
 from hexapod_sim.discrepancy.recording import Recording
@@ -449,7 +450,8 @@ def _split_note(split, by_swing: bool) -> str:
 
 def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=None, mode: str = 'auto',
             settings: FitSettings | None = None, block_s: float | None = None, progress: bool = False,
-            workers: int = 2, ground=None, whole_walk: bool = True) -> Analysis:
+            workers: int = 2, ground=None, whole_walk: bool = True, search_budget_s: float = SEARCH_BUDGET_S
+            ) -> Analysis:
     """Find what the nominal model of ``robot`` leaves out of ``rec`` (see the package docstring).
 
     ``joints``: restrict to these joints (:class:`~hexapod_model.joints.Joint`, or their names).
@@ -459,6 +461,8 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
     given windows, alternate swings of each leg on a walk (:func:`~.predict.make_split`).
     ``whole_walk``: on a walk, also replay the whole walk on the MuJoCo hexapod (:mod:`.whole_walk`) on
     ``ground`` (a :class:`~hexapod_sim.physics.terrain.Ground`; None: the recording's, else a flat floor).
+    ``search_budget_s``: the seconds of walk its loaded-phase search may replay before it begins no further
+    scope (:data:`~.loaded_search.SEARCH_BUDGET_S`).
     """
     t_start = time.perf_counter()
     if mode not in MODES:
@@ -499,7 +503,7 @@ def analyse(rec: Recording, robot: Robot | None = None, joints=None, windows=Non
                 named = [f.effect for f in found] + [t.effect for t in terms]
                 whole, ww_notes, finds, wide, moved, swaps = whole_walk_check(
                     rec_ww, robot, named, ground, ww_phases, replay.joints, progress=step,
-                    swing_fits=_swing_fits(settings.log))
+                    swing_fits=_swing_fits(settings.log), budget_s=search_budget_s)
                 if moved:
                     found, unexplained, res1, jfit, phase_fit = _on_whole_legs(replay, robot, split, cond, phases, found,
                                                                                terms, moved, res0, jfit, nearest)

@@ -23,6 +23,7 @@ from hexapod_model.cli_common import (
     output_file,
     plot_extensions,
     positive_float,
+    positive_or_inf,
     ratio_at_least_one,
 )
 from hexapod_model.description import ALL_JOINTS, DescriptionError, load_robot
@@ -31,6 +32,7 @@ from hexapod_sim.bagio import BagWarning, one_warning
 from hexapod_sim.discrepancy.analysis import MODES, analyse
 from hexapod_sim.discrepancy.effects import BY_NAME
 from hexapod_sim.discrepancy.fit import FitSettings
+from hexapod_sim.discrepancy.loaded_search import SEARCH_BUDGET_S
 from hexapod_sim.discrepancy.recording import RecordingError, load_recording
 from hexapod_sim.discrepancy.segments import parse_windows
 from hexapod_sim.physics.terrain import TERRAINS, Ground
@@ -67,6 +69,10 @@ def build_parser():
     ap.add_argument('--terrain-seed', type=nonnegative_int, default=0, metavar='N', help='the terrain\'s seed (with --terrain)')
     ap.add_argument('--start-xy', type=finite_float, nargs=2, default=(0.0, 0.0), metavar=('X', 'Y'),
                     help='where the trunk started on the terrain [m] (with --terrain)')
+    ap.add_argument('--search-budget', type=positive_or_inf, default=SEARCH_BUDGET_S, metavar='S',
+                    help='seconds of walk the whole walk\'s loaded-phase search may replay before it begins no further '
+                         f'joint (default {SEARCH_BUDGET_S:g}: about 25 s of one core; inf: every joint it '
+                         'would search)')
     add_no_progress_option(ap)
     return ap
 
@@ -104,7 +110,7 @@ def _main(ap, args) -> int:
         ground = None if args.terrain in (None, 'none') else Ground(args.terrain, args.terrain_seed, tuple(args.start_xy))
         result = analyse(rec, robot, joints=joints, windows=windows, mode=args.mode, settings=settings,
                          block_s=args.holdout_block, progress=args.progress, ground=ground,
-                         whole_walk=args.terrain != 'none')
+                         whole_walk=args.terrain != 'none', search_budget_s=args.search_budget)
     except (RecordingError, DescriptionError, ValueError) as exc:
         print(f'{ap.prog}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         return 2

@@ -52,6 +52,14 @@ FIT_MIN_RATIO = 1.1
 # little above rounding on many joints (the blocks; a servo law fitted robot-wide) these scopes took most of
 # the analysis and never named anything.
 FLOOR_RATIO = SEARCH_MIN_RATIO
+# The walk time [s] the search may replay (all its replays together, 1 ms physics steps) before it begins no
+# further scope; a scope begun is searched to its end. The robot-wide scope comes first, then the joints by their
+# loaded-phase error, largest first, so what the budget leaves out is the joints nearest tick rounding. 800 s is
+# 40 replays of the search horizon, about 25 s of one core (31 us a step with the search's bookkeeping). On the
+# walks of the walk and random benches the latest scope that named anything began at 526 s of replay (backlash
+# on a femur, the fourth joint searched); the tripod walk over the blocks with Coulomb friction and a payload
+# replayed 2516 s in five scopes and named nothing (93 s for the one-minute walk).
+SEARCH_BUDGET_S = 800.0
 RIVAL_BRACKET = 0.05          # a named effect refitted within +-5 % of its value is a new loaded effect's rival
 RIVAL_MARGIN = 1.1            # and the new effect is named only when its held-out RMS beats the rival's by this
 
@@ -200,19 +208,22 @@ def _best_on_scope(replays: Replays, base: list, base_pred: dict, scope, until_s
 
 
 def search_loaded(replays: Replays, effects: list, ww: WholeWalk, progress=lambda msg: None,
-                  swing_fits: dict | None = None) -> tuple[list[LoadedFind], list[tuple]]:
+                  swing_fits: dict | None = None, budget_s: float = SEARCH_BUDGET_S
+                  ) -> tuple[list[LoadedFind], list[tuple], list[tuple]]:
     """Effects of :data:`LOADED_CANDIDATES` that explain what the whole walk's loaded phases leave, on the
     joints that leave more than tick rounding (each alone; and the whole robot when many do), fitted on
     alternate 2 s blocks of the whole walk and judged on the others (:func:`_best_on_scope`). At most one
     effect per joint; none where a named effect at a refitted value explains the excess as well
     (:func:`_rival`), which is refitted instead (a find of an earlier scope then takes its refitted value).
     ``swing_fits``: {(effect, joint): value} the swings fitted on one joint and did not name; those of
-    :data:`SWING_CANDIDATES` are tried on their joint too. -> (finds, [(named effect, refitted)])."""
+    :data:`SWING_CANDIDATES` are tried on their joint too. A scope is begun only while the search has replayed
+    less than ``budget_s`` of walk (:data:`SEARCH_BUDGET_S`).
+    -> (finds, [(named effect, refitted)], [(scope not searched, its loaded-phase RMS error)])."""
     from hexapod_sim.discrepancy.effects import BY_NAME
     rec, robot = replays.rec, replays.robot
     excess = _loaded_excess(ww)
     if not excess or ww.in_step_until_s < START_S + SEARCH_MIN_IN_STEP_S:
-        return [], []
+        return [], [], []
     joints = list(ww.phases)
     until = min(ww.in_step_until_s, START_S + SEARCH_HORIZON_S)
     fit, hold = search_masks(rec, joints, until)
@@ -222,8 +233,12 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk, progress=lambd
     base_pred = _base_pred(replays, base, joints, until)
     swing_fits = swing_fits or {}
     found: list[LoadedFind] = []
+    left, start_s, rms = [], replays.replayed_s, dict(excess)
     for scope in sorted(scopes, key=len, reverse=True):
         if any(j in f.effect.joints for f in found for j in scope):
+            continue
+        if replays.replayed_s - start_s >= budget_s:
+            left.append((scope, max(rms.get(j, 0.0) for j in scope)))
             continue
         hints = {name: swing_fits[name, scope[0]] for name in SWING_CANDIDATES
                  if len(scope) == 1 and (name, scope[0]) in swing_fits}
@@ -246,7 +261,7 @@ def search_loaded(replays: Replays, effects: list, ww: WholeWalk, progress=lambd
     # a refit keeps its effect's place in ``base``: ``effects``, then the finds in order
     n = len(effects)
     found = [f if b is f.effect else replace(f, effect=b) for f, b in zip(found, base[n:])]
-    return found, [(o, r) for o, r in zip(effects, base[:n]) if r is not o]
+    return found, [(o, r) for o, r in zip(effects, base[:n]) if r is not o], left
 
 
 __all__ = ['LOADED_CANDIDATES', 'LoadedFind', 'SWING_CANDIDATES', 'search_loaded']

@@ -50,10 +50,12 @@ def sorted_writes(rec: Recording, dt: float) -> list[tuple[int, dict[str, float]
 class ReplayInputs:
     """What every replay of one recording on one ground shares, made once: the recorded writes by tick
     (:func:`sorted_writes`), the same as a :class:`~hexapod_sim.physics.write_schedule.WriteSchedule` for
-    the compiled loop, and the ground's terrain."""
+    the compiled loop, and the ground's terrain; and :attr:`replayed_s`, the physics time [s] the replays
+    that share them have run together (what a search has cost, counted in the walk's own time)."""
 
     def __init__(self, rec: Recording, ground: Ground):
         self.rec, self.ground = rec, ground
+        self.replayed_s = 0.0
         self._writes: dict[float, list] = {}          # physics step -> the writes by tick
         self._schedules: dict[float, WriteSchedule | None] = {}
         self._terrain = None
@@ -117,7 +119,7 @@ class WalkReplay:
         start = _start_angles(rec, sim)
         if start is not None:
             sim.reset(joint_angles=start)
-        self.sim, self.dt, self.servo = sim, sim.dt, robot.servo
+        self.sim, self.dt, self.servo, self._inputs = sim, sim.dt, robot.servo, inputs
         self.t_end = rec.duration_s if t_end_s is None else min(t_end_s, rec.duration_s)
         self.n = n = int(math.ceil(self.t_end / self.dt)) + 2
         self.grid = sim.keep_output_angles(n)
@@ -143,6 +145,7 @@ class WalkReplay:
         to which every read is."""
         target = min(self.n, int(math.ceil(min(t_s, self.t_end) / self.dt)) + 2)
         sim, w = self.sim, self._writes
+        self._inputs.replayed_s += max(target - self.steps, 0) * self.dt
         if self._schedule is not None and self.steps < target:     # the same loop, compiled
             self._next_write = replay_writes(sim, self._schedule, target, self._next_write)
             self.steps = target

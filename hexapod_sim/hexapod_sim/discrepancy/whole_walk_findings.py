@@ -13,7 +13,7 @@ from hexapod_model.description import Effect, Robot
 from hexapod_model.dictionary import BY_TERM
 from hexapod_sim.discrepancy.effects import BY_NAME, scope_name
 from hexapod_sim.discrepancy.findings import UNEXPLAINED_TICKS, FoundEffect
-from hexapod_sim.discrepancy.loaded_search import LoadedFind, search_loaded
+from hexapod_sim.discrepancy.loaded_search import SEARCH_BUDGET_S, LoadedFind, search_loaded
 from hexapod_sim.discrepancy.recording import Recording
 from hexapod_sim.discrepancy.whole_walk_search import (
     LOADED_PHASES,
@@ -146,13 +146,13 @@ def add_loaded(found: list, blind: dict, finds, joints) -> tuple[list, dict]:
 
 
 def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | None, phases: dict,
-                     joints, search: bool = True, progress=lambda msg: None, swing_fits: dict | None = None
-                     ) -> tuple[WholeWalk, list[str], list[LoadedFind], dict, list, list]:
+                     joints, search: bool = True, progress=lambda msg: None, swing_fits: dict | None = None,
+                     budget_s: float = SEARCH_BUDGET_S) -> tuple[WholeWalk, list[str], list[LoadedFind], dict, list, list]:
     """The whole-walk comparison of :func:`analyse`'s walk path, the effects found on part of the robot
     that it puts on every joint (:func:`widen`) and on a whole leg (:func:`widen_to_legs`), what
-    :func:`search_loaded` finds in its loaded phases (with ``search``; ``swing_fits`` as it takes them) and
-    the effects it refits instead, and the notes for the report. ``ground``: None takes the recording's
-    (``/sim/scene``), else a flat floor.
+    :func:`search_loaded` finds in its loaded phases (with ``search``; ``swing_fits`` and ``budget_s`` as it
+    takes them) and the effects it refits instead, and the notes for the report. ``ground``: None takes the
+    recording's (``/sim/scene``), else a flat floor.
     -> (comparison, notes, loaded finds, {kind: robot-wide effect}, [(effect, on its whole leg)],
     [(effect, refitted)])."""
     ground, origin = walk_ground(rec, ground)
@@ -163,7 +163,8 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
     effects, moved = widen_to_legs(replays, effects, joints, progress)
     if moved:
         ww = compare(replays, robot.with_effects(effects), phases, joints)
-    finds, refitted = search_loaded(replays, list(effects), ww, progress, swing_fits) if search else ([], [])
+    finds, refitted, left = (search_loaded(replays, list(effects), ww, progress, swing_fits, budget_s) if search
+                             else ([], [], []))
     if refitted:
         effects = [_refitted(e, refitted) for e in effects]
     if finds or refitted:
@@ -188,6 +189,10 @@ def whole_walk_check(rec: Recording, robot: Robot, effects, ground: Ground | Non
         notes.append(f'whole walk: {e.effect.replace("_", " ")} on {", ".join(map(str, e.joints))} refitted on the '
                      f'whole walk, {key} {v0:.4g} -> {v:.4g}: at that value it explains what the loaded phases left '
                      'as well as a new effect would')
+    if left:
+        notes.append(f'whole walk: the loaded-phase search stopped at its budget ({budget_s:g} s of replay, '
+                     '--search-budget); not searched, with their RMS error in the loaded phases: '
+                     + ', '.join(f'{scope_name(sc, joints)} {v:.2f}' for sc, v in left) + ' ticks')
     for kind in wide:
         notes.append(f'whole walk: {kind.replace("_", " ")} found on part of the robot keeps the replay in step only '
                      'when it acts on every joint: put on the whole robot')

@@ -65,6 +65,11 @@ class Replays:
         self._meas: dict[Joint, np.ndarray] = {}
         self._inputs = ReplayInputs(rec, ground)      # the writes and the terrain (the same for every model)
 
+    @property
+    def replayed_s(self) -> float:
+        """The physics time [s] all its replays have run together."""
+        return self._inputs.replayed_s
+
     def meas(self, joint: Joint) -> np.ndarray:
         """The recorded reads of ``joint`` in ticks."""
         if joint not in self._meas:
