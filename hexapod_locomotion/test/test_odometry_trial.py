@@ -16,6 +16,10 @@ def test_odometry_of_a_flat_walk_stays_within_the_drift_targets():
         assert o['distance_m'] == pytest.approx(r.path_length_m, rel=0.2)
         assert o['position_error_pct'] < 5.0, (name, o)
         assert o['yaw_error_deg_per_m'] < 3.0, (name, o)
+        # the yaw error's two parts (by the sim's foot contacts) add up to it
+        assert abs(o['yaw_error_off_ground_deg'] + o['yaw_error_elsewhere_deg']) == pytest.approx(o['yaw_error_deg'],
+                                                                                                  abs=1e-9)
+        assert 0.0 <= o['off_ground_share'] < 1.0
 
 
 def test_drift_of_a_track_that_is_the_truth_is_zero_and_of_a_short_one_is_its_error():
@@ -41,3 +45,21 @@ def test_turning_in_place_with_the_correction_follows_the_commanded_rate():
         rates[c] = np.radians(o['heading_change_deg']) / o['duration_s']
     assert rates[False] < 0.05 * 0.75
     assert rates[True] == pytest.approx(0.05, rel=0.1)
+
+
+def test_drift_splits_the_yaw_error_by_whether_a_used_foot_was_off_the_ground():
+    # the truth walks straight; the odometry's yaw turns 0.01 rad at each of the samples flagged and
+    # -0.002 rad at each one that is not: the two parts add up to the final error
+    t = np.linspace(0, 10, 101)
+    xyz = np.c_[0.05 * t, np.zeros_like(t), np.full_like(t, 0.1)]
+    quat = np.tile([1.0, 0, 0, 0], (len(t), 1))
+    flag = (t > 3) & (t < 5)
+    yaw = np.cumsum(np.where(flag, 0.01, -0.002) * (np.arange(len(t)) > 0))
+    track = [(ti, 0.05 * ti, 0.0, y) for ti, y in zip(t, yaw)]
+    d = drift(track, t, xyz, quat, off_ground=flag)
+    assert d['off_ground_share'] == pytest.approx(flag.mean())
+    assert d['yaw_error_off_ground_deg'] == pytest.approx(np.degrees(0.01 * flag.sum()))
+    assert d['yaw_error_elsewhere_deg'] == pytest.approx(np.degrees(-0.002 * (len(t) - 1 - flag.sum())))
+    assert 'off_ground_share' not in drift(track, t, xyz, quat)
+    with pytest.raises(ValueError, match='off_ground has 3 samples'):
+        drift(track, t, xyz, quat, off_ground=[True, False, True])

@@ -141,6 +141,11 @@ class OdometryTap(ServoBus):
         return first
 
     @property
+    def feet_used(self) -> np.ndarray:
+        """Which feet (legs 1..6) the last update took as on the ground."""
+        return self._used.copy()
+
+    @property
     def estimate(self) -> OdometryEstimate | None:
         return self.estimators[0][0].estimate if self.estimators else None
 

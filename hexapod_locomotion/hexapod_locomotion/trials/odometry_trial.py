@@ -3,7 +3,9 @@
 :class:`TrialOdometry` runs two leg odometries side by side on the trial's bus (one with the sim's
 IMU, one from the legs alone), records both tracks and writes the first to the bag as ``/odom``.
 :func:`drift` compares a track with the truth: position error as a percentage of the distance
-walked, yaw error per metre, and the walk's own heading and line errors against where it started.
+walked, yaw error per metre, and the walk's own heading and line errors against where it started; and
+how much of the yaw error built up while a foot the odometry took as on the ground was off it in the
+simulation (the contact the controller believes, against the sim's foot contacts).
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ class TrialOdometry:
         self.odometry = {'imu': LegOdometry(), 'legs': LegOdometry()}
         order = ('imu', 'legs') if imu_first else ('legs', 'imu')
         self.tracks: dict[str, list[tuple[float, float, float, float]]] = {k: [] for k in order}
+        self.off_ground: list[bool] = []     # per update: a foot the odometry used was off the ground (truth)
         self.tap = OdometryTap(probe, robot, controller.contact_legs,
                                [(self.odometry[k], k == 'imu') for k in order], imu=self._imu,
                                on_estimate=self._on_estimate)
@@ -47,12 +50,15 @@ class TrialOdometry:
         for k in self.tracks:
             e = self.odometry[k].estimate
             self.tracks[k].append((e.t_s, float(e.position[0]), float(e.position[1]), float(e.rpy[2])))
+        touch = self.probe.sim.foot_contacts().in_contact
+        self.off_ground.append(bool(np.any(self.tap.feet_used & ~touch)))
         if self.recorder is not None:
             self.recorder.write(ODOM, MSG_TYPES[ODOM], odometry_dict(first, *self.frames), first.t_s)
 
     def drift(self, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0) -> dict:
         """Per odometry (``imu``, ``legs``): :func:`drift` of its track."""
-        return {k: drift(tr, truth_t, truth_xyz, truth_quat_wxyz, window_s) for k, tr in self.tracks.items() if tr}
+        return {k: drift(tr, truth_t, truth_xyz, truth_quat_wxyz, window_s, self.off_ground)
+                for k, tr in self.tracks.items() if tr}
 
 
 def _truth_yaw(quat_wxyz) -> np.ndarray:
@@ -60,14 +66,17 @@ def _truth_yaw(quat_wxyz) -> np.ndarray:
     return Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler('ZYX')[:, 0]
 
 
-def drift(track, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0) -> dict:
+def drift(track, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0, off_ground=None) -> dict:
     """Odometry ``track`` [(t, x, y, yaw)] against the truth (times, positions, quaternions w x y z).
 
     Both poses are taken relative to their own at the track's first time. Returns the distance walked
     (truth path length at ``PATH_SAMPLE_S``), the final position error [m] and in % of that distance,
     the final yaw error [deg] and per metre, and the truth's own final heading change [deg] and
     distance from the start line [m] (how straight the walk was), at the end and as means over the last
-    ``window_s`` (a gait cycle: a gait sways the body within each cycle)."""
+    ``window_s`` (a gait cycle: a gait sways the body within each cycle). ``off_ground``: per track
+    sample, whether a foot the odometry used was off the ground; then also the share of samples so
+    flagged and the signed yaw error [deg] built up over the intervals ending at them and elsewhere
+    (the two add up to the final yaw error, unwrapped)."""
     tr = np.asarray(track, dtype=float)
     t = np.asarray(truth_t, dtype=float)
     xyz = np.asarray(truth_xyz, dtype=float)
@@ -92,9 +101,18 @@ def drift(track, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0) -> 
     ts = ts if len(ts) else np.array([t1])
     head_mean = float(np.mean([at(x)[1] for x in ts])) - y0
     line_mean = float(np.mean([(np.array([[c, s], [-s, c]]) @ (at(x)[0] - p0))[1] for x in ts]))
-    return {'distance_m': dist, 'position_error_m': err,
-            'position_error_pct': 100.0 * err / dist if dist > 0 else math.nan,
-            'yaw_error_deg': yaw_err, 'yaw_error_deg_per_m': yaw_err / dist if dist > 0 else math.nan,
-            'heading_change_deg': math.degrees(y1 - y0), 'line_offset_m': float(rel[1]),
-            'heading_cycle_mean_deg': math.degrees(head_mean), 'line_cycle_mean_m': line_mean,
-            'duration_s': float(t1 - t0)}
+    out = {'distance_m': dist, 'position_error_m': err,
+           'position_error_pct': 100.0 * err / dist if dist > 0 else math.nan,
+           'yaw_error_deg': yaw_err, 'yaw_error_deg_per_m': yaw_err / dist if dist > 0 else math.nan,
+           'heading_change_deg': math.degrees(y1 - y0), 'line_offset_m': float(rel[1]),
+           'heading_cycle_mean_deg': math.degrees(head_mean), 'line_cycle_mean_m': line_mean,
+           'duration_s': float(t1 - t0)}
+    if off_ground is not None:
+        flag = np.asarray(off_ground, dtype=bool)
+        if len(flag) != len(tr):
+            raise ValueError(f'off_ground has {len(flag)} samples, the track {len(tr)}')
+        step = np.diff(np.unwrap(tr[:, 3]) - np.interp(tr[:, 0], t, yaw))
+        out.update(off_ground_share=float(flag.mean()),
+                   yaw_error_off_ground_deg=math.degrees(float(step[flag[1:]].sum())),
+                   yaw_error_elsewhere_deg=math.degrees(float(step[~flag[1:]].sum())))
+    return out
