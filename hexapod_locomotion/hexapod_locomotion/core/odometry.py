@@ -15,8 +15,9 @@ now to where they were then. Each update:
    feet the height change;
 4. with an IMU, that yaw is fused with the IMU's since the keyframe (orientation difference, else the
    integrated yaw rate), weighted by their variances; where the two differ by more than
-   ``slip_gate_sigma`` standard deviations the feet have slipped together (a rigid slip leaves no
-   residual in the fit) and the IMU's yaw alone counts;
+   ``slip_gate_sigma`` standard deviations the feet taken as standing did not stand still (they
+   slipped together, or a leg stalled on a block lifted the body off them and they followed their
+   commands in the air: neither leaves a residual in the fit) and the IMU's yaw alone counts;
 5. the pose covariance is the keyframe's grown by the fit's residual and a slip term per metre
    walked, propagated through the heading (an error in yaw becomes a lateral error as the robot walks
    on).
@@ -59,9 +60,10 @@ class OdometryConfig:
     gyro_sigma_rad_s: float = 0.005
     imu_tilt_sigma_rad: float = 0.01
     # the legs' and the IMU's yaw since the keyframe further apart than this many standard deviations:
-    # the feet slipped (a leg stalled on a block twists the stance), the IMU's yaw alone counts. Tripod on
-    # the blocks, a stall trial (seed 1, 40 s, correction on): fused by the variances alone the legs'
-    # 33 degrees of slip left the estimate 2.6 degrees off the truth, and the walk's heading with it
+    # the feet taken as standing did not stand still (a leg stalled on a block turns the body while they
+    # slip or hang), the IMU's yaw alone counts. Tripod on the blocks, a stall trial (seed 1, 40 s,
+    # correction on): fused by the variances alone the legs' 33 degrees of error left the estimate 2.6
+    # degrees off the truth, and the walk's heading with it
     slip_gate_sigma: float = 3.0
     # fewer feet in contact at both updates than this: no fit, the pose holds (and its covariance grows)
     min_feet: int = 2
@@ -150,7 +152,8 @@ class _LegFit(NamedTuple):
 
 def _fuse_yaw(fit: _LegFit, d_imu: float | None, var_imu: float, gate_sigma: float) -> tuple[float, float]:
     """Step 4: the legs' yaw change fused with the IMU's by their variances: ``(dyaw, var_yaw)``; the
-    IMU's alone where they differ by more than ``gate_sigma`` standard deviations (the feet slipped)."""
+    IMU's alone where they differ by more than ``gate_sigma`` standard deviations (the feet taken as
+    standing did not stand still)."""
     if d_imu is not None and fit.used:
         tot = var_imu + fit.var_legs
         if abs(wrap_angle(fit.dyaw - d_imu)) > gate_sigma * math.sqrt(tot):
