@@ -50,7 +50,7 @@ class TrialOdometry:
         for k in self.tracks:
             e = self.odometry[k].estimate
             self.tracks[k].append((e.t_s, float(e.position[0]), float(e.position[1]), float(e.rpy[2])))
-        touch = self.probe.sim.foot_contacts().in_contact
+        touch = self.probe.sim.feet_touching_last_step()        # no collision pass per update
         self.off_ground.append(bool(np.any(self.tap.feet_used & ~touch)))
         if self.recorder is not None:
             self.recorder.write(ODOM, MSG_TYPES[ODOM], odometry_dict(first, *self.frames), first.t_s)
