@@ -1,7 +1,8 @@
 """odometry_bench: leg-odometry drift and straight-walk course errors against the simulator's truth.
 
 Walks simulated trials (lock-stepped, no ROS) straight ahead for every gait x terrain x seed, with
-the course correction off (the paper's open loop) and, with ``--correction both``, on. Each trial
+the course correction off (the paper's open loop and swing) and, with ``--correction both``, on (as
+locomotion_node walks by default: the correction and the obstacle reflex of a swinging leg). Each trial
 runs two leg odometries side by side (with and without /imu). Prints per cell the median and worst
 odometry position error in % of the distance walked and yaw error in degrees per metre at the end,
 and the walk's own heading change [deg] and distance from the start line [cm] (truth), both as
@@ -38,7 +39,8 @@ def build_parser():
     ap.add_argument('--distance', type=positive_float, metavar='M',
                     help='end a straight walk once the trunk is M metres along x from its start')
     ap.add_argument('--correction', choices=('off', 'on', 'both'), default='both',
-                    help='heading/lateral correction from odometry (off = the paper\'s open loop)')
+                    help='on: as locomotion_node walks by default, the heading/lateral correction from the odometry '
+                         'and the obstacle reflex of a swinging leg; off: the paper\'s open loop and swing')
     ap.add_argument('--turn', type=positive_float, metavar='WZ',
                     help='instead: turn in place at WZ rad/s and print the truth\'s mean yaw rate against it')
     ap.add_argument('--json', metavar='FILE', help='write every trial\'s figures to FILE')
@@ -81,19 +83,21 @@ def _off_ground_row(label: str, trials: list[dict]) -> str:
 
 def _cells(args, TrialConfig) -> list[tuple[str, object]]:
     """(cell key, trial config) of every trial to run."""
+    from hexapod_locomotion.core.controller import LocomotionParams
     corrections = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.correction]
+    node = LocomotionParams()
     out = []
     for t in args.terrains:
         for g in args.gaits:
             for c in corrections:
                 key = f'{g}/{t}/{"on" if c else "off"}'
                 for seed in range(args.seeds):
+                    walk = dict(gait=g, terrain=t, seed=seed, duration_s=args.duration, heading_correction=c,
+                                obstacle_lift_m=node.obstacle_lift_m if c else 0.0)
                     if args.turn:
-                        cfg = TrialConfig(gait=g, terrain=t, seed=seed, duration_s=args.duration, vx_mps=0.0,
-                                          wz_rad_s=args.turn, heading_correction=c)
+                        cfg = TrialConfig(**walk, vx_mps=0.0, wz_rad_s=args.turn)
                     else:
-                        cfg = TrialConfig(gait=g, terrain=t, seed=seed, duration_s=args.duration, heading_correction=c,
-                                          course_end_m=args.distance)
+                        cfg = TrialConfig(**walk, course_end_m=args.distance)
                     out.append((key, cfg))
     return out
 

@@ -28,12 +28,12 @@ from hexapod_locomotion.core.detector import (
     run_swing_down,
 )
 from hexapod_locomotion.core.gait import Gait
+from hexapod_locomotion.core.swing_watch import in_air_rollouts, obstructed
 from hexapod_model.bus import ServoBus
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name
 from hexapod_model.kinematics import UnreachableTargetError, forward, inverse, stance_feet
 from hexapod_model.leveling import LevelingError, level_body
 from hexapod_model.param_schema import ParameterError, param, validate
-from hexapod_model.servo import theta_to_tick
 from hexapod_model.swing_model import LegModel, predict_swing_down
 
 
@@ -149,6 +149,17 @@ class LocomotionParams:
     # first swings then carry as much as the later ones).
     start_ramp: bool = param(True, 'grow the stride over the first gait cycle (from the home stance a full '
                              'stride spreads the feet further than any later cycle); false = full stride at once')
+    # A swinging leg whose femur or tibia read is further than obstacle_tick from its motion in the air
+    # (core.swing_watch) has met an obstacle: its foot is lifted obstacle_lift_m higher for the rest of the
+    # swing (over the swing-up time, then on to its foothold at that height). Pushed on instead, a foot
+    # held by a block's side lifted the trunk off its stance feet (tripod over the blocks: 1.5 cm, the body
+    # turned 12 degrees on two feet). The paper's gait has no such reflex: the trials run without it.
+    obstacle_lift_m: float = param(0.03, 'a swinging leg that meets an obstacle (obstacle_tick) is lifted this '
+                                   'much higher for the rest of its swing [m]; 0 = off (the paper: the swing '
+                                   'goes on into the obstacle)', min=0.0)
+    obstacle_tick: float = param(25.0, 'a swinging leg has met an obstacle when its femur or tibia read is this '
+                                 'many ticks from its motion in the air (free swings: within 11)',
+                                 min=0.0, min_exclusive=True)
 
     def __post_init__(self):
         try:
@@ -247,6 +258,7 @@ class GaitController:
         self.phase_index = 0
         self._pending_level: dict[str, float] | None = None  # leveling left for the next transfer
         self._rr = 0                                        # round-robin read pointer
+        self._reads: dict[str, tuple[float, float]] = {}    # joint -> (theta, sample time) of its last read
         # (bus time, (femur, tibia) goals of the swinging legs) per write since the swing-up began
         self._goal_log: list[tuple[float, np.ndarray]] | None = None
         self._logged_legs: tuple[int, ...] = ()
@@ -288,7 +300,8 @@ class GaitController:
         driver's default read schedule does: the recording then holds every joint's motion)."""
         if self.params.background_reads:
             while bus.now() + self.t_com_s <= t + 1e-12:
-                bus.read_position(ALL_JOINTS[self._rr % len(ALL_JOINTS)])
+                j = ALL_JOINTS[self._rr % len(ALL_JOINTS)]
+                self._reads[j] = bus.read_position(j)
                 self._rr += 1
         bus.wait_until(t)
 
@@ -305,9 +318,11 @@ class GaitController:
             self._log_goals(bus)
             self.idle_until(bus, t0 + i * duration_s / n)
 
-    def move_keyframes(self, bus: ServoBus, keys: dict[str, list[tuple[float, float]]], duration_s: float) -> None:
+    def move_keyframes(self, bus: ServoBus, keys: dict[str, list[tuple[float, float]]], duration_s: float,
+                       replan: Callable[[float], dict[str, list[tuple[float, float]]]] | None = None) -> None:
         """Piecewise-linear joint-space motion: joint -> [(t, angle), ...] with t in (0, duration_s]
-        increasing, from the current goals at t = 0."""
+        increasing, from the current goals at t = 0. ``replan(t)``, after each write: new keyframes (after t)
+        for some of the joints, from their goals at t."""
         tables = {j: (np.r_[0.0, [k[0] for k in kk]], np.r_[self.goals[j], [k[1] for k in kk]]) for j, kk in keys.items()}
         t0 = bus.now()
         n = max(1, int(round(duration_s / self.params.write_period_s)))
@@ -318,6 +333,8 @@ class GaitController:
             bus.sync_write({j: self.goals[j] for j in keys})
             self._log_goals(bus)
             self.idle_until(bus, t0 + t)
+            for j, kk in (replan(t) if replan is not None else {}).items():
+                tables[j] = (np.r_[t, [k[0] for k in kk]], np.r_[self.goals[j], [k[1] for k in kk]])
 
     def start_ramp(self) -> float:
         """Fraction of the stride allowed in this phase: it grows over the first gait cycle, (k + 1) / n
@@ -338,15 +355,8 @@ class GaitController:
         model predicts them: each leg from rest at its goals when the swing-up began, driven by the goals
         written since (held between writes, one per servo control period). None without a log."""
         log, self._goal_log = self._goal_log, None
-        dt = self.robot.servo.control_period_s
-        if not log or t_end_s - log[0][0] < dt:
-            return None
-        ts = np.array([t for t, _ in log])
-        grid = log[0][0] + dt * np.arange(int((t_end_s - log[0][0]) / dt + 1e-9))
-        held = np.searchsorted(ts, grid + 1e-9, side='right') - 1
-        ticks = np.rint(theta_to_tick(np.stack([v for _, v in log])[held], self.robot.servo))   # (n, L, 2)
-        return np.array([self.models[leg].rollout(log[0][1][slot], [0.0, 0.0], ticks[:, slot]).qd_rad_s[-1]
-                         for slot, leg in enumerate(self._logged_legs)])
+        rollouts = in_air_rollouts(self.models, self._logged_legs, log, self.robot.servo, t_end_s)
+        return None if rollouts is None else np.array([r.qd_rad_s[-1] for r in rollouts])
 
     # ------------------------------------------------------------------ the cycle
     def startup(self, bus: ServoBus, duration_s: float = 0.5) -> None:
@@ -370,7 +380,7 @@ class GaitController:
 
         # 1.-2. swing-up and swing-forward (with the pending leveling, if the transfer is overlapped):
         # the feet go to the neutral foothold advanced by half the stride (and turned)
-        if p.start_in_motion:
+        if p.start_in_motion or p.obstacle_lift_m > 0:
             self._logged_legs, self._goal_log = legs, []
             self._log_goals(bus)
         ground_z = self._transfer(bus, legs, d, yaw, warnings)
@@ -390,6 +400,7 @@ class GaitController:
                                                    ground_z[leg]))
         t_sd = bus.now()
         qd0 = self.start_speeds(t_sd) if p.start_in_motion else None
+        self._goal_log = None
         phase = SwingDownPhase(self.robot, legs, coxa, init, fin, p.t_des_s, self.t_com_s, self.detector,
                                t_start_s=t_sd, models=self.models, approach_from=approach,
                                approach_rate=p.approach_rate,
@@ -443,22 +454,27 @@ class GaitController:
         ground_z = {leg: max(float(end[leg][2]), -self.body_height_m) for leg in legs}
         lift = np.array([0.0, 0.0, p.lift_m])
         c, s = math.cos(yaw / 2), math.sin(yaw / 2)
-        fwd = {}
+        fwd, fwd_feet = {}, {}
         for leg in legs:
             n = self.neutral[leg - 1]
             xy = np.array([c * n[0] - s * n[1], s * n[0] + c * n[1]]) + d / 2
-            fwd.update(self._targets(leg, np.array([xy[0], xy[1], ground_z[leg] + p.lift_m]), warnings))
+            fwd_feet[leg] = np.array([xy[0], xy[1], ground_z[leg] + p.lift_m])
+            fwd.update(self._targets(leg, fwd_feet[leg], warnings))
+        total = p.transfer_s() if level is not None else p.t_swing_up_s + p.t_swing_forward_s
+        replan = self._obstacle_reflex(bus, legs, fwd_feet, total, warnings) if p.obstacle_lift_m > 0 else None
         if level is None:
             # Fig. 4 in sequence: lift the feet straight up, then carry them forward
             up = {}
             for leg in legs:
                 up.update(self._targets(leg, start[leg] + lift, warnings))
-            self.move_joints(bus, up, p.t_swing_up_s)
-            self.move_joints(bus, fwd, p.t_swing_forward_s)
+            if replan is None:
+                self.move_joints(bus, up, p.t_swing_up_s)
+                self.move_joints(bus, fwd, p.t_swing_forward_s)
+            else:       # the same motion as keyframes, which the reflex can replan
+                self.move_keyframes(bus, {j: [(p.t_swing_up_s, up[j]), (total, fwd[j])] for j in fwd}, total, replan)
             return ground_z
         # overlapped: the body moves under the swinging feet, so the foot lifts straight up over its
         # foothold as the body frame is at the end of the swing-up (the body's motion is linear in time)
-        total = p.transfer_s()
         a = p.t_swing_up_s / total
         up = {}
         for leg in legs:
@@ -466,8 +482,38 @@ class GaitController:
         keys = {j: [(total, v)] for j, v in level.items() if j not in fwd}
         for j in fwd:
             keys[j] = [(p.t_swing_up_s, up[j]), (total, fwd[j])]
-        self.move_keyframes(bus, keys, total)
+        self.move_keyframes(bus, keys, total, replan)
         return ground_z
+
+    def _obstacle_reflex(self, bus: ServoBus, legs, fwd_feet: dict[int, np.ndarray], total_s: float,
+                         warnings: list[str]) -> Callable[[float], dict[str, list[tuple[float, float]]]]:
+        """The transfer's ``replan`` (:meth:`move_keyframes`): a swinging leg whose femur or tibia read is
+        ``obstacle_tick`` off its motion in the air has met an obstacle; its foot goes ``obstacle_lift_m``
+        higher, over the swing-up time from where its goal is, then on to its foothold that much higher."""
+        p = self.params
+        limit = p.obstacle_tick * self.robot.servo.rad_per_tick
+        high = np.array([0.0, 0.0, p.obstacle_lift_m])
+        lifted: set[int] = set()
+
+        def replan(t: float) -> dict[str, list[tuple[float, float]]]:
+            log = self._goal_log
+            rollouts = in_air_rollouts(self.models, legs, log, self.robot.servo, bus.now())
+            if rollouts is None:
+                return {}
+            reads = {leg: [self._reads.get(joint_name(leg, r)) for r in ('femur', 'tibia')]
+                     for leg in legs if leg not in lifted}
+            keys = {}
+            for leg, off in obstructed(rollouts, legs, log[0][0], reads, limit).items():
+                lifted.add(leg)
+                up = self._targets(leg, self.foot(leg) + high, warnings)
+                on = self._targets(leg, fwd_feet[leg] + high, warnings)
+                t_up = t + p.t_swing_up_s
+                keys.update({j: [(t_up, up[j]), (total_s, on[j])] if t_up < total_s else [(total_s, on[j])]
+                             for j in on})
+                warnings.append(f'leg {leg}: met an obstacle in its swing ({off / self.robot.servo.rad_per_tick:.0f} '
+                                f'ticks off its motion in the air); lifted {p.obstacle_lift_m * 100:.1f} cm higher')
+            return keys
+        return replan
 
     def finish(self, bus: ServoBus) -> None:
         """Carry out a leveling left pending by an overlapped transfer (before standing still)."""
