@@ -13,7 +13,6 @@ import yaml
 
 from hexapod_driver.config import NODE as DRIVER
 from hexapod_driver.config import DriverConfig, DriverNodeParams
-from hexapod_locomotion.core.controller import LocomotionError, LocomotionParams
 from hexapod_locomotion.core.course import CourseChoice
 from hexapod_locomotion.core.detector import (
     RECORDED_SETTINGS,
@@ -24,6 +23,7 @@ from hexapod_locomotion.core.detector import (
     swing_start_fields,
 )
 from hexapod_locomotion.core.gait import GaitChoice
+from hexapod_locomotion.core.locomotion_params import LocomotionError, LocomotionParams
 from hexapod_locomotion.nodes.params import NODE as LOCOMOTION
 from hexapod_locomotion.nodes.params import ComposedParams, LocomotionNodeParams
 from hexapod_locomotion.trials import sweep
@@ -151,9 +151,10 @@ def test_trial_fields_are_the_declarations():
     sim = {n: s for g in SIM.schemas for n, s in specs(g).items()}
     for name in specs(SceneParams):
         assert sim[name] == expected[name], name
-    # what a trial builds from its config is the groups' own defaults
+    # what a trial builds from its config is the groups' own defaults, but where TRIAL_DEFAULTS says otherwise
     from hexapod_locomotion.trials.trial_config import detector_config, locomotion_params
-    assert locomotion_params(TrialConfig()) == LocomotionParams()
+    own = {n: v for n, v in TRIAL_DEFAULTS.items() if n in specs(LocomotionParams)}
+    assert own and locomotion_params(TrialConfig()) == replace(LocomotionParams(), **own)
     assert detector_config(TrialConfig()) == DetectorConfig()
 
 

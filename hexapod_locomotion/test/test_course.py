@@ -6,9 +6,9 @@ from pathlib import Path
 import pytest
 
 import hexapod_locomotion
-from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
 from hexapod_locomotion.core.course import CourseConfig, CourseKeeper, placed_turn_share
 from hexapod_locomotion.core.gait import load_gaits
+from hexapod_locomotion.core.locomotion_params import LocomotionError, VelocityCommand
 
 CYCLE = 2.0
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from fakes import KinematicGroundBus
 
-from hexapod_locomotion.core.controller import GaitController, LocomotionParams, VelocityCommand
+from hexapod_locomotion.core.controller import GaitController
 from hexapod_locomotion.core.detector import (
     STOP_CONTACT,
     STOP_THETA_FIN,
@@ -14,6 +14,7 @@ from hexapod_locomotion.core.detector import (
     run_swing_down,
 )
 from hexapod_locomotion.core.gait import get_gait
+from hexapod_locomotion.core.locomotion_params import LocomotionParams, VelocityCommand
 from hexapod_model.description import LEGS, load_robot
 from hexapod_model.kinematics import forward
 

@@ -4,6 +4,7 @@ Short walks (2 s of simulated time) on the mockup: the point is the executor and
 not the walking, which the locomotion tests cover. Ray runs a local instance with 2 CPUs and no
 dashboard (this machine has 2 cores shared with other work).
 """
+import dataclasses
 import json
 
 import pytest
@@ -96,10 +97,11 @@ def test_bad_sweep_arguments_are_one_line(argv, message, tmp_path, capsys):
 def test_the_gait_cycle_timing_reaches_the_controller():
     """TrialConfig's transfer-phase fields are the LocomotionParams a trial walks with, and a sweep
     parses a field as its declared type."""
-    from hexapod_locomotion.core.controller import LocomotionParams
+    from hexapod_locomotion.core.locomotion_params import LocomotionParams
     from hexapod_locomotion.trials.trial_runner import locomotion_params
     default = LocomotionParams()
-    assert locomotion_params(TrialConfig()) == default
+    # the trials' one difference from the node's: the paper's swing, without the obstacle reflex
+    assert locomotion_params(TrialConfig()) == dataclasses.replace(default, obstacle_lift_m=0.0)
     p = locomotion_params(TrialConfig(t_swing_up_s=0.15, t_level_s=0.25, max_stride_m=0.07, overlap_transfer=False))
     assert (p.t_swing_up_s, p.t_level_s, p.max_stride_m, p.overlap_transfer) == (0.15, 0.25, 0.07, False)
     assert p.t_swing_forward_s == default.t_swing_forward_s

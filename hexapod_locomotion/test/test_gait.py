@@ -60,7 +60,7 @@ def test_bad_gaits_are_named(tmp_path):
 
 
 def test_a_gait_has_its_stride_and_the_parameter_replaces_it():
-    from hexapod_locomotion.core.controller import LocomotionParams
+    from hexapod_locomotion.core.locomotion_params import LocomotionParams
     p = LocomotionParams()
     assert p.stride_m(get_gait('pentapod')) == get_gait('pentapod').max_stride_m == 0.12
     assert p.stride_m(get_gait('tripod')) == DEFAULT_STRIDE_M
@@ -71,7 +71,7 @@ def test_a_gait_has_its_stride_and_the_parameter_replaces_it():
 def test_a_gait_has_its_turn_and_the_parameter_replaces_it(tmp_path):
     """The pentapod's 5.9 s cycle turns up to 0.4 rad per cycle (0.25 capped its turn in place at
     0.036 rad/s); the others keep 0.25; the controller's parameter, when set, replaces both."""
-    from hexapod_locomotion.core.controller import LocomotionParams
+    from hexapod_locomotion.core.locomotion_params import LocomotionParams
     p = LocomotionParams()
     assert p.turn_rad(get_gait('pentapod')) == 0.4
     assert p.turn_rad(get_gait('tripod')) == p.turn_rad(get_gait('tetrapod')) == DEFAULT_TURN_RAD == 0.25

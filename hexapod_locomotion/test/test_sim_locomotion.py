@@ -9,9 +9,10 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from hexapod_locomotion.core.controller import GaitController, LocomotionParams, VelocityCommand
+from hexapod_locomotion.core.controller import GaitController
 from hexapod_locomotion.core.detector import STOP_CONTACT, STOP_THETA_FIN, DetectorConfig, SwingDownPhase
 from hexapod_locomotion.core.gait import get_gait
+from hexapod_locomotion.core.locomotion_params import LocomotionParams, VelocityCommand
 from hexapod_locomotion.trials.trial_runner import ProbeBus, TrialConfig, _detection_events, run_trial
 from hexapod_model.description import load_robot
 from hexapod_model.kinematics import stance_feet

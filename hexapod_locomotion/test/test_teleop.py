@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from hexapod_locomotion.core.controller import LocomotionParams
 from hexapod_locomotion.core.gait import get_gait
+from hexapod_locomotion.core.locomotion_params import LocomotionParams
 from hexapod_locomotion.nodes.cmd_vel_pub import CliError, check_velocity, rate_warning
 from hexapod_locomotion.nodes.teleop_keyboard import Teleop, controller_limits, keys_from_bytes
 

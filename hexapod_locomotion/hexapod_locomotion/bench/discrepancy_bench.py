@@ -172,7 +172,7 @@ def calibration_walk() -> dict:
     package, the file a robot's walk is recorded with) as TrialConfig fields."""
     from ament_index_python.packages import get_package_share_directory
 
-    from hexapod_locomotion.core.controller import LocomotionParams
+    from hexapod_locomotion.core.locomotion_params import LocomotionParams
     from hexapod_model.param_schema import check, specs
     path = Path(get_package_share_directory('hexapod_locomotion')) / 'config' / 'calibration_walk.yaml'
     values = yaml.safe_load(path.read_text())['/**']['ros__parameters']

@@ -83,7 +83,7 @@ def _off_ground_row(label: str, trials: list[dict]) -> str:
 
 def _cells(args, TrialConfig) -> list[tuple[str, object]]:
     """(cell key, trial config) of every trial to run."""
-    from hexapod_locomotion.core.controller import LocomotionParams
+    from hexapod_locomotion.core.locomotion_params import LocomotionParams
     corrections = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.correction]
     node = LocomotionParams()
     out = []

@@ -33,8 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
 from hexapod_locomotion.core.gait import Gait
+from hexapod_locomotion.core.locomotion_params import LocomotionError, VelocityCommand
 from hexapod_locomotion.core.odometry import wrap_angle
 from hexapod_model.param_schema import param
 

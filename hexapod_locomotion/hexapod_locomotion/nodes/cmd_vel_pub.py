@@ -24,7 +24,7 @@ import sys
 import threading
 import time
 
-from hexapod_locomotion.core.controller import LocomotionError, VelocityCommand
+from hexapod_locomotion.core.locomotion_params import LocomotionError, VelocityCommand
 from hexapod_model.cli_common import make_parser, prog_name
 from hexapod_model.contract import CMD_VEL
 

@@ -36,10 +36,11 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from hexapod_locomotion.core.controller import GaitController, LocomotionError, LocomotionParams, VelocityCommand
+from hexapod_locomotion.core.controller import GaitController
 from hexapod_locomotion.core.course import CourseChoice, CourseKeeper
 from hexapod_locomotion.core.detector import DetectorConfig, DetectorError, swing_start_fields
 from hexapod_locomotion.core.gait import GaitChoice, GaitError, get_gait
+from hexapod_locomotion.core.locomotion_params import LocomotionError, LocomotionParams, VelocityCommand
 from hexapod_locomotion.core.odometry import OdometryError
 from hexapod_locomotion.core.odometry_tap import odometry_dict
 from hexapod_locomotion.core.read_timing import ReadTiming

@@ -10,10 +10,10 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from hexapod_locomotion.core.controller import LocomotionParams
 from hexapod_locomotion.core.course import CourseChoice
 from hexapod_locomotion.core.detector import DetectorConfig
 from hexapod_locomotion.core.gait import GaitChoice
+from hexapod_locomotion.core.locomotion_params import LocomotionParams
 from hexapod_model.param_schema import NodeSpec, ReadTime, RobotSource, param
 
 

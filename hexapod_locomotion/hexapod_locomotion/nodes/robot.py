@@ -22,9 +22,9 @@ import sys
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
-from hexapod_locomotion.core.controller import LocomotionError
 from hexapod_locomotion.core.detector import DetectorError
 from hexapod_locomotion.core.gait import GaitError
+from hexapod_locomotion.core.locomotion_params import LocomotionError
 from hexapod_locomotion.nodes.params import ComposedParams
 from hexapod_model.bus import BusError
 from hexapod_model.description import DescriptionError

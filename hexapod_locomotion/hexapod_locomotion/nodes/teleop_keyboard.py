@@ -24,8 +24,8 @@ import sys
 import threading
 from dataclasses import dataclass
 
-from hexapod_locomotion.core.controller import LocomotionParams, VelocityCommand
 from hexapod_locomotion.core.gait import load_gaits
+from hexapod_locomotion.core.locomotion_params import LocomotionParams, VelocityCommand
 from hexapod_locomotion.nodes.cmd_vel_pub import CliError, StopFlag, check_number, finish_ros, start_ros, twist, user_args
 from hexapod_model.cli_common import make_parser, prog_name
 

@@ -61,9 +61,9 @@ def summary_lines(res) -> list[str]:
 
 
 def build_parser():
-    from hexapod_locomotion.core.controller import MAX_STEP_S
     from hexapod_locomotion.core.detector import DETECTOR_KINDS
     from hexapod_locomotion.core.gait import load_gaits
+    from hexapod_locomotion.core.locomotion_params import MAX_STEP_S
     from hexapod_sim.node.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
     from hexapod_sim.physics.terrain import MOCKUP_BLOCKS_X_M, MOCKUP_STAIRS_X_M, TERRAINS
     from hexapod_sim.tools.render import VIDEO_EXTENSIONS

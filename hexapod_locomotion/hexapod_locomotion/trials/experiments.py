@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_locomotion.core.controller import LocomotionParams
+from hexapod_locomotion.core.locomotion_params import LocomotionParams
 from hexapod_locomotion.trials.executor import ExecutorError, JobsInterrupted, add_executor_options, map_jobs
 from hexapod_locomotion.trials.trial_runner import TrialConfig, detector_config, locomotion_params, run_trial
 from hexapod_model.cli_common import (
@@ -274,9 +274,10 @@ def free_swing_quality(t_des_values=(0.5, 1.0, 2.0), phases_per_gait: int = 6) -
     """Robot on a stand (no ground): every swing-down must run to theta_fin; a contact stop is premature."""
     from tqdm import tqdm
 
-    from hexapod_locomotion.core.controller import GaitController, VelocityCommand
+    from hexapod_locomotion.core.controller import GaitController
     from hexapod_locomotion.core.detector import STOP_CONTACT
     from hexapod_locomotion.core.gait import get_gait
+    from hexapod_locomotion.core.locomotion_params import VelocityCommand
     from hexapod_model.description import load_robot
     from hexapod_sim.physics.plant import HexapodSim
     robot = load_robot()

@@ -82,8 +82,8 @@ def parse_value(param: str, text: str):
 def check_config(cfg: TrialConfig) -> None:
     """Check a config against the settings' declarations and build what a trial builds from it, without
     walking: a bad value fails here, named."""
-    from hexapod_locomotion.core.controller import LocomotionError
     from hexapod_locomotion.core.gait import get_gait
+    from hexapod_locomotion.core.locomotion_params import LocomotionError
     from hexapod_locomotion.trials.trial_runner import detector_config, locomotion_params
     from hexapod_model.description import load_robot
     try:

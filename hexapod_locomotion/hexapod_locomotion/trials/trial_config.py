@@ -5,7 +5,7 @@ scene's are sim_node's (:class:`~hexapod_sim.physics.scene_params.SceneParams`),
 the bus masters' (:class:`~hexapod_model.param_schema.ReadTime`), the course correction
 (:class:`~hexapod_locomotion.core.course.CourseChoice`), the gait, the controller's and the
 detector's are locomotion_node's (:class:`~hexapod_locomotion.core.gait.GaitChoice`,
-:class:`~hexapod_locomotion.core.controller.LocomotionParams`,
+:class:`~hexapod_locomotion.core.locomotion_params.LocomotionParams`,
 :class:`~hexapod_locomotion.core.detector.DetectorConfig`), with the same names, types, defaults
 (but :data:`TRIAL_DEFAULTS`) and ranges. :class:`TrialConfig` is the union of these groups' parameter fields
 (:func:`hexapod_model.param_schema.merged_schema`): nothing is restated, and
@@ -15,10 +15,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hexapod_locomotion.core.controller import LocomotionParams
 from hexapod_locomotion.core.course import CourseChoice
 from hexapod_locomotion.core.detector import DetectorConfig
 from hexapod_locomotion.core.gait import GaitChoice
+from hexapod_locomotion.core.locomotion_params import LocomotionParams
 from hexapod_model.param_schema import ReadTime, merged_schema, param, values
 from hexapod_sim.physics.scene_params import SceneParams
 

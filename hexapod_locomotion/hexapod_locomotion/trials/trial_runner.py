@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hexapod_locomotion.core.controller import GaitController, LocomotionError, VelocityCommand
+from hexapod_locomotion.core.controller import GaitController
 from hexapod_locomotion.core.detector import DetectorConfig, ReadResult, SwingDownPhase, swing_start_fields
 from hexapod_locomotion.core.gait import get_gait
+from hexapod_locomotion.core.locomotion_params import LocomotionError, VelocityCommand
 from hexapod_locomotion.core.metrics import (
     DetectionEvent,
     MetricsError,
