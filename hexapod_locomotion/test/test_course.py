@@ -48,6 +48,18 @@ def test_left_of_the_line_walks_right():
     assert out.vy == pytest.approx(0.0, abs=1e-12)
 
 
+def test_a_command_faster_than_the_gait_is_slowed_before_the_sideways_correction():
+    """The controller scales a step longer than its stride down, the sideways part with it: asked 0.05 m/s of
+    a gait that walks 0.02, a correction of -2.5 mm/s sideways would move it 1 mm/s. The keeper caps the
+    forward command at the gait's speed first, so the step keeps the sideways share asked for."""
+    k = CourseKeeper(CourseConfig(heading_gain=0.0, lateral_gain=0.5))
+    cmd = VelocityCommand(0.05, 0.0, 0.0)
+    k.command(0.0, cmd, (0.0, 0.0), 0.0, CYCLE, 0.02)
+    out = k.command(1.0, cmd, (0.02, 0.02), 0.0, CYCLE, 0.02)
+    assert (out.vx, out.vy) == pytest.approx((0.02, -0.0025))
+    assert k.command(2.0, VelocityCommand(0.01, 0.0, 0.0), (0.02, 0.0), 0.0, CYCLE, 0.02).vx == pytest.approx(0.01)
+
+
 def test_turning_in_place_follows_the_integrated_rate():
     """Commanded 0.1 rad/s for 4 s: the reference is at 0.4 rad; a robot at 0.3 rad gets 0.1 + 0.5 * 0.1 / 2."""
     k = CourseKeeper(CourseConfig(heading_gain=0.5))
@@ -129,13 +141,15 @@ def test_the_keeper_of_each_gait_divides_by_its_own_turn_share(name):
 
 def test_every_walker_builds_its_keeper_from_the_gait():
     """locomotion_node and the trial runner walk with the same keeper for the same gait: no module but
-    the course's own constructs CourseKeeper directly, and both walkers call CourseKeeper.for_gait."""
+    the course's own constructs CourseKeeper directly, and both walkers call CourseKeeper.for_gait and
+    give it the gait's speed."""
     root = Path(hexapod_locomotion.__file__).parent
     direct = [f'{p.relative_to(root)}:{i}' for p in sorted(root.rglob('*.py')) if p.name != 'course.py'
               for i, line in enumerate(p.read_text().splitlines(), 1) if re.search(r'\bCourseKeeper\(', line)]
     assert direct == []
     for walker in ('nodes/locomotion_node.py', 'trials/trial_runner.py'):
         assert 'CourseKeeper.for_gait(' in (root / walker).read_text(), walker
+        assert 'saturating_velocity(gait)[0]' in (root / walker).read_text(), walker     # the gait's speed
 
 
 def test_the_heading_error_is_carried_on_by_its_trend():

@@ -245,8 +245,9 @@ class LocomotionNode(Node):
                     continue
                 est = self.tap.estimate
                 if self.keeper is not None and est is not None:
+                    p, gait = self.controller.params, self.controller.gait
                     cmd = self.keeper.command(self.bus.now(), cmd, est.position[:2], float(est.rpy[2]),
-                                              self.controller.params.cycle_s(self.controller.gait))
+                                              p.cycle_s(gait), p.saturating_velocity(gait)[0])
                 self.controller.step_phase(self.tap, cmd)
                 self.tap.phase_done()
                 self.bus.set_schedule(ALL_JOINTS)

@@ -364,8 +364,9 @@ def _walk(cfg: TrialConfig, sim, probe: ProbeBus, controller: GaitController, od
         cmd = VelocityCommand(cfg.vx_mps, 0.0, cfg.wz_rad_s)
         est = odo.tap.estimate
         if keeper is not None and est is not None:
-            cmd = keeper.command(sim.now(), cmd, est.position[:2], float(est.rpy[2]),
-                                 controller.params.cycle_s(controller.gait))
+            p, gait = controller.params, controller.gait
+            cmd = keeper.command(sim.now(), cmd, est.position[:2], float(est.rpy[2]), p.cycle_s(gait),
+                                 p.saturating_velocity(gait)[0])
         try:
             rep = controller.step_phase(odo.tap, cmd)
             odo.tap.phase_done()
