@@ -3,12 +3,22 @@ held back longer (a USB stall), a servo that disappears, overheating, overload a
 from __future__ import annotations
 
 import random
-from typing import TYPE_CHECKING
+from typing import ContextManager, Protocol, Sequence
 
-from hexapod_driver.emulator.control_table import EmulatorError
+from hexapod_driver.emulator.control_table import EmulatedServo, EmulatorError
 
-if TYPE_CHECKING:
-    from hexapod_driver.emulator.pty_server import BusEmulator
+
+class Emulated(Protocol):
+    """What the faults act on: the emulated bus (:class:`hexapod_driver.emulator.pty_server.BusEmulator`)."""
+
+    lock: ContextManager
+    servos: Sequence[EmulatedServo]
+
+    def servo(self, servo_id: int) -> EmulatedServo:
+        """The servo with this id (EmulatorError if there is none)."""
+
+    def _check_alarms(self, s: EmulatedServo) -> int:
+        """Apply the alarm shutdown for the servo's persistent errors; returns the persistent error bits."""
 
 
 class Faults:
@@ -18,7 +28,7 @@ class Faults:
     replies; ``probability`` makes each matching reply fail at random (seeded).
     """
 
-    def __init__(self, emulator: 'BusEmulator', seed: int):
+    def __init__(self, emulator: Emulated, seed: int):
         self._emu = emulator
         self._rng = random.Random(seed)
         self._drop: list[tuple[set[int] | None, int | None, float]] = []

@@ -29,7 +29,13 @@ import numpy as np
 
 from hexapod_locomotion.core.locomotion_params import LocomotionParams
 from hexapod_locomotion.trials.executor import ExecutorError, JobsInterrupted, add_executor_options, map_jobs
-from hexapod_locomotion.trials.trial_runner import TrialConfig, detector_config, locomotion_params, run_trial
+from hexapod_locomotion.trials.trial_runner import (
+    GAITS,
+    TrialConfig,
+    detector_config,
+    locomotion_params,
+    trial_job,
+)
 from hexapod_model.cli_common import (
     add_no_progress_option,
     interrupted,
@@ -40,8 +46,6 @@ from hexapod_model.cli_common import (
 )
 from hexapod_sim.physics.terrain import MOCKUP_COURSE_END_M
 
-GAITS = ('tripod', 'tetrapod', 'pentapod')
-DETECTORS = ('fixed', 'adaptive')
 # Every table has three cells per gait x t_des: the fixed-threshold baseline, the paper's Algorithm 1
 # (Eq. 15 goals, Eq. 17 threshold: the reference) and the improved touchdown (the same detector with
 # the approach goal profile, LocomotionParams.approach_rate; --approach-rate).
@@ -81,10 +85,6 @@ PAPER_TABLE4 = {  # (gait, t_des, detector): (CoT, speed m/s), paper Table 4
 GAIT_DIGIT = {'tripod': 3, 'tetrapod': 4, 'pentapod': 5}
 
 
-def _trial_job(cfg: TrialConfig) -> dict:
-    return run_trial(cfg).to_dict()
-
-
 PROGRESS = {'disable': False}          # --no-progress; bars go to stderr
 
 
@@ -95,7 +95,7 @@ def run_many(configs: list[TrialConfig], jobs: int, desc: str) -> list[dict]:
     """Run trials in parallel (processes, or Ray tasks with ``--ray``) with a progress bar; results in
     the order of ``configs``, the same for the same configs on every executor."""
     try:
-        return map_jobs(_trial_job, configs, jobs=jobs, ray_address=EXECUTOR['ray'], desc=desc, unit='trial',
+        return map_jobs(trial_job, configs, jobs=jobs, ray_address=EXECUTOR['ray'], desc=desc, unit='trial',
                         progress=not PROGRESS['disable'])
     except JobsInterrupted as exc:
         exc.desc = desc              # named in the line that says what was kept

@@ -21,8 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from hexapod_locomotion.trials.executor import ExecutorError, JobsInterrupted, add_executor_options, map_jobs
-from hexapod_locomotion.trials.experiments import DETECTORS, GAITS, _trial_job
-from hexapod_locomotion.trials.trial_runner import TrialConfig
+from hexapod_locomotion.trials.trial_runner import DETECTORS, GAITS, TrialConfig, trial_job
 from hexapod_model.cli_common import (
     add_no_progress_option,
     interrupted,
@@ -226,7 +225,7 @@ def main(argv=None) -> int:
         ap.error(f'--out {out} exists and is not a directory')
     cfgs = sweep_configs(base, args.param, values, args.trials)
     try:
-        results = map_jobs(_trial_job, cfgs, jobs=args.jobs, ray_address=args.ray, desc=f'sweep {args.param}',
+        results = map_jobs(trial_job, cfgs, jobs=args.jobs, ray_address=args.ray, desc=f'sweep {args.param}',
                            unit='trial', progress=args.progress)
     except ExecutorError as exc:
         print(f'{ap.prog}: error: {exc}', file=sys.stderr)

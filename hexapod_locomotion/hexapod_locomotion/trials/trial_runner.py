@@ -47,6 +47,8 @@ from hexapod_model.contract import (
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name, load_robot, parse_joint_name
 from hexapod_model.kinematics import forward
 
+GAITS = ('tripod', 'tetrapod', 'pentapod')     # the gaits the experiments walk
+DETECTORS = ('fixed', 'adaptive')
 FALL_TILT_RAD = 0.6          # roll or pitch beyond this counts as a fall
 FALL_HEIGHT_M = 0.035        # trunk this close to the ground counts as a fall
 
@@ -437,6 +439,11 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, r
         if video is not None:
             video.close(on_video_write)
     return _result(cfg, robot, sim, probe, controller, odo, swing_downs, det, walk)
+
+
+def trial_job(cfg: TrialConfig) -> dict:
+    """One trial as a job of :func:`hexapod_locomotion.trials.executor.map_jobs`: its result as a dict."""
+    return run_trial(cfg).to_dict()
 
 
 def _result(cfg: TrialConfig, robot: Robot, sim, probe: ProbeBus, controller: GaitController, odo, swing_downs,
