@@ -26,7 +26,8 @@ class and encoded field by field like a dict.
 
 The package by job: :mod:`.common` (errors, records, constants), :mod:`.definitions` (message
 definition lookup and type hashes), :mod:`.cdr` (message conversion and CDR encoding/decoding),
-:mod:`.writer` (:class:`BagWriter`), :mod:`.reader` (:class:`BagReader`, :func:`recover_bag`),
+:mod:`.writer` (:class:`BagWriter`; :mod:`.end_cut` ends its file after a write error), :mod:`.reader`
+(:class:`BagReader`), :mod:`.repair` (:func:`recover_bag`, :func:`reindex_bag`),
 :mod:`.contents` (:func:`load_bag`, the one loader of a contract bag's topics as typed series,
 :class:`BagContents`).
 """
@@ -41,7 +42,8 @@ from hexapod_sim.bagio.common import (
 )
 from hexapod_sim.bagio.contents import BagContents, load_bag
 from hexapod_sim.bagio.definitions import _EMBEDDED_PATH, message_definition, normalize_type_name, type_hash  # noqa: F401
-from hexapod_sim.bagio.reader import BagReader, recover_bag
+from hexapod_sim.bagio.reader import BagReader
+from hexapod_sim.bagio.repair import recover_bag
 from hexapod_sim.bagio.writer import BagWriter, encode_message
 
 __all__ = [

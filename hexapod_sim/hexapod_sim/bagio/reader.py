@@ -1,5 +1,5 @@
 """Reading rosbag2-layout MCAP bags record by record, tolerant of a cut-off or corrupt file (see the
-package docstring); :func:`recover_bag`."""
+package docstring); :func:`copy_messages` into a writer."""
 from __future__ import annotations
 
 import heapq
@@ -22,7 +22,6 @@ from hexapod_model import contract
 from hexapod_sim.bagio.cdr import decoder_for
 from hexapod_sim.bagio.common import MCAP_MAGIC, BagError, BagMessage, BagWarning, TopicInfo
 from hexapod_sim.bagio.definitions import message_definition, normalize_type_name
-from hexapod_sim.bagio.writer import BagWriter
 
 _KNOWN_OPCODES = {int(o) for o in Opcode}
 
@@ -522,17 +521,8 @@ class BagReader:
         return None
 
 
-def recover_bag(src: str | os.PathLike, dst: str | os.PathLike, **writer_kw) -> int:
-    """Copy every readable message of ``src`` (e.g. a recording cut off by a crash, which other
-    tools such as rosbags refuse without its MCAP footer) into a new, properly closed bag ``dst``.
-    Topic definitions and QoS are taken from ``src``. Returns the number of messages copied."""
-    reader = BagReader(src)
-    with BagWriter(dst, **writer_kw) as w:
-        return copy_messages(reader, w)
-
-
 def copy_messages(reader: 'BagReader', w) -> int:
-    """Every readable message of ``reader`` into the open :class:`BagWriter` ``w``, with the topics'
+    """Every readable message of ``reader`` into the open :class:`~hexapod_sim.bagio.writer.BagWriter` ``w``, with the topics'
     definitions and QoS; the number of messages copied."""
     n = 0
     for topic, info in reader.topic_info().items():

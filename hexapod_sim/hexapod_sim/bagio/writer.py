@@ -20,6 +20,7 @@ from hexapod_model import contract
 from hexapod_sim.bagio.cdr import encoder_for, normalize, parse_definitions, ros_message_type
 from hexapod_sim.bagio.common import DEFAULT_QOS_PROFILE, ROS_DISTRO, ROSBAG2_VERSION, BagError, MessageEncodeError
 from hexapod_sim.bagio.definitions import message_definition, normalize_type_name, type_hash
+from hexapod_sim.bagio.end_cut import end_cut_file
 
 
 class _NoAliasDumper(yaml.SafeDumper):
@@ -231,9 +232,8 @@ class BagWriter:
 
     def _fail_locked(self, exc: OSError) -> None:
         """A write failed (disk full, file-size limit): end the bag at its last complete flush, which
-        stays readable (:func:`~.repair.end_cut_file`, metadata.yaml of the flushed messages), and
+        stays readable (:func:`~.end_cut.end_cut_file`, metadata.yaml of the flushed messages), and
         raise :class:`BagError` saying so; every later write raises it too."""
-        from hexapod_sim.bagio.repair import end_cut_file
         self._closed = True
         if hasattr(self, '_stop'):                  # not yet there if the first flush fails
             self._stop.set()
