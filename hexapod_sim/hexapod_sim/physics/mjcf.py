@@ -56,7 +56,8 @@ from hexapod_model.shapes import (  # noqa: F401
     trunk_inertia,
 )
 from hexapod_model.swing_model import joint_damping_nms_per_rad
-from hexapod_sim.physics.terrain import Terrain, _mat_to_quat, make_terrain
+from hexapod_sim.physics.terrain import Terrain, make_terrain
+from hexapod_sim.physics.terrain_geoms import _mat_to_quat
 
 # ----------------------------------------------------------------------------- sim nominal values [N]
 TIMESTEP_S = 0.001             # physics step = the firmware period (1 ms or finer keeps the firmware grid)

@@ -3,9 +3,9 @@
 Five classes, each with seeded variations (the values drawn per seed are listed with each):
 
 ``flat``      hard flat floor; friction ``FLAT_FRICTION``.
-``rough``     rough ground: a MuJoCo height field (:func:`hexapod_sim.physics.terrain.rough_field`), peak to
+``rough``     rough ground: a MuJoCo height field (:func:`hexapod_sim.physics.terrain_geoms.rough_field`), peak to
               peak ``ROUGH_AMPLITUDE_RANGE_M``, correlation length ``ROUGH_CORRELATION_RANGE_M``.
-``blocks``    a field of 10 x 10 cm blocks (:func:`hexapod_sim.physics.terrain.block_field`), top heights up
+``blocks``    a field of 10 x 10 cm blocks (:func:`hexapod_sim.physics.terrain_geoms.block_field`), top heights up
               to ``BLOCKS_TOP_RANGE_M``, slopes up to ``BLOCKS_SLOPE_RANGE_RAD``.
 ``soft``      soft ground: compliant contact of the floor (MuJoCo ``solref`` time constant
               ``SOFT_TIMECONST_RANGE_S``, ``solimp`` ``SOFT_SOLIMP``): a loaded foot sinks in.
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexapod_sim.physics.terrain import GROUND_RGBA, Contact, HeightField, Terrain, TerrainError, block_field, rough_field
+from hexapod_sim.physics.terrain_geoms import GROUND_RGBA, Box, Contact, HeightField, Terrain, TerrainError, block_field, rough_field
 
 CLASSES = ('flat', 'rough', 'blocks', 'soft', 'slippery')
 
@@ -148,7 +148,6 @@ def build(name: str, seed: int, segments) -> Terrain:
 
 
 def _slab(name: str, seg: Segment, contact: Contact, half_t: float):
-    from hexapod_sim.physics.terrain import Box
     return Box(name, ((seg.x0_m + seg.x1_m) / 2, 0.0, -half_t), ((seg.x1_m - seg.x0_m) / 2, SLAB_HALF_WIDTH_M, half_t),
                rgba=CLASS_RGBA[seg.label], contact=contact)
 
