@@ -74,7 +74,7 @@ def test_a_slow_bus_skips_the_idle_read_rather_than_delay_the_controller():
 def test_every_read_is_observed_the_controllers_and_the_loops_own():
     """What the driver publishes on /joint_states, handed to an observer in the reading thread: the
     controller's reads and the loop's background reads, each once, in order."""
-    from hexapod_driver.bus.policy import Sample
+    from hexapod_driver.bus.state import Sample
     core = FakeCore()
 
     def step():

@@ -24,8 +24,9 @@ from hexapod_driver import protocol as p
 from hexapod_driver.bus.commands import ESTOP_TEXT, CommandError, Commands, Validated
 from hexapod_driver.bus.events import Event, EventLog
 from hexapod_driver.bus.loop import BusLoop, StepResult
-from hexapod_driver.bus.policy import ServoPolicy, ServoState
+from hexapod_driver.bus.policy import ServoPolicy
 from hexapod_driver.bus.servo_setup import ServoSetup
+from hexapod_driver.bus.state import ServoState
 from hexapod_driver.bus.transport import PortLostError, ReadResult, Transport
 from hexapod_driver.config import DriverConfig
 from hexapod_driver.timing import TimingStats

@@ -9,17 +9,17 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from typing import Callable, Mapping, Protocol, runtime_checkable
 
-from hexapod_driver.bus.events import Event, EventKind
-from hexapod_driver.bus.policy import Sample, ServoState
-from hexapod_driver.bus.servo_setup import u16
-from hexapod_driver.bus.transport import PortLostError
+from hexapod_driver.bus.commands import Commands
+from hexapod_driver.bus.events import Event, EventKind, EventLog
+from hexapod_driver.bus.policy import ServoPolicy
+from hexapod_driver.bus.state import Sample, ServoState, u16
+from hexapod_driver.bus.transport import PortLostError, ReadResult, Transport
+from hexapod_driver.config import DriverConfig
 from hexapod_model.bus import BusError
-
-if TYPE_CHECKING:
-    from hexapod_driver.bus.core import DynamixelBus
 
 CLOCK_JUMP_S = 0.05                   # a clock going back by more than this has jumped (sim reset, clock set)
 CLOCK_PAUSE_S = 2.0                   # wall seconds without the clock advancing before it is called paused
@@ -35,10 +35,36 @@ class StepResult:
     wrote: bool = False
 
 
+@runtime_checkable
+class LoopHost(Protocol):
+    """What :class:`BusLoop` uses of its bus (:class:`~hexapod_driver.bus.core.DynamixelBus`)."""
+
+    config: DriverConfig
+    commands: Commands
+    events: EventLog
+    policy: ServoPolicy
+    transport: Transport
+    joints: tuple[str, ...]
+    states: Mapping[str, ServoState]
+    estopped: bool
+    lock: AbstractContextManager
+    clock: Callable[[], float]
+    sleep: Callable[[float], None]
+
+    @property
+    def port_ok(self) -> bool: ...
+
+    def open_and_configure(self, enable_torque: bool) -> None: ...
+
+    def write_goals(self, goals: Mapping[str, int]) -> float: ...
+
+    def read_register(self, joint: str, address: int, n: int, retries: int | None = None) -> ReadResult: ...
+
+
 class BusLoop:
     """The loop's timing state (next read, diagnostics round, reopen) and its step."""
 
-    def __init__(self, bus: 'DynamixelBus'):
+    def __init__(self, bus: LoopHost):
         self.bus = bus
         self.config = bus.config
         self.commands = bus.commands

@@ -9,61 +9,42 @@ load, torque enable and limit. A position is only ever reported when a servo ret
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Callable, Mapping, Protocol, runtime_checkable
 
 from hexapod_driver import protocol as p
-from hexapod_driver.bus.events import EventKind
-from hexapod_driver.bus.servo_setup import u16, word
-from hexapod_driver.bus.transport import ALARM_BITS, PortLostError
+from hexapod_driver.bus.events import EventKind, EventLog
+from hexapod_driver.bus.state import Sample, ServoState, u16, word
+from hexapod_driver.bus.transport import ALARM_BITS, PortLostError, ReadResult
+from hexapod_driver.config import DriverConfig
+from hexapod_driver.timing import TimingStats
 from hexapod_model.bus import BusError
-
-if TYPE_CHECKING:
-    from hexapod_driver.bus.core import DynamixelBus
 
 DIAG_START = 24                       # torque_enable .. moving in one READ
 DIAG_LEN = 46 - DIAG_START + 1
 
 
-@dataclass(frozen=True)
-class Sample:
-    """One position read: what the servo returned, stamped at the start of the transaction."""
+@runtime_checkable
+class PolicyHost(Protocol):
+    """What :class:`ServoPolicy` uses of its bus (:class:`~hexapod_driver.bus.core.DynamixelBus`)."""
 
-    joint: str
-    theta_rad: float
-    tick: int
-    stamp: float          # time the READ instruction was written [s, driver clock]
-    t_com_s: float        # duration of the transaction (write to complete status packet)
-    error_bits: int
+    config: DriverConfig
+    states: Mapping[str, ServoState]
+    events: EventLog
+    goals_tick: dict[str, int]
+    timing: TimingStats
+    clock: Callable[[], float]
 
+    def to_theta(self, joint: str, tick: float) -> float: ...
 
-@dataclass
-class ServoState:
-    """What the driver knows about one servo (the ServoStatus message)."""
+    def read_register(self, joint: str, address: int, n: int, retries: int | None = None) -> ReadResult: ...
 
-    joint: str
-    servo_id: int
-    responding: bool = True
-    missing: bool = False
-    consecutive_failures: int = 0
-    last_probe: float = -math.inf
-    error_bits: int = 0
-    torque_enabled: bool = False
-    torque_limit: int | None = 0    # register 34 as last read (None: unknown)
-    temperature_c: float = math.nan
-    voltage_v: float = math.nan
-    load_fraction: float = math.nan
-    present_tick: int | None = None
-    failed_attempts: int = 0        # read attempts without a valid reply, since start-up
-    faulted: int = 0                # alarm bits that triggered the fault policy (0 = no fault)
-    message: str = ''
+    def write_register(self, joint: str, address: int, data: list[int]) -> None: ...
 
 
 class ServoPolicy:
     """Reads through the policy, for one :class:`DynamixelBus` (its lock held)."""
 
-    def __init__(self, bus: 'DynamixelBus'):
+    def __init__(self, bus: PolicyHost):
         self.bus = bus
         self.config = bus.config
         self.states = bus.states

@@ -10,17 +10,17 @@ enable (no jump when torque comes on).
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Sequence
+from typing import Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
 from hexapod_driver import protocol as p
-from hexapod_driver.bus.events import EventKind
-from hexapod_driver.bus.transport import ALARM_BITS, result_text
+from hexapod_driver.bus.events import EventKind, EventLog
+from hexapod_driver.bus.state import ServoState, u16, word
+from hexapod_driver.bus.transport import ALARM_BITS, ReadResult, Transport, result_text
+from hexapod_driver.config import DriverConfig
 from hexapod_model.bus import BusError
-
-if TYPE_CHECKING:
-    from hexapod_driver.bus.core import DynamixelBus
+from hexapod_model.description import BusJoint, Robot
 
 AX12A_BAUD_RATES = '1000000 factory default, 500000, 400000, 250000, 200000, 117647, 57600, 19200, 9600'
 
@@ -35,18 +35,40 @@ class ServoVerificationError(BusError):
         self.wrong = list(wrong)
 
 
-def word(v: int) -> list[int]:
-    return [int(v) & 0xFF, (int(v) >> 8) & 0xFF]
+@runtime_checkable
+class SetupHost(Protocol):
+    """What :class:`ServoSetup` uses of the bus it sets up (:class:`~hexapod_driver.bus.core.DynamixelBus`)."""
 
+    robot: Robot
+    config: DriverConfig
+    transport: Transport
+    events: EventLog
+    joints: tuple[str, ...]
+    mount: Mapping[str, BusJoint]
+    states: Mapping[str, ServoState]
+    goals_tick: dict[str, int]
+    baud_rate: int
+    margin: int
+    slope: int
+    punch: int
+    moving_speed: int
+    reply_latency_s: float
+    last_failure: str
+    sleep: Callable[[float], None]
 
-def u16(data: bytes) -> int:
-    return data[0] | data[1] << 8
+    def attempts(self, retries: int | None = None) -> int: ...
+
+    def angle_limits_tick(self, joint: str) -> tuple[int, int]: ...
+
+    def read_register(self, joint: str, address: int, n: int, retries: int | None = None) -> ReadResult: ...
+
+    def write_register(self, joint: str, address: int, data: list[int]) -> None: ...
 
 
 class ServoSetup:
     """Verification and configuration of the servos of one :class:`DynamixelBus` (its lock held)."""
 
-    def __init__(self, bus: 'DynamixelBus'):
+    def __init__(self, bus: SetupHost):
         self.bus = bus
         self.transport = bus.transport
         self.config = bus.config
