@@ -29,6 +29,7 @@ from hexapod_locomotion.core.detector import (
 )
 from hexapod_locomotion.core.gait import Gait
 from hexapod_locomotion.core.locomotion_params import LocomotionError, LocomotionParams, VelocityCommand
+from hexapod_locomotion.core.support import support_shift
 from hexapod_locomotion.core.swing_watch import in_air_rollouts, obstructed
 from hexapod_model.bus import ServoBus
 from hexapod_model.description import ALL_JOINTS, JOINT_ROLES, LEGS, Robot, joint_name
@@ -84,6 +85,7 @@ class GaitController:
         self.goals = self._stance_goals()
         self.phase_index = 0
         self._pending_level: dict[str, float] | None = None  # leveling left for the next transfer
+        self._support_moved = False                         # the last leveling moved the body over its support
         self._rr = 0                                        # round-robin read pointer
         self._reads: dict[str, tuple[float, float]] = {}    # joint -> (theta, sample time) of its last read
         # (bus time, (femur, tibia) goals of the swinging legs) per write since the swing-up began
@@ -256,7 +258,8 @@ class GaitController:
         landed = [o.leg for o in outcomes if o.stop_reason == STOP_CONTACT]
         target, roll_pitch = self._level_target(d * (p.explicit_forward * L / 6.0), no_ground, warnings, landed)
         if target is not None:
-            if p.overlap_transfer:
+            # a move over the support is done before the next group lifts, not beside its swing-up
+            if p.overlap_transfer and not self._support_moved:
                 self._pending_level = target
             else:
                 self.move_joints(bus, target, p.t_level_s)
@@ -375,6 +378,27 @@ class GaitController:
             warnings.append(f'{exc}; target pulled towards the neutral foothold')
         return {joint_name(leg, r): float(v) for r, v in zip(JOINT_ROLES, th)}
 
+    def _supported_shift(self, new_feet: np.ndarray, support, shift_xy, warnings: list[str]) -> np.ndarray:
+        """``shift_xy`` plus the body move that keeps its centre ``support_margin_m`` inside the polygon of
+        the feet that stay on the ground while the next group swings (``support``: the feet that found
+        ground). Without it, a leg hanging where its swing-down found no ground left a tetrapod on three
+        feet with its centre 1.5-3.5 cm outside them: the body tipped onto the hanging leg."""
+        m = self.params.support_margin_m
+        self._support_moved = False
+        if m <= 0:
+            return shift_xy
+        nxt = self.gait.swing_legs(self.phase_index + 1)
+        stay = [leg for leg in support if leg not in nxt and leg not in self.airborne]
+        if len(stay) == len(LEGS) - len(nxt):          # every leg that stays found ground: the paper's gait
+            return shift_xy
+        extra = support_shift(new_feet[[leg - 1 for leg in stay], :2] - shift_xy, m)
+        if extra is None or not np.any(extra):
+            return shift_xy
+        self._support_moved = True
+        warnings.append(f'support: body moved {np.hypot(*extra) * 100:.1f} cm over legs {", ".join(map(str, stay))} '
+                        f'before legs {", ".join(map(str, nxt))} lift')
+        return np.asarray(shift_xy, dtype=float) + extra
+
     def _fin_angles(self, leg: int, foot, warnings: list[str]) -> np.ndarray:
         """theta_fin: the foot straight below its current position, ground_depth_m under the nominal ground."""
         depth = self.params.ground_depth_m
@@ -449,6 +473,7 @@ class GaitController:
         idx = [leg - 1 for leg in support]
         # Eq. 10's average over all six feet, not only the support (a no-op when every leg found ground)
         new_feet[:, :2] -= new_feet[:, :2].mean(axis=0) - new_feet[idx, :2].mean(axis=0)
+        shift_xy = self._supported_shift(new_feet, support, shift_xy, warnings)
         nf = new_feet[idx, :2] - new_feet[idx, :2].mean(axis=0)
         nn = self.neutral[idx, :2] - self.neutral[idx, :2].mean(axis=0)
         yaw = math.atan2(np.sum(nn[:, 0] * nf[:, 1] - nn[:, 1] * nf[:, 0]), np.sum(nn * nf))

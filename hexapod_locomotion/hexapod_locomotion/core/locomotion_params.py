@@ -129,6 +129,13 @@ class LocomotionParams:
     obstacle_lift_m: float = param(0.03, 'a swinging leg that meets an obstacle (obstacle_tick) is lifted this '
                                    'much higher for the rest of its swing [m]; 0 = off (the paper: the swing '
                                    'goes on into the obstacle)', min=0.0)
+    # A leg whose swing-down found no ground hangs over its spot; if the legs left on the ground while the
+    # next group swings do not then have the body's centre this far inside their polygon, the leveling
+    # moves the body over them first (GaitController._supported_shift). The paper's gait lifts the group
+    # regardless and the body tips toward the hanging leg; the trials run without the move.
+    support_margin_m: float = param(0.02, 'with a leg hanging where it found no ground, the body is moved to keep '
+                                    'its centre this far inside the feet that stay down while the next group '
+                                    'swings [m]; 0 = off (the paper: the body may tip onto the hanging leg)', min=0.0)
     obstacle_tick: float = param(25.0, 'a swinging leg has met an obstacle when its femur or tibia read is this '
                                  'many ticks from its motion in the air (free swings: within 11)',
                                  min=0.0, min_exclusive=True)
