@@ -112,11 +112,15 @@ TABLE4_VX_MPS = 0.1
 
 def table4_configs(trials: int, duration_s: float, terrain: str, t_des=(0.5, 1.0),
                    fixed_threshold_tick: float = 21.0, variants=VARIANTS,
-                   heading_correction: bool = False, obstacle_reflex: bool = False) -> list[TrialConfig]:
-    lift = LocomotionParams().obstacle_lift_m if obstacle_reflex else 0.0
+                   heading_correction: bool = False, obstacle_reflex: bool = False,
+                   support_margin: bool = False) -> list[TrialConfig]:
+    node = LocomotionParams()
+    lift = node.obstacle_lift_m if obstacle_reflex else 0.0
+    margin = node.support_margin_m if support_margin else 0.0
     return [TrialConfig(gait=g, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s, vx_mps=TABLE4_VX_MPS,
                         course_end_m=MOCKUP_COURSE_END_M, fixed_threshold_tick=fixed_threshold_tick,
-                        heading_correction=heading_correction, obstacle_lift_m=lift, **variant_fields(d))
+                        heading_correction=heading_correction, obstacle_lift_m=lift, support_margin_m=margin,
+                        **variant_fields(d))
             for g in GAITS for t in t_des for d in variants for s in range(trials)]
 
 
@@ -378,6 +382,9 @@ def main(argv=None) -> int:
     ap.add_argument('--obstacle-reflex', action='store_true',
                     help="lift a swinging leg that meets an obstacle higher, as locomotion_node does (default: the "
                          "paper's swing)")
+    ap.add_argument('--support-margin', action='store_true',
+                    help="move the body over the feet that stay down when a leg that found no ground would leave it "
+                         "unsupported, as locomotion_node does (default: the paper's gait)")
     add_executor_options(ap)
     add_no_progress_option(ap)
     args = ap.parse_args(argv)
@@ -394,7 +401,7 @@ def main(argv=None) -> int:
     report: dict = {'which': args.which, 'trials': args.trials, 'duration_s': args.duration, 'terrain': args.terrain,
                     'fixed_threshold_tick': args.fixed_threshold, 'approach_rate': args.approach_rate,
                     'variants': args.variants, 'heading_correction': args.heading_correction,
-                    'obstacle_reflex': args.obstacle_reflex}
+                    'obstacle_reflex': args.obstacle_reflex, 'support_margin': args.support_margin}
     try:
         return _run(args, out, report)
     except ExecutorError as exc:
@@ -434,7 +441,7 @@ def _run(args, out: Path, report: dict) -> int:
     if args.which in ('table4', 'fig11', 'quality', 'all'):
         t_des = (1.0,) if args.which == 'fig11' else (0.5, 1.0)
         cfgs = table4_configs(args.trials, args.duration, args.terrain, t_des, args.fixed_threshold,
-                              args.variants, args.heading_correction, args.obstacle_reflex)
+                              args.variants, args.heading_correction, args.obstacle_reflex, args.support_margin)
         results = run_many(cfgs, args.jobs, 'mockup trials')
         report['trials_results'] = [{k: v for k, v in r.items() if k != 'events'} for r in results]
         if args.which in ('table4', 'all'):
