@@ -583,9 +583,11 @@ def test_each_layer_uses_only_what_it_declares_of_the_bus_and_the_bus_has_it(rob
     import ast
     import importlib
     import inspect
+    from typing import Generic, Protocol
     mod = importlib.import_module(f'hexapod_driver.bus.{module}')
     host = getattr(mod, host_name)
-    declared = set(host.__annotations__) | {k for k in vars(host) if not k.startswith('_')}
+    declared = {k for cls in host.__mro__ if cls not in (object, Protocol, Generic)
+                for k in (*getattr(cls, '__annotations__', {}), *vars(cls)) if not k.startswith('_')}
     used = set()
     for node in ast.walk(ast.parse(inspect.getsource(mod))):
         if isinstance(node, ast.Attribute) and (

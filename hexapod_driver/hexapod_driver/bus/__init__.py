@@ -10,12 +10,13 @@
 ``loop``           the bus loop, one step at a time: reopen, write, hold, read, diagnostics, clock watch
 ``events``         what the driver says, as typed records (:class:`Event`: kind and fields)
 ``state``          what the layers pass between them: a read (:class:`Sample`), a servo's :class:`ServoState`
+``host``           what the layers that work on the bus holding them use of it (``BusHost``)
 ``core``           :class:`DynamixelBus`, built from the above; the ``ServoBus`` protocol
 =================  ===========================================================================
 
-The layers import one way: ``state``, ``events``, ``transport`` and ``commands`` at the bottom, then
+The layers import one way: ``state``, ``events``, ``transport``, ``host`` and ``commands`` at the bottom, then
 ``servo_setup``, ``policy``, ``loop`` and ``core`` on top. A layer that works on the bus holding it
-declares what it uses of that bus (``SetupHost``, ``PolicyHost``, ``LoopHost``, which
+declares what it uses of that bus (``SetupHost``, ``PolicyHost``, ``LoopHost``: ``BusHost`` and more, which
 :class:`DynamixelBus` implements) instead of importing :mod:`core`.
 """
 from hexapod_driver.bus.commands import CommandError, Validated

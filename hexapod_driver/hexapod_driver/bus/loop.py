@@ -11,14 +11,14 @@ import math
 import time
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping, Protocol, runtime_checkable
+from typing import Mapping, Protocol, runtime_checkable
 
 from hexapod_driver.bus.commands import Commands
-from hexapod_driver.bus.events import Event, EventKind, EventLog
+from hexapod_driver.bus.events import Event, EventKind
+from hexapod_driver.bus.host import BusHost
 from hexapod_driver.bus.policy import ServoPolicy
 from hexapod_driver.bus.state import Sample, ServoState, u16
-from hexapod_driver.bus.transport import PortLostError, ReadResult, Transport
-from hexapod_driver.config import DriverConfig
+from hexapod_driver.bus.transport import PortLostError
 from hexapod_model.bus import BusError
 
 CLOCK_JUMP_S = 0.05                   # a clock going back by more than this has jumped (sim reset, clock set)
@@ -36,20 +36,13 @@ class StepResult:
 
 
 @runtime_checkable
-class LoopHost(Protocol):
+class LoopHost(BusHost, Protocol):
     """What :class:`BusLoop` uses of its bus (:class:`~hexapod_driver.bus.core.DynamixelBus`)."""
 
-    config: DriverConfig
     commands: Commands
-    events: EventLog
     policy: ServoPolicy
-    transport: Transport
-    joints: tuple[str, ...]
-    states: Mapping[str, ServoState]
     estopped: bool
     lock: AbstractContextManager
-    clock: Callable[[], float]
-    sleep: Callable[[float], None]
 
     @property
     def port_ok(self) -> bool: ...
@@ -57,8 +50,6 @@ class LoopHost(Protocol):
     def open_and_configure(self, enable_torque: bool) -> None: ...
 
     def write_goals(self, goals: Mapping[str, int]) -> float: ...
-
-    def read_register(self, joint: str, address: int, n: int, retries: int | None = None) -> ReadResult: ...
 
 
 class BusLoop:

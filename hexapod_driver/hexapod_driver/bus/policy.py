@@ -9,13 +9,13 @@ load, torque enable and limit. A position is only ever reported when a servo ret
 """
 from __future__ import annotations
 
-from typing import Callable, Mapping, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 from hexapod_driver import protocol as p
-from hexapod_driver.bus.events import EventKind, EventLog
-from hexapod_driver.bus.state import Sample, ServoState, u16, word
-from hexapod_driver.bus.transport import ALARM_BITS, PortLostError, ReadResult
-from hexapod_driver.config import DriverConfig
+from hexapod_driver.bus.events import EventKind
+from hexapod_driver.bus.host import BusHost
+from hexapod_driver.bus.state import Sample, u16, word
+from hexapod_driver.bus.transport import ALARM_BITS, PortLostError
 from hexapod_driver.timing import TimingStats
 from hexapod_model.bus import BusError
 
@@ -24,21 +24,13 @@ DIAG_LEN = 46 - DIAG_START + 1
 
 
 @runtime_checkable
-class PolicyHost(Protocol):
+class PolicyHost(BusHost, Protocol):
     """What :class:`ServoPolicy` uses of its bus (:class:`~hexapod_driver.bus.core.DynamixelBus`)."""
 
-    config: DriverConfig
-    states: Mapping[str, ServoState]
-    events: EventLog
     goals_tick: dict[str, int]
     timing: TimingStats
-    clock: Callable[[], float]
 
     def to_theta(self, joint: str, tick: float) -> float: ...
-
-    def read_register(self, joint: str, address: int, n: int, retries: int | None = None) -> ReadResult: ...
-
-    def write_register(self, joint: str, address: int, data: list[int]) -> None: ...
 
 
 class ServoPolicy:

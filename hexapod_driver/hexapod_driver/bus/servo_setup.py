@@ -10,15 +10,15 @@ enable (no jump when torque comes on).
 """
 from __future__ import annotations
 
-from typing import Callable, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Mapping, Protocol, Sequence, runtime_checkable
 
 from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
 from hexapod_driver import protocol as p
-from hexapod_driver.bus.events import EventKind, EventLog
-from hexapod_driver.bus.state import ServoState, u16, word
-from hexapod_driver.bus.transport import ALARM_BITS, ReadResult, Transport, result_text
-from hexapod_driver.config import DriverConfig
+from hexapod_driver.bus.events import EventKind
+from hexapod_driver.bus.host import BusHost
+from hexapod_driver.bus.state import u16, word
+from hexapod_driver.bus.transport import ALARM_BITS, result_text
 from hexapod_model.bus import BusError
 from hexapod_model.description import BusJoint, Robot
 
@@ -36,16 +36,11 @@ class ServoVerificationError(BusError):
 
 
 @runtime_checkable
-class SetupHost(Protocol):
+class SetupHost(BusHost, Protocol):
     """What :class:`ServoSetup` uses of the bus it sets up (:class:`~hexapod_driver.bus.core.DynamixelBus`)."""
 
     robot: Robot
-    config: DriverConfig
-    transport: Transport
-    events: EventLog
-    joints: tuple[str, ...]
     mount: Mapping[str, BusJoint]
-    states: Mapping[str, ServoState]
     goals_tick: dict[str, int]
     baud_rate: int
     margin: int
@@ -54,15 +49,10 @@ class SetupHost(Protocol):
     moving_speed: int
     reply_latency_s: float
     last_failure: str
-    sleep: Callable[[float], None]
 
     def attempts(self, retries: int | None = None) -> int: ...
 
     def angle_limits_tick(self, joint: str) -> tuple[int, int]: ...
-
-    def read_register(self, joint: str, address: int, n: int, retries: int | None = None) -> ReadResult: ...
-
-    def write_register(self, joint: str, address: int, data: list[int]) -> None: ...
 
 
 class ServoSetup:
