@@ -100,9 +100,8 @@ def test_the_gait_cycle_timing_reaches_the_controller():
     from hexapod_locomotion.core.locomotion_params import LocomotionParams
     from hexapod_locomotion.trials.trial_runner import locomotion_params
     default = LocomotionParams()
-    # the trials' differences from the node's: the paper's swing and gait, without the obstacle reflex and the
-    # support margin
-    assert locomotion_params(TrialConfig()) == dataclasses.replace(default, obstacle_lift_m=0.0, support_margin_m=0.0)
+    # the trials' one difference from the node's: the paper's swing, without the obstacle reflex
+    assert locomotion_params(TrialConfig()) == dataclasses.replace(default, obstacle_lift_m=0.0)
     p = locomotion_params(TrialConfig(t_swing_up_s=0.15, t_level_s=0.25, max_stride_m=0.07, overlap_transfer=False))
     assert (p.t_swing_up_s, p.t_level_s, p.max_stride_m, p.overlap_transfer) == (0.15, 0.25, 0.07, False)
     assert p.t_swing_forward_s == default.t_swing_forward_s

@@ -3,7 +3,6 @@ swing-down found no ground, the body is moved over the feet that stay down befor
 import numpy as np
 import pytest
 
-from hexapod_locomotion.core.locomotion_params import LocomotionParams
 from hexapod_locomotion.core.support import support_shift
 from hexapod_locomotion.trials.trial_config import TrialConfig
 from hexapod_locomotion.trials.trial_runner import run_trial
@@ -29,11 +28,6 @@ def test_no_polygon_or_too_narrow_a_one_has_no_answer():
     assert support_shift(SQUARE[:2], 0.01) is None                               # two feet
     assert support_shift(np.array([[0, 0], [0.1, 0], [0.2, 0]]), 0.0) is None    # on one line
     assert support_shift(SQUARE, 0.11) is None                                    # 0.1 m is the most inside
-
-
-def test_the_node_keeps_its_support_and_the_trials_walk_the_papers_gait():
-    assert LocomotionParams().support_margin_m > 0
-    assert TrialConfig().support_margin_m == 0.0
 
 
 def _tetrapod_blocks(margin):

@@ -2,8 +2,8 @@
 
 Walks simulated trials (lock-stepped, no ROS) straight ahead for every gait x terrain x seed, with
 the course correction off (the paper's open loop and swing) and, with ``--correction both``, on (as
-locomotion_node walks by default: the correction, the obstacle reflex of a swinging leg and the support
-margin of a leg that found no ground). Each trial
+locomotion_node walks by default: the correction and the obstacle reflex of a swinging leg; with
+``--support-margin`` also locomotion_node's support_margin_m). Each trial
 runs two leg odometries side by side (with and without /imu). Prints per cell the median and worst
 odometry position error in % of the distance walked and yaw error in degrees per metre at the end,
 and the walk's own heading change [deg] and distance from the start line [cm] (truth), both as
@@ -41,8 +41,10 @@ def build_parser():
                     help='end a straight walk once the trunk is M metres along x from its start')
     ap.add_argument('--correction', choices=('off', 'on', 'both'), default='both',
                     help='on: as locomotion_node walks by default, the heading/lateral correction from the odometry '
-                         'the obstacle reflex of a swinging leg and the support margin; off: the paper\'s open loop, '
-                         'swing and gait')
+                         'and the obstacle reflex of a swinging leg; off: the paper\'s open loop and swing')
+    ap.add_argument('--support-margin', type=positive_float, default=0.0, metavar='M',
+                    help="the corrected walks move the body M metres inside the feet that stay down when a leg that "
+                         "found no ground would leave it unsupported (locomotion_node's support_margin_m; default off)")
     ap.add_argument('--turn', type=positive_float, metavar='WZ',
                     help='instead: turn in place at WZ rad/s and print the truth\'s mean yaw rate against it')
     ap.add_argument('--json', metavar='FILE', help='write every trial\'s figures to FILE')
@@ -96,7 +98,7 @@ def _cells(args, TrialConfig) -> list[tuple[str, object]]:
                 for seed in range(args.seeds):
                     walk = dict(gait=g, terrain=t, seed=seed, duration_s=args.duration, heading_correction=c,
                                 obstacle_lift_m=node.obstacle_lift_m if c else 0.0,
-                                support_margin_m=node.support_margin_m if c else 0.0)
+                                support_margin_m=args.support_margin if c else 0.0)
                     if args.turn:
                         cfg = TrialConfig(**walk, vx_mps=0.0, wz_rad_s=args.turn)
                     else:

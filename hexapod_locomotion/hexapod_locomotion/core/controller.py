@@ -63,6 +63,12 @@ class PhaseReport:
     warnings: list[str] = field(default_factory=list)
 
 
+# Largest body move over the feet that stay down (GaitController._supported_shift). The tetrapod's case on
+# the blocks needed 2.9 cm; with two legs hanging on the stairs a pentapod was moved 12-18 cm, to the
+# edge of its legs' reach, and ended its walk 5 degrees off its heading.
+MAX_SUPPORT_MOVE_M = 0.05
+
+
 class GaitController:
     """Runs the adaptive gait cycle for one gait and detector on a bus."""
 
@@ -379,9 +385,9 @@ class GaitController:
         return {joint_name(leg, r): float(v) for r, v in zip(JOINT_ROLES, th)}
 
     def _supported_shift(self, new_feet: np.ndarray, support, shift_xy, warnings: list[str]) -> np.ndarray:
-        """``shift_xy`` plus the body move that keeps its centre ``support_margin_m`` inside the polygon of
+        """``shift_xy`` plus the body move that puts its centre ``support_margin_m`` inside the polygon of
         the feet that stay on the ground while the next group swings (``support``: the feet that found
-        ground). Without it, a leg hanging where its swing-down found no ground left a tetrapod on three
+        ground) when it would be outside it. Without it, a leg hanging where its swing-down found no ground left a tetrapod on three
         feet with its centre 1.5-3.5 cm outside them: the body tipped onto the hanging leg."""
         m = self.params.support_margin_m
         self._support_moved = False
@@ -391,8 +397,15 @@ class GaitController:
         stay = [leg for leg in support if leg not in nxt and leg not in self.airborne]
         if len(stay) == len(LEGS) - len(nxt):          # every leg that stays found ground: the paper's gait
             return shift_xy
-        extra = support_shift(new_feet[[leg - 1 for leg in stay], :2] - shift_xy, m)
-        if extra is None or not np.any(extra):
+        feet_xy = new_feet[[leg - 1 for leg in stay], :2] - shift_xy
+        inside = support_shift(feet_xy, 0.0)
+        if inside is None or not np.any(inside):        # no polygon to move over, or the centre is inside it
+            return shift_xy
+        extra = support_shift(feet_xy, m)
+        extra = inside if extra is None else extra
+        if np.hypot(*extra) > MAX_SUPPORT_MOVE_M:
+            warnings.append(f'support: legs {", ".join(map(str, stay))} do not hold the body while legs '
+                            f'{", ".join(map(str, nxt))} lift, {np.hypot(*extra) * 100:.1f} cm away: not moved')
             return shift_xy
         self._support_moved = True
         warnings.append(f'support: body moved {np.hypot(*extra) * 100:.1f} cm over legs {", ".join(map(str, stay))} '

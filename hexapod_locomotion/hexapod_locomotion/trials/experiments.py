@@ -113,13 +113,11 @@ TABLE4_VX_MPS = 0.1
 def table4_configs(trials: int, duration_s: float, terrain: str, t_des=(0.5, 1.0),
                    fixed_threshold_tick: float = 21.0, variants=VARIANTS,
                    heading_correction: bool = False, obstacle_reflex: bool = False,
-                   support_margin: bool = False) -> list[TrialConfig]:
-    node = LocomotionParams()
-    lift = node.obstacle_lift_m if obstacle_reflex else 0.0
-    margin = node.support_margin_m if support_margin else 0.0
+                   support_margin_m: float = 0.0) -> list[TrialConfig]:
+    lift = LocomotionParams().obstacle_lift_m if obstacle_reflex else 0.0
     return [TrialConfig(gait=g, t_des_s=t, terrain=terrain, seed=s, duration_s=duration_s, vx_mps=TABLE4_VX_MPS,
                         course_end_m=MOCKUP_COURSE_END_M, fixed_threshold_tick=fixed_threshold_tick,
-                        heading_correction=heading_correction, obstacle_lift_m=lift, support_margin_m=margin,
+                        heading_correction=heading_correction, obstacle_lift_m=lift, support_margin_m=support_margin_m,
                         **variant_fields(d))
             for g in GAITS for t in t_des for d in variants for s in range(trials)]
 
@@ -382,9 +380,9 @@ def main(argv=None) -> int:
     ap.add_argument('--obstacle-reflex', action='store_true',
                     help="lift a swinging leg that meets an obstacle higher, as locomotion_node does (default: the "
                          "paper's swing)")
-    ap.add_argument('--support-margin', action='store_true',
-                    help="move the body over the feet that stay down when a leg that found no ground would leave it "
-                         "unsupported, as locomotion_node does (default: the paper's gait)")
+    ap.add_argument('--support-margin', type=positive_float, default=0.0, metavar='M',
+                    help="move the body M metres inside the feet that stay down when a leg that found no ground "
+                         "would leave it unsupported (locomotion_node's support_margin_m; default: the paper's gait)")
     add_executor_options(ap)
     add_no_progress_option(ap)
     args = ap.parse_args(argv)

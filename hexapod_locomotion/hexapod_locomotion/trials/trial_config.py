@@ -49,7 +49,7 @@ TRIAL_GROUPS = (GaitChoice, SceneParams, TrialSettings, ReadTime, CourseChoice, 
 # where a trial's default differs from the node's: the trials walk the paper's mockup (sim_node: flat)
 # in the paper's open loop (locomotion_node: the course correction on) with the paper's swing (locomotion_node:
 # a swinging leg that meets an obstacle is lifted higher)
-TRIAL_DEFAULTS = {'terrain': 'mockup', 'heading_correction': False, 'obstacle_lift_m': 0.0, 'support_margin_m': 0.0}
+TRIAL_DEFAULTS = {'terrain': 'mockup', 'heading_correction': False, 'obstacle_lift_m': 0.0}
 TrialConfig = merged_schema(
     'TrialConfig', TRIAL_GROUPS, __name__,
     'One trial: the parameter fields of ' + ', '.join(g.__name__ for g in TRIAL_GROUPS) + ', by their names.',
