@@ -63,7 +63,7 @@ class PhaseReport:
     warnings: list[str] = field(default_factory=list)
 
 
-# Largest body move over the feet that stay down (GaitController._supported_shift). The tetrapod's case on
+# Largest body move over the feet that stay down (GaitController._support_move). The tetrapod's case on
 # the blocks needed 2.9 cm; with two legs hanging on the stairs a pentapod was moved 12-18 cm, to the
 # edge of its legs' reach, and ended its walk 5 degrees off its heading.
 MAX_SUPPORT_MOVE_M = 0.05
@@ -91,7 +91,6 @@ class GaitController:
         self.goals = self._stance_goals()
         self.phase_index = 0
         self._pending_level: dict[str, float] | None = None  # leveling left for the next transfer
-        self._support_moved = False                         # the last leveling moved the body over its support
         self._rr = 0                                        # round-robin read pointer
         self._reads: dict[str, tuple[float, float]] = {}    # joint -> (theta, sample time) of its last read
         # (bus time, (femur, tibia) goals of the swinging legs) per write since the swing-up began
@@ -262,10 +261,11 @@ class GaitController:
 
         # 4. body leveling + explicit forward motion + turn (overlapped: with the next swing-up)
         landed = [o.leg for o in outcomes if o.stop_reason == STOP_CONTACT]
-        target, roll_pitch = self._level_target(d * (p.explicit_forward * L / 6.0), no_ground, warnings, landed)
+        target, roll_pitch, over_support = self._level_target(d * (p.explicit_forward * L / 6.0), no_ground, warnings,
+                                                              landed)
         if target is not None:
             # a move over the support is done before the next group lifts, not beside its swing-up
-            if p.overlap_transfer and not self._support_moved:
+            if p.overlap_transfer and not over_support:
                 self._pending_level = target
             else:
                 self.move_joints(bus, target, p.t_level_s)
@@ -384,33 +384,33 @@ class GaitController:
             warnings.append(f'{exc}; target pulled towards the neutral foothold')
         return {joint_name(leg, r): float(v) for r, v in zip(JOINT_ROLES, th)}
 
-    def _supported_shift(self, new_feet: np.ndarray, support, shift_xy, warnings: list[str]) -> np.ndarray:
-        """``shift_xy`` plus the body move that puts its centre ``support_margin_m`` inside the polygon of
-        the feet that stay on the ground while the next group swings (``support``: the feet that found
-        ground) when it would be outside it. Without it, a leg hanging where its swing-down found no ground left a tetrapod on three
-        feet with its centre 1.5-3.5 cm outside them: the body tipped onto the hanging leg."""
+    def _support_move(self, new_feet: np.ndarray, support, shift_xy, warnings: list[str]) -> np.ndarray:
+        """The body move (x, y) [m], beyond ``shift_xy``, that puts its centre ``support_margin_m`` inside
+        the polygon of the feet that stay on the ground while the next group swings (``support``: the
+        feet that found ground) when it would be outside it; zero otherwise. Without it, a leg hanging
+        where its swing-down found no ground left a tetrapod on three feet with its centre 1.5-3.5 cm
+        outside them: the body tipped onto the hanging leg."""
+        none = np.zeros(2)
         m = self.params.support_margin_m
-        self._support_moved = False
         if m <= 0:
-            return shift_xy
+            return none
         nxt = self.gait.swing_legs(self.phase_index + 1)
         stay = [leg for leg in support if leg not in nxt and leg not in self.airborne]
         if len(stay) == len(LEGS) - len(nxt):          # every leg that stays found ground: the paper's gait
-            return shift_xy
+            return none
         feet_xy = new_feet[[leg - 1 for leg in stay], :2] - shift_xy
         inside = support_shift(feet_xy, 0.0)
         if inside is None or not np.any(inside):        # no polygon to move over, or the centre is inside it
-            return shift_xy
+            return none
         extra = support_shift(feet_xy, m)
         extra = inside if extra is None else extra
         if np.hypot(*extra) > MAX_SUPPORT_MOVE_M:
             warnings.append(f'support: legs {", ".join(map(str, stay))} do not hold the body while legs '
                             f'{", ".join(map(str, nxt))} lift, {np.hypot(*extra) * 100:.1f} cm away: not moved')
-            return shift_xy
-        self._support_moved = True
+            return none
         warnings.append(f'support: body moved {np.hypot(*extra) * 100:.1f} cm over legs {", ".join(map(str, stay))} '
                         f'before legs {", ".join(map(str, nxt))} lift')
-        return np.asarray(shift_xy, dtype=float) + extra
+        return extra
 
     def _fin_angles(self, leg: int, foot, warnings: list[str]) -> np.ndarray:
         """theta_fin: the foot straight below its current position, ground_depth_m under the nominal ground."""
@@ -451,7 +451,9 @@ class GaitController:
 
     def _level_target(self, shift_xy, no_ground: set[int], warnings: list[str], landed=()):
         """Eq. 8-10 on the support feet, then the yaw that best maps the neutral stance onto the feet
-        (so the body follows turning legs) and the explicit forward shift.
+        (so the body follows turning legs) and the explicit forward shift. Returns the joint targets (None:
+        no leveled pose), the body's roll and pitch, and whether it moves over its support
+        (:meth:`_support_move`: to be done before the next group lifts).
 
         A leg that found no ground down to theta_fin (``no_ground``) carries no weight, so it is left out
         of the plane (Eq. 8-9: the body's tilt and height), but the body's position along the plane
@@ -480,13 +482,14 @@ class GaitController:
             pose, _ = level_body(feet[[leg - 1 for leg in support]], self.body_height_m)
         except LevelingError as exc:
             warnings.append(f'body leveling skipped: {exc}')
-            return None, (0.0, 0.0)
+            return None, (0.0, 0.0), False
         new_feet = pose.to_body(feet)
         roll_pitch = pose.roll_pitch_rad()
         idx = [leg - 1 for leg in support]
         # Eq. 10's average over all six feet, not only the support (a no-op when every leg found ground)
         new_feet[:, :2] -= new_feet[:, :2].mean(axis=0) - new_feet[idx, :2].mean(axis=0)
-        shift_xy = self._supported_shift(new_feet, support, shift_xy, warnings)
+        move = self._support_move(new_feet, support, shift_xy, warnings)
+        shift_xy = shift_xy + move
         nf = new_feet[idx, :2] - new_feet[idx, :2].mean(axis=0)
         nn = self.neutral[idx, :2] - self.neutral[idx, :2].mean(axis=0)
         yaw = math.atan2(np.sum(nn[:, 0] * nf[:, 1] - nn[:, 1] * nf[:, 0]), np.sum(nn * nf))
@@ -506,6 +509,6 @@ class GaitController:
                 warnings.append(f'leveling: {exc}; shortening the body motion')
         else:
             warnings.append('leveling: no reachable leveled pose; holding the current pose')
-            return None, roll_pitch
-        return target, roll_pitch
+            return None, roll_pitch, False
+        return target, roll_pitch, bool(np.any(move))
 

@@ -131,7 +131,7 @@ class LocomotionParams:
                                    'goes on into the obstacle)', min=0.0)
     # A leg whose swing-down found no ground hangs over its spot; if the body's centre would then be outside
     # the polygon of the legs left on the ground while the next group swings, the leveling first moves the
-    # body this far inside it (GaitController._supported_shift). The paper's gait lifts the group
+    # body this far inside it (GaitController._support_move). The paper's gait lifts the group
     # regardless and the body tips toward the hanging leg. Off by default: at 0.02 m it kept the tetrapod
     # from tipping over the blocks, but on the mockup (its stairs) it cost the tetrapod's CoT 13.8 -> 16.4
     # at t_des 0.5 s and 19.3 -> 27.4 at 1 s (6 trials each, with the course correction and the reflex).
