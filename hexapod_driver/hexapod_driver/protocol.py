@@ -276,6 +276,25 @@ def sync_write_bytes(n_servos: int, data_len: int) -> int:
     return 8 + n_servos * (data_len + 1)
 
 
+def word(v: int) -> list[int]:
+    """A 16-bit register value as the two bytes a write carries (low first)."""
+    return [int(v) & 0xFF, (int(v) >> 8) & 0xFF]
+
+
+def u16(data: bytes) -> int:
+    """The 16-bit register value of the first two bytes read (low first)."""
+    return data[0] | data[1] << 8
+
+
+def register_value(block: bytes, start: int, name: str) -> int:
+    """The value of register ``name`` in ``block``, the bytes of one READ from address ``start``."""
+    reg = register(name)
+    raw = block[reg.address - start:reg.address - start + reg.size]
+    if reg.address < start or len(raw) < reg.size:
+        raise ProtocolError(f'register {name} ({reg.address}) is not in a read of {len(block)} bytes from {start}')
+    return u16(raw) if reg.size == 2 else raw[0]
+
+
 def decode_load(raw: int) -> float:
     """Register 40 -> signed fraction of maximum torque (positive = counter-clockwise)."""
     mag = (raw & LOAD_MAGNITUDE_MASK) / 1023.0

@@ -52,7 +52,7 @@ def model_of(port, packet: PacketHandler, servo_id: int, attempts: int = 2) -> i
             continue
         data, result, _err = packet.readTxRx(port, servo_id, 0, 2)
         if result == COMM_SUCCESS and len(data) == 2:
-            return data[0] | data[1] << 8
+            return p.u16(data)
     return None
 
 

@@ -71,6 +71,22 @@ def test_load_and_speed_encoding():
     assert p.encode_speed(-10) == 0x400 | 10
 
 
+def test_register_words_are_little_endian_and_found_by_name_in_a_block():
+    # e-manual: goal position 0x200 is written as 00 02 (low byte first)
+    assert p.word(0x200) == [0x00, 0x02] and p.u16(bytes([0x00, 0x02])) == 0x200
+    block = bytes([1, 0, 0, 0, 0, 0, *p.word(512), *p.word(0), *p.word(1023), *p.word(700), 0, 0,
+                   *p.word(p.encode_load(-0.5)), 121, 38])          # a READ of 24..43
+    assert p.register_value(block, 24, 'torque_enable') == 1
+    assert p.register_value(block, 24, 'torque_limit') == 1023
+    assert p.register_value(block, 24, 'present_position') == 700
+    assert p.decode_load(p.register_value(block, 24, 'present_load')) == pytest.approx(-0.5, abs=1e-3)
+    assert p.register_value(block, 24, 'present_temperature') == 38
+    with pytest.raises(p.ProtocolError, match='punch'):
+        p.register_value(block, 24, 'punch')                   # past the end of the block
+    with pytest.raises(p.ProtocolError, match='model_number'):
+        p.register_value(block, 24, 'model_number')            # before its start
+
+
 def test_bus_time_of_a_position_read_at_1mbps():
     # (8 + 8 bytes) x 10 bits at 1 Mbps = 160 us; return delay 250 (x 2 us) adds 500 us
     assert p.read_bus_time_s(2, 1_000_000, 0.0) == pytest.approx(160e-6)

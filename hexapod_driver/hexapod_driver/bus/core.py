@@ -151,7 +151,7 @@ class DynamixelBus(ServoBus, Scheduled):
             return self.clock()
         params = []
         for j, tick in goals.items():
-            params += [self.mount[j].servo_id, tick & 0xFF, tick >> 8]
+            params += [self.mount[j].servo_id, *p.word(tick)]
         t0 = self.clock()
         t = self.transport.send(p.BROADCAST_ID, p.SYNC_WRITE, [30, 2, *params])
         self.timing.write(self.clock() - t0)

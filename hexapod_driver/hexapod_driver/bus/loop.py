@@ -17,8 +17,9 @@ from hexapod_driver.bus.commands import Commands
 from hexapod_driver.bus.events import Event, EventKind
 from hexapod_driver.bus.host import BusHost
 from hexapod_driver.bus.policy import ServoPolicy
-from hexapod_driver.bus.state import Sample, ServoState, u16
+from hexapod_driver.bus.state import Sample, ServoState
 from hexapod_driver.bus.transport import PortLostError
+from hexapod_driver.protocol import u16
 from hexapod_model.bus import BusError
 
 CLOCK_JUMP_S = 0.05                   # a clock going back by more than this has jumped (sim reset, clock set)

@@ -14,8 +14,9 @@ from typing import Protocol, runtime_checkable
 from hexapod_driver import protocol as p
 from hexapod_driver.bus.events import EventKind
 from hexapod_driver.bus.host import BusHost
-from hexapod_driver.bus.state import Sample, u16, word
+from hexapod_driver.bus.state import Sample
 from hexapod_driver.bus.transport import ALARM_BITS, PortLostError
+from hexapod_driver.protocol import u16, word
 from hexapod_driver.timing import TimingStats
 from hexapod_model.bus import BusError
 
@@ -69,13 +70,14 @@ class ServoPolicy:
         st = self.states[joint]
         r = self.bus.read_register(joint, DIAG_START, DIAG_LEN, retries)
         if r.data is not None:
-            d = {a: r.data[a - DIAG_START] for a in range(DIAG_START, DIAG_START + DIAG_LEN)}
-            st.torque_enabled = bool(d[24])
-            st.torque_limit = d[34] | d[35] << 8
-            st.present_tick = d[36] | d[37] << 8
-            st.load_fraction = p.decode_load(d[40] | d[41] << 8)
-            st.voltage_v = d[42] * p.VOLTAGE_UNIT_V
-            st.temperature_c = float(d[43])
+            def value(name: str) -> int:
+                return p.register_value(r.data, DIAG_START, name)
+            st.torque_enabled = bool(value('torque_enable'))
+            st.torque_limit = value('torque_limit')
+            st.present_tick = value('present_position')
+            st.load_fraction = p.decode_load(value('present_load'))
+            st.voltage_v = value('present_voltage') * p.VOLTAGE_UNIT_V
+            st.temperature_c = float(value('present_temperature'))
         return r
 
     def read_diagnostics(self, joint: str) -> None:

@@ -17,8 +17,8 @@ from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 from hexapod_driver import protocol as p
 from hexapod_driver.bus.events import EventKind
 from hexapod_driver.bus.host import BusHost
-from hexapod_driver.bus.state import u16, word
 from hexapod_driver.bus.transport import ALARM_BITS, result_text
+from hexapod_driver.protocol import u16, word
 from hexapod_model.bus import BusError
 from hexapod_model.description import BusJoint, Robot
 

@@ -1,5 +1,5 @@
 """What the bus's layers pass between them: a position read (:class:`Sample`), what the driver knows
-of one servo (:class:`ServoState`) and the register words of Protocol 1.0 (little-endian)."""
+of one servo (:class:`ServoState`)."""
 from __future__ import annotations
 
 import math
@@ -39,12 +39,3 @@ class ServoState:
     faulted: int = 0                # alarm bits that triggered the fault policy (0 = no fault)
     message: str = ''
 
-
-def word(v: int) -> list[int]:
-    """A 16-bit register value as the two bytes Protocol 1.0 writes (low first)."""
-    return [int(v) & 0xFF, (int(v) >> 8) & 0xFF]
-
-
-def u16(data: bytes) -> int:
-    """The 16-bit register value of two bytes read (low first)."""
-    return data[0] | data[1] << 8

@@ -265,7 +265,7 @@ class ReplyRecorder:
             off = PRESENT_POSITION - e.address
             if off < 0 or off + 2 > len(e.reply_params):
                 continue
-            rows.append((e.wall, e.servo_id, e.reply_params[off] | e.reply_params[off + 1] << 8))
+            rows.append((e.wall, e.servo_id, p.u16(e.reply_params[off:off + 2])))
         if rows and self._f is not None:
             np.asarray(rows, dtype=np.float64).tofile(self._f)
             self._f.flush()
