@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hexapod_locomotion.trials.trial_config import add_support_margin_option
 from hexapod_model.cli_common import make_parser, positive_float, positive_int
 
 GAITS = ('tripod', 'tetrapod', 'pentapod')
@@ -42,9 +43,7 @@ def build_parser():
     ap.add_argument('--correction', choices=('off', 'on', 'both'), default='both',
                     help='on: as locomotion_node walks by default, the heading/lateral correction from the odometry '
                          'and the obstacle reflex of a swinging leg; off: the paper\'s open loop and swing')
-    ap.add_argument('--support-margin', type=positive_float, default=0.0, metavar='M',
-                    help="the corrected walks move the body M metres inside the feet that stay down when a leg that "
-                         "found no ground would leave it unsupported (locomotion_node's support_margin_m; default off)")
+    add_support_margin_option(ap, 'the corrected walks')
     ap.add_argument('--turn', type=positive_float, metavar='WZ',
                     help='instead: turn in place at WZ rad/s and print the truth\'s mean yaw rate against it')
     ap.add_argument('--json', metavar='FILE', help='write every trial\'s figures to FILE')

@@ -29,6 +29,7 @@ import numpy as np
 
 from hexapod_locomotion.core.locomotion_params import LocomotionParams
 from hexapod_locomotion.trials.executor import ExecutorError, JobsInterrupted, add_executor_options, map_jobs
+from hexapod_locomotion.trials.trial_config import add_support_margin_option
 from hexapod_locomotion.trials.trial_runner import (
     GAITS,
     TrialConfig,
@@ -380,9 +381,7 @@ def main(argv=None) -> int:
     ap.add_argument('--obstacle-reflex', action='store_true',
                     help="lift a swinging leg that meets an obstacle higher, as locomotion_node does (default: the "
                          "paper's swing)")
-    ap.add_argument('--support-margin', type=positive_float, default=0.0, metavar='M',
-                    help="move the body M metres inside the feet that stay down when a leg that found no ground "
-                         "would leave it unsupported (locomotion_node's support_margin_m; default: the paper's gait)")
+    add_support_margin_option(ap, 'the trials')
     add_executor_options(ap)
     add_no_progress_option(ap)
     args = ap.parse_args(argv)

@@ -19,7 +19,8 @@ from hexapod_locomotion.core.course import CourseChoice
 from hexapod_locomotion.core.detector import DetectorConfig
 from hexapod_locomotion.core.gait import GaitChoice
 from hexapod_locomotion.core.locomotion_params import LocomotionParams
-from hexapod_model.param_schema import ReadTime, merged_schema, param, values
+from hexapod_model.cli_common import nonnegative_float
+from hexapod_model.param_schema import ReadTime, merged_schema, param, specs, values
 from hexapod_sim.physics.scene_params import SceneParams
 
 
@@ -64,3 +65,11 @@ def locomotion_params(cfg: TrialConfig) -> LocomotionParams:
 def detector_config(cfg: TrialConfig) -> DetectorConfig:
     """The detector of a trial (DetectorConfig checks it: DetectorError names a bad value)."""
     return DetectorConfig(**values(DetectorConfig, cfg))
+
+
+def add_support_margin_option(ap, walks: str) -> None:
+    """``--support-margin M``: locomotion_node's ``support_margin_m`` for ``walks``, described and
+    defaulted by its declaration."""
+    spec = specs(LocomotionParams)['support_margin_m']
+    ap.add_argument('--support-margin', type=nonnegative_float, default=spec.default, metavar='M',
+                    help=f"{walks}: {spec.description} (locomotion_node's support_margin_m)")
