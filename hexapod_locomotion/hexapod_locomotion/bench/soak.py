@@ -126,6 +126,7 @@ class Soak:
         self.t_walk0 = math.nan
         self.t_walk1 = math.nan
         self.interrupted = False
+        self._sigint = False        # Ctrl-C seen: raised as KeyboardInterrupt at the next check of the loops
         self.js_publishers = 0
         self.load: list[tuple[float, float]] = []           # (t since walk start, 1-min load average)
         self.ended_early = ''
@@ -186,7 +187,12 @@ class Soak:
             else:
                 time.sleep(0.1)
 
+    def _on_sigint(self, _signum, _frame) -> None:
+        self._sigint = True
+
     def _check_alive(self) -> None:
+        if self._sigint:
+            raise KeyboardInterrupt
         for p in self.procs.values():
             if p.popen is not None and p.popen.poll() is not None:
                 tail = p.log.read_text(errors='replace').strip().splitlines()[-3:]
@@ -218,6 +224,10 @@ class Soak:
         from hexapod_model import contract
         from hexapod_msgs.msg import BusTiming, LegGroundDetection
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)      # Ctrl-C is ours: an orderly stop
+        # Ctrl-C only sets a flag that the loops check: a KeyboardInterrupt raised by the default handler
+        # inside rclpy's C++ (spin_once converting a callback's argument) came out as a RuntimeError
+        # ("Unable to convert call argument '0' to Python object") and the run was judged ended early
+        signal.signal(signal.SIGINT, self._on_sigint)
         node = rclpy.create_node('soak')
         ex = SingleThreadedExecutor()
         ex.add_node(node)
