@@ -322,3 +322,35 @@ def test_a_queue_lock_left_taken_by_an_interrupted_writer_does_not_stop_the_clos
     assert not closer.is_alive(), 'close() waits for a lock nobody will give back'
     assert rec.error is None and rec.count > 0
     assert BagReader(tmp_path / 'bag').complete
+
+
+def test_recorder_process_holds_its_caller_within_max_lag_of_what_the_child_has_written(tmp_path):
+    """A hard kill of the caller loses only what the child has not written: however far behind the child
+    falls (here stopped), write() waits once its message is max_lag_s of log time ahead of the last one
+    written; a jump in log time waits only for the messages before it. The bag holds every message."""
+    import os
+    import signal
+    import threading
+    rec = RecorderProcess(tmp_path / 'bag', tf_rate_hz=0, max_lag_s=0.3)
+    reached = []
+
+    def walk(times):
+        for t in times:
+            rec.write('clock', 'rosgraph_msgs/msg/Clock', {'clock': stamp_dict(t)}, t)
+            reached.append(t)
+
+    os.kill(rec._proc.pid, signal.SIGSTOP)
+    try:
+        writer = threading.Thread(target=walk, args=([i * 0.01 for i in range(100)] + [50.0, 50.01],), daemon=True)
+        writer.start()
+        writer.join(timeout=3.0)
+        assert writer.is_alive() and 0 < len(reached) <= 31 and reached[-1] <= 0.3 + 1e-9, reached[-3:]
+    finally:
+        os.kill(rec._proc.pid, signal.SIGCONT)
+    writer.join(timeout=60)
+    assert not writer.is_alive() and len(reached) == 102
+    rec.close()
+    assert rec.error is None and rec.count == 102
+    assert [m.t_ns for m in BagReader(tmp_path / 'bag').messages()][-2:] == [50_000_000_000, 50_010_000_000]
+    with pytest.raises(ValueError, match='max_lag_s must be > 0'):
+        RecorderProcess(tmp_path / 'never', max_lag_s=0)

@@ -124,7 +124,7 @@ def main(args=None) -> None:
             nodes.append(loco)
             # One executor thread. No callback here waits for another callback, a service or a future
             # of this executor: the controller runs in its own thread and only publishes; the sim
-            # node's recording subscriptions only enqueue (hexapod_sim.bagio.recorder.RecorderThread); its
+            # node's recording subscriptions only enqueue (hexapod_sim.bagio.recorder_process.RecorderProcess); its
             # emergency stop, like the driver's, waits at most for the bus transaction under way.
             # rclpy's MultiThreadedExecutor (Jazzy) busy-loops while a callback waits in its thread
             # pool (ros2/rclpy#1452), holding the interpreter against the controller's thread: with

@@ -2,8 +2,8 @@
 
 A thin layer over :class:`hexapod_sim.bagio.BagWriter`: the node hands every message it
 publishes or receives to :meth:`Recorder.write` with the simulated time as the log time. The
-writer closes its chunk, flushes and rewrites ``metadata.yaml`` at least once per second of
-simulated *and* of wall time, so a crash loses at most the last second; :meth:`close` finalises
+writer closes its chunk, flushes and rewrites ``metadata.yaml`` at least every :data:`FLUSH_PERIOD_S`
+of simulated *and* of wall time, so a crash of the writer loses at most that; :meth:`close` finalises
 the bag (MCAP summary and final metadata).
 
 ROS message instances are converted to plain dicts (:func:`ros_to_plain`) and CDR-encoded by the
@@ -42,7 +42,7 @@ from hexapod_model.tf_tree import TfTree
 from hexapod_model.urdf import urdf_xml
 from hexapod_sim.bagio import DEFAULT_QOS_PROFILE, BagError, BagWriter, encode_message
 
-FLUSH_PERIOD_S = 1.0          # at most this much is lost on a crash
+FLUSH_PERIOD_S = 0.5          # [s] of log time the writer may hold unflushed: lost in a power cut
 TF_RATE_HZ = 50.0             # /tf in log time: smooth in Foxglove, ~20 % of the bag's messages
 MAX_QUEUED = 20_000           # RecorderThread: messages waiting for the writer (~6 s of the robot's) before callers wait
 LATCHED_QOS = {**DEFAULT_QOS_PROFILE, 'depth': 1, 'durability': 'transient_local'}
@@ -359,14 +359,24 @@ class _QueuedWrites:
 
     _wake_at = 1                # queued items at which the writer is woken (the process sends in batches)
 
+    def _behind(self, t_s: float) -> bool:
+        """True while a message at log time ``t_s`` must wait for the writer to catch up (besides a full
+        queue); called with the queue's lock held."""
+        return False
+
+    def _queued(self, t_s: float) -> None:
+        """A message at log time ``t_s`` joined the queue (called with its lock held)."""
+
     def _put(self, item) -> None:
         """Queue ``item``, waiting for room; dropped once the queue is closed, ended or failed."""
         with self._not_full:
-            while len(self._items) >= self._max and not (self._closed or self._ended):
+            while ((len(self._items) >= self._max or self._behind(item[-1]))
+                   and not (self._closed or self._ended or self.error is not None)):
                 self._not_full.wait()
             if self._closed or self._ended or self.error is not None:
                 return
             self._items.append(item)
+            self._queued(item[-1])
             if len(self._items) >= self._wake_at:   # otherwise the writer takes them at its next period
                 self._not_empty.notify()
 

@@ -20,6 +20,7 @@ MultiThreadedExecutor (Jazzy) busy-loops while a callback waits in its thread po
 from __future__ import annotations
 
 import collections
+import math
 import os
 import pickle
 import signal
@@ -32,10 +33,14 @@ from typing import Any
 
 from hexapod_model.description import Robot
 from hexapod_sim.bagio import BagError
-from hexapod_sim.bagio.recorder import MAX_QUEUED, Recorder, _QueuedWrites, _write_queued, one_line
+from hexapod_sim.bagio.recorder import FLUSH_PERIOD_S, MAX_QUEUED, Recorder, _QueuedWrites, _write_queued, one_line
 
 SEND_PERIOD_S = 0.02          # RecorderProcess: the sender hands the queue to the child this often...
 SEND_BATCH = 1_000            # ... or when this many messages wait
+# [s] of log time the caller may run ahead of the messages the child has written: a killed caller loses at
+# most this, a power cut at most this and the writer's unflushed FLUSH_PERIOD_S, under a second in all
+MAX_LAG_S = 0.4
+assert MAX_LAG_S + FLUSH_PERIOD_S < 1.0
 
 _FRAME = struct.Struct('<I')
 
@@ -69,19 +74,27 @@ class RecorderProcess(_QueuedWrites):
     must not change afterwards); a sender thread pickles what is queued in one batch and writes it
     to the child's pipe, which releases the interpreter lock while the child catches up. At most
     ``max_queued`` messages wait; beyond that :meth:`write` waits, as :class:`RecorderThread`'s
-    does. A write the child cannot make (disk full) ends the recording with one line, kept in
-    :attr:`error` and handed once to ``on_error`` from a reader thread; a child that ends
-    unexpectedly is reported the same way. :meth:`close` sends what is queued, lets the child close
-    the bag and waits for it: :attr:`count` is then the number of messages in the bag, and
-    :attr:`close_error` says why the bag could not be closed, if so.
+    does. :meth:`write` also waits while its message is more than ``max_lag_s`` of log time ahead of
+    the last one the child has written (None: no such bound), so that a hard kill of the caller loses
+    at most that much of the recording, however loaded the machine: the child writes everything
+    handed to it, even once the caller is gone. A write the child cannot make (disk full) ends the
+    recording with one line, kept in :attr:`error` and handed once to ``on_error`` from a reader
+    thread; a child that ends unexpectedly is reported the same way. :meth:`close` sends what is
+    queued, lets the child close the bag and waits for it: :attr:`count` is then the number of
+    messages in the bag, and :attr:`close_error` says why the bag could not be closed, if so.
     """
 
     _wake_at = SEND_BATCH       # the sender takes batches: woken at a full one, else at its period
 
     def __init__(self, bag_dir: str | os.PathLike, robot: Robot | None = None, on_error=None,
-                 max_queued: int = MAX_QUEUED, **recorder_kw: Any):
+                 max_queued: int = MAX_QUEUED, max_lag_s: float | None = MAX_LAG_S, **recorder_kw: Any):
         if max_queued < 1:
             raise ValueError(f'max_queued must be >= 1, got {max_queued}')
+        if max_lag_s is not None and not max_lag_s > 0:
+            raise ValueError(f'max_lag_s must be > 0 or None, got {max_lag_s}')
+        self._max_lag_s = max_lag_s
+        self._unwritten = 0                     # messages queued, in the pipe or in the child's hands
+        self._written_t_s = -math.inf           # log time of the last message the child has written
         self.path = Path(bag_dir)
         self.on_error = on_error
         self.error: str | None = None
@@ -118,6 +131,16 @@ class RecorderProcess(_QueuedWrites):
         return self._count
 
 
+    def _behind(self, t_s: float) -> bool:
+        if self._max_lag_s is None or self._unwritten == 0:     # (a jump in log time waits for nothing)
+            return False
+        return t_s - self._written_t_s > self._max_lag_s
+
+    def _queued(self, t_s: float) -> None:
+        if self._unwritten == 0:                # the lag counts from the first message not yet written
+            self._written_t_s = t_s
+        self._unwritten += 1
+
     def _send(self) -> None:
         try:
             while True:
@@ -152,7 +175,12 @@ class RecorderProcess(_QueuedWrites):
                     self._fail(f'the recorder process ended (exit code {self._proc.wait()})')
                 return
             if kind == 'count':
-                self._count = rest[0]
+                self._count, n_items, t_s = rest
+                with self._not_full:
+                    self._unwritten -= n_items
+                    if t_s is not None:
+                        self._written_t_s = t_s
+                    self._not_full.notify_all()
             elif kind == 'error':
                 self._fail(rest[0])
             elif kind == 'closed':
@@ -218,7 +246,7 @@ def recorder_process_main() -> None:
             if error is not None:
                 failed = True
                 report(('error', error))
-        report(('count', rec.count))
+        report(('count', rec.count, len(batch), batch[-1][-1] if batch else None))   # and the log time written up to
     close_error = None
     try:
         rec.close()
