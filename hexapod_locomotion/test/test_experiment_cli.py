@@ -135,3 +135,16 @@ def test_table4_cells_and_the_course_correction_are_chosen():
                                     for c in on)
     with pytest.raises(SystemExit):
         main(['table4', '--variants', 'best'])
+
+
+@pytest.mark.parametrize('value,why', [('-0.01', 'must be a finite number >= 0, got -0.01'),
+                                       ('nan', 'must be a finite number >= 0, got nan'),
+                                       ('wide', "expected a number, got 'wide'")])
+def test_support_margin_is_refused_by_its_parameter_declaration_in_one_line(capsys, value, why):
+    """--support-margin takes its range from locomotion_node's support_margin_m: the same reason."""
+    from hexapod_locomotion.trials.experiments import main
+    with pytest.raises(SystemExit) as exc:
+        main(['table4', '--support-margin', value])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f'argument --support-margin: {why}' in err[0], err

@@ -113,6 +113,20 @@ def nonnegative_float(text: str) -> float:
     return v
 
 
+def param_float(spec) -> Callable[[str], float]:
+    """argparse type for a float parameter of a schema (:class:`hexapod_model.param_schema.ParamSpec`):
+    a number its declaration accepts (range and rule), refused with the declaration's own reason."""
+    from hexapod_model.param_schema import check
+
+    def parse(text: str) -> float:
+        v = _float(text)
+        why = check(spec, v)
+        if why is not None:
+            raise argparse.ArgumentTypeError(why)
+        return v
+    return parse
+
+
 def finite_float(text: str) -> float:
     """argparse type: any finite number."""
     v = _float(text)

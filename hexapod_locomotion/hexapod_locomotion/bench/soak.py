@@ -563,7 +563,7 @@ def main(argv=None) -> int:
     soak = Soak(args, out)
     try:
         soak.run()
-    except KeyboardInterrupt:         # a second Ctrl-C during start-up
+    except KeyboardInterrupt:         # Ctrl-C before run() took SIGINT over (while it imports rclpy)
         soak.interrupted = True
     checks = soak.report()
     failed = [c for c in checks if not c.ok]

@@ -19,7 +19,7 @@ from hexapod_locomotion.core.course import CourseChoice
 from hexapod_locomotion.core.detector import DetectorConfig
 from hexapod_locomotion.core.gait import GaitChoice
 from hexapod_locomotion.core.locomotion_params import LocomotionParams
-from hexapod_model.cli_common import nonnegative_float
+from hexapod_model.cli_common import param_float
 from hexapod_model.param_schema import ReadTime, merged_schema, param, specs, values
 from hexapod_sim.physics.scene_params import SceneParams
 
@@ -71,5 +71,5 @@ def add_support_margin_option(ap, walks: str) -> None:
     """``--support-margin M``: locomotion_node's ``support_margin_m`` for ``walks``, described and
     defaulted by its declaration."""
     spec = specs(LocomotionParams)['support_margin_m']
-    ap.add_argument('--support-margin', type=nonnegative_float, default=spec.default, metavar='M',
+    ap.add_argument('--support-margin', type=param_float(spec), default=spec.default, metavar='M',
                     help=f"{walks}: {spec.description} (locomotion_node's support_margin_m)")
