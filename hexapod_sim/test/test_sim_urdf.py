@@ -40,3 +40,13 @@ def test_cli_urdf_writes_the_description(tmp_path, robot):
     r = _sim_cli('--urdf', str(out), cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert out.read_text() == urdf_xml(robot) and str(out) in r.stdout
+
+
+@pytest.mark.parametrize('value,why', [('-0.5', 'must be a finite number >= 0, got -0.5'),
+                                       ('inf', 'must be a finite number >= 0, got inf')])
+def test_cli_rtf_is_refused_by_sim_node_declaration_in_one_line(tmp_path, value, why):
+    """``./hexapod sim --rtf`` sets sim_node's real_time_factor: refused for the declaration's reason, before
+    a node starts."""
+    r = _sim_cli('--rtf', value, cwd=tmp_path)
+    assert r.returncode == 2 and 'Traceback' not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and f'argument --rtf: {why}' in r.stderr, r.stderr

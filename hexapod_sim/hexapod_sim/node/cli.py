@@ -30,12 +30,15 @@ from hexapod_model.cli_common import (  # noqa: E402
     nonnegative_float,
     nonnegative_int,
     output_file,
+    param_float,
     port_number,
     positive_float,
     positive_int,
 )
 from hexapod_model.description import DescriptionError, load_robot  # noqa: E402
+from hexapod_model.param_schema import specs  # noqa: E402
 from hexapod_sim.node.live import DEFAULT_PORT as DEFAULT_LIVE_PORT  # noqa: E402
+from hexapod_sim.node.params import SimParams  # noqa: E402
 from hexapod_sim.physics.mjcf import write_mjcf  # noqa: E402
 from hexapod_sim.physics.terrain import all_terrains  # noqa: E402
 
@@ -65,9 +68,11 @@ def build_parser():
     ap.add_argument('--elevation', type=finite_float, default=-25.0, help='camera elevation [deg]')
     ap.add_argument('--distance', type=positive_float, default=0.9, help='camera distance from the trunk [m]')
     node = ap.add_argument_group('sim node (when none of --render, --video, --urdf, --mjcf is given)')
-    node.add_argument('--rtf', type=nonnegative_float, default=1.0, help='real-time factor, 0 = as fast as possible')
-    node.add_argument('--lockstep', action='store_true', help='one read cycle per /joint_commands message')
-    node.add_argument('--record', default='', help="bag: 'auto', a name under bags/, or a path (default: no bag)")
+    spec = specs(SimParams)          # the node's parameters these options set: their declarations
+    node.add_argument('--rtf', type=param_float(spec['real_time_factor']), default=spec['real_time_factor'].default,
+                      help=f"sim_node's real_time_factor: {spec['real_time_factor'].description}")
+    node.add_argument('--lockstep', action='store_true', help=f"sim_node's lockstep: {spec['lockstep'].description}")
+    node.add_argument('--record', default=spec['record'].default, help=f"sim_node's record: {spec['record'].description}")
     node.add_argument('--foxglove', metavar='PORT', nargs='?', type=port_number, const=DEFAULT_LIVE_PORT,
                       help=f'serve a Foxglove live view on ws://127.0.0.1:PORT (default {DEFAULT_LIVE_PORT})')
     node.add_argument('--t-com', type=positive_float, default=None,
