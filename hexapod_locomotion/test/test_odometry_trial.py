@@ -20,6 +20,8 @@ def test_odometry_of_a_flat_walk_stays_within_the_drift_targets():
         assert abs(o['yaw_error_off_ground_deg'] + o['yaw_error_elsewhere_deg']) == pytest.approx(o['yaw_error_deg'],
                                                                                                   abs=1e-9)
         assert 0.0 <= o['off_ground_share'] < 1.0
+        # the feet it stood on hardly moved across the line on flat ground (truth), nor did it see the body off it
+        assert abs(o['feet_moved_across_m']) < 0.003 and abs(o['odometry_line_cycle_mean_m']) < 0.005, (name, o)
 
 
 def test_drift_of_a_track_that_is_the_truth_is_zero_and_of_a_short_one_is_its_error():
@@ -63,3 +65,24 @@ def test_drift_splits_the_yaw_error_by_whether_a_used_foot_was_off_the_ground():
     assert 'off_ground_share' not in drift(track, t, xyz, quat)
     with pytest.raises(ValueError, match='off_ground has 3 samples'):
         drift(track, t, xyz, quat, off_ground=[True, False, True])
+
+
+def test_drift_gives_the_odometry_own_line_and_the_motion_of_the_feet_it_stood_on():
+    # the truth walks straight along x; the odometry drifts 2 cm to the left over the walk while the feet it
+    # stood on slid 1 mm to the right at each sample after the first: it took them as fixed, so it moved
+    # the body left where the body stayed on the line
+    t = np.linspace(0, 10, 101)
+    xyz = np.c_[0.05 * t, np.zeros_like(t), np.full_like(t, 0.1)]
+    quat = np.tile([1.0, 0, 0, 0], (len(t), 1))
+    track = [(ti, 0.05 * ti, 0.002 * ti, 0.0) for ti in t]
+    moved = [(0.0, -0.001)] * len(t)
+    d = drift(track, t, xyz, quat, window_s=2.0, feet_motion=moved)
+    assert d['line_cycle_mean_m'] == pytest.approx(0.0, abs=1e-12)
+    assert d['odometry_line_cycle_mean_m'] == pytest.approx(0.018, abs=1e-3)    # the mean over the last 2 s
+    assert d['feet_moved_across_m'] == pytest.approx(-0.1) and d['feet_moved_along_m'] == pytest.approx(0.0)
+    # across and along the start heading: for a walk heading along +y a slide in -x is across it, to the left
+    yaw90 = np.tile([np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)], (len(t), 1))
+    d90 = drift(track, t, xyz[:, [1, 0, 2]], yaw90, feet_motion=[(-0.001, 0.0)] * len(t))
+    assert d90['feet_moved_across_m'] == pytest.approx(0.1) and d90['feet_moved_along_m'] == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(ValueError, match='feet_motion has 3 samples'):
+        drift(track, t, xyz, quat, feet_motion=[(0.0, 0.0)] * 3)

@@ -11,7 +11,9 @@ means over the last gait cycle (a gait sways the body within each cycle: the pen
 +-4 degrees). With ``--distance`` a trial ends once the trunk is that far along x from its start
 (``--duration`` is then the time limit). Below the table, per cell, the legs-only odometry's worst walk:
 its yaw error and how much of it built up while a foot the odometry took as on the ground was off it
-in the simulation, and how often that was so (the median over the cell's walks).
+in the simulation, and how often that was so (the median over the cell's walks); and the walk that
+ended farthest from its line, with where the odometry put it and how far the feet it stood on moved
+in the world (slid, or off the ground): a leg odometry takes them as fixed, so their motion is its error.
 
     ./hexapod run hexapod_locomotion odometry_bench --terrains flat blocks --seeds 3 --distance 2 --duration 150
 """
@@ -82,6 +84,18 @@ def _off_ground_row(label: str, trials: list[dict]) -> str:
     return (f'{label:32s} worst seed {trials[worst]["seed"]}: {w["position_error_pct"]:5.1f} %, yaw error '
             f'{off + rest:+6.1f} deg, {off:+6.1f} of it while a foot it used was off the ground '
             f'({share:4.1f} % of updates, median)')
+
+
+def _line_row(label: str, trials: list[dict]) -> str:
+    """The walk of a cell that ended farthest from its line (truth): where the odometry the correction
+    follows (with the IMU) put it, and how far the feet it took as standing moved across the line and
+    along it in the world meanwhile (truth)."""
+    imu = [t['odometry']['imu'] for t in trials]
+    worst = max(range(len(imu)), key=lambda i: abs(imu[i]['line_cycle_mean_m']))
+    w = imu[worst]
+    return (f'{label:32s} worst seed {trials[worst]["seed"]}: {100 * w["line_cycle_mean_m"]:+5.1f} cm off the line, '
+            f'the odometry saw {100 * w["odometry_line_cycle_mean_m"]:+5.1f}; the feet it stood on moved '
+            f'{100 * w["feet_moved_across_m"]:+5.1f} cm across, {100 * w["feet_moved_along_m"]:+5.1f} along')
 
 
 def _cells(args, TrialConfig) -> list[tuple[str, object]]:
@@ -158,6 +172,10 @@ def main(argv=None) -> int:
         for key, trials in results.items():
             if trials:
                 print(_off_ground_row(key, trials))
+        print('the line, against the odometry and the motion of the feet it stood on (truth):')
+        for key, trials in results.items():
+            if trials:
+                print(_line_row(key, trials))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0
