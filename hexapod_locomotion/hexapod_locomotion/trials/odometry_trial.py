@@ -109,21 +109,23 @@ def drift(track, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0, off
     p0, y0 = at(t0)
     p1, y1 = at(t1)
     c, s = math.cos(y0), math.sin(y0)
-    rel = np.array([[c, s], [-s, c]]) @ (p1 - p0)           # truth displacement in the start heading frame
+    to_start = np.array([[c, s], [-s, c]])                  # world -> the truth's start heading frame
+    rel = to_start @ (p1 - p0)                              # truth displacement in the start heading frame
     samples = np.arange(t0, t1, PATH_SAMPLE_S).tolist() + [t1]
     pts = np.array([at(ts)[0] for ts in samples])
     dist = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1))) if len(pts) > 1 else 0.0
     # the odometry's displacement in its own start frame
     oc, os_ = math.cos(tr[0, 3]), math.sin(tr[0, 3])
-    odo_rel = np.array([[oc, os_], [-os_, oc]]) @ (tr[-1, 1:3] - tr[0, 1:3])
+    odo_to_start = np.array([[oc, os_], [-os_, oc]])
+    odo_rel = odo_to_start @ (tr[-1, 1:3] - tr[0, 1:3])
     err = float(np.linalg.norm(odo_rel - rel))
     yaw_err = math.degrees(abs(wrap_angle((tr[-1, 3] - tr[0, 3]) - (y1 - y0))))
     ts = t[(t >= t1 - window_s) & (t <= t1)] if window_s > 0 else np.array([t1])
     ts = ts if len(ts) else np.array([t1])
     head_mean = float(np.mean([at(x)[1] for x in ts])) - y0
-    line_mean = float(np.mean([(np.array([[c, s], [-s, c]]) @ (at(x)[0] - p0))[1] for x in ts]))
+    line_mean = float(np.mean([(to_start @ (at(x)[0] - p0))[1] for x in ts]))
     in_window = tr[tr[:, 0] >= ts[0] - 1e-9]
-    odo_line = float(np.mean((-os_ * (in_window[:, 1] - tr[0, 1]) + oc * (in_window[:, 2] - tr[0, 2]))))
+    odo_line = float(np.mean((odo_to_start @ (in_window[:, 1:3] - tr[0, 1:3]).T)[1]))
     out = {'distance_m': dist, 'position_error_m': err,
            'position_error_pct': 100.0 * err / dist if dist > 0 else math.nan,
            'yaw_error_deg': yaw_err, 'yaw_error_deg_per_m': yaw_err / dist if dist > 0 else math.nan,
@@ -142,6 +144,6 @@ def drift(track, truth_t, truth_xyz, truth_quat_wxyz, window_s: float = 0.0, off
         moved = np.asarray(feet_motion, dtype=float).reshape(-1, 2)
         if len(moved) != len(tr):
             raise ValueError(f'feet_motion has {len(moved)} samples, the track {len(tr)}')
-        along, across = np.array([[c, s], [-s, c]]) @ moved[1:].sum(axis=0)
+        along, across = to_start @ moved[1:].sum(axis=0)
         out.update(feet_moved_along_m=float(along), feet_moved_across_m=float(across))
     return out
