@@ -60,7 +60,7 @@ class TrialOdometry:
         touch = self.probe.sim.feet_touching_last_step()        # no collision pass per update
         used = self.tap.feet_used
         self.off_ground.append(bool(np.any(used & ~touch)))
-        world = self.probe.sim.foot_positions()
+        world = self.probe.sim.feet_at_last_step()           # no kinematics pass per update either
         moved = (0.0, 0.0)
         if self._feet_world is not None:
             both = used & self._feet_world[1]

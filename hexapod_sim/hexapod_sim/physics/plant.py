@@ -546,7 +546,12 @@ class HexapodSim(ServoBus, SimulatedServos, PlantTables):
     def foot_positions(self) -> np.ndarray:
         """Foot-tip positions (6, 3) in the world frame (truth)."""
         mujoco.mj_kinematics(self.model, self.data)
-        return np.array([self.data.site(f'leg{leg}_foot_tip').xpos for leg in LEGS])
+        return self.data.site_xpos[self._foot_tip_site].copy()
+
+    def feet_at_last_step(self) -> np.ndarray:
+        """The foot tips (6, 3, world) as the physics step that just ran found them at its start, at no cost
+        (no kinematics pass): :meth:`foot_positions` one step earlier, as :meth:`feet_touching_last_step`."""
+        return self.data.site_xpos[self._foot_tip_site].copy()
 
     def warnings(self) -> dict[str, int]:
         """MuJoCo warning counters that fired since the last reset (empty = healthy)."""

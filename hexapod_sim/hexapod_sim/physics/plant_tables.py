@@ -156,6 +156,7 @@ class PlantTables:
         self._foot_geom = {m.geom(f'leg{leg}_foot').id: k for k, leg in enumerate(LEGS)}
         self._leg_of_geom = np.full(m.ngeom, -1)          # geom id -> leg index of a foot, -1 otherwise
         self._leg_of_geom[list(self._foot_geom)] = list(self._foot_geom.values())
+        self._foot_tip_site = np.array([m.site(f'leg{leg}_foot_tip').id for leg in LEGS])    # legs 1..6
 
 
 def dictionary_tables(robot: Robot, terms: np.ndarray, dadr: np.ndarray, fc: np.ndarray, stick: np.ndarray):
