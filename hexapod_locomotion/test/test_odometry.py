@@ -127,6 +127,54 @@ def test_legs_that_slipped_together_leave_the_yaw_to_the_imu():
     assert e.pose_cov[5, 5] == pytest.approx(2.5e-5)
 
 
+def yaw_imu(yaw):
+    return ImuReading(quat_wxyz=np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]))
+
+
+def test_feet_that_twisted_together_turn_the_body_about_their_centre():
+    """The square of feet centred 0.1 m ahead of the body; the body turns in place by 0.2 rad (the IMU's
+    yaw) while the feet twist together by -0.1 rad about their centre (the legs see 0.3 rad apart: the
+    slip gate leaves the yaw to the IMU). The feet's centre stood: the displacement under the IMU's yaw
+    keeps the body where it is; under the legs' own yaw (0.3 rad) it would move 1 cm."""
+    square = np.array([[0.2, 0.1, 0], [0.0, 0.1, 0], [0.0, -0.1, 0], [0.2, -0.1, 0], [0, 0, 0], [0, 0, 0]])
+    contact = np.array([1, 1, 1, 1, 0, 0], bool)
+    centre = np.array([0.1, 0.0, 0.0])
+    twisted = (square - centre) @ rz(-0.1).T + centre
+    odo = LegOdometry(OdometryConfig(foot_sigma_m=0.003, gyro_sigma_rad_s=0.005, slip_gate_sigma=3.0))
+    odo.update(0.0, body_feet(square, 0, 0, 0.1, 0), contact, yaw_imu(0.0))
+    e = odo.update(1.0, body_feet(twisted, 0, 0, 0.1, 0.2), contact, yaw_imu(0.2))
+    assert e.rpy[2] == pytest.approx(0.2)
+    assert e.position[:2] == pytest.approx([0, 0], abs=1e-12)
+
+
+@pytest.mark.parametrize('with_imu', [True, False])
+def test_a_foot_sliding_among_standing_feet_is_left_out(with_imu):
+    """A tripod (legs 1, 3, 5) stands while the body walks 2 cm ahead; leg 1's foot slides 2 cm sideways
+    meanwhile. Taken with the others it would put the body 7 mm off to the side (a third of the slide,
+    and through the yaw without an IMU); its displacement is 2 cm from the feet's median, over
+    slip_foot_gate_m, so it is left out: with the IMU's yaw (fused with the legs' 24 mrad, which the
+    slide also turned, to 0.75 mrad) the body is within 0.2 mm of where it is; from the legs alone their
+    yaw keeps the slide's turn, and the body is 3 mm off."""
+    contact = np.array([1, 0, 1, 0, 1, 0], bool)
+    slid = WORLD.copy()
+    slid[0, 1] += 0.02
+    odo = LegOdometry()
+    odo.update(0.0, body_feet(WORLD, 0, 0, 0.1, 0), contact, yaw_imu(0.0) if with_imu else None)
+    e = odo.update(1.0, body_feet(slid, 0.02, 0, 0.1, 0), contact, yaw_imu(0.0) if with_imu else None)
+    assert e.position == pytest.approx([0.02, 0, 0.1], abs=2e-4 if with_imu else 4e-3)
+
+
+def test_two_feet_that_disagree_are_both_kept():
+    """With two feet there is no telling which one slid: both count (their mean, under the fused yaw)."""
+    contact = np.array([1, 0, 0, 1, 0, 0], bool)
+    slid = WORLD.copy()
+    slid[0, 1] += 0.02
+    odo = LegOdometry()
+    odo.update(0.0, body_feet(WORLD, 0, 0, 0.1, 0), contact, yaw_imu(0.0))
+    e = odo.update(1.0, body_feet(slid, 0.02, 0, 0.1, 0), contact, yaw_imu(0.0))
+    assert e.position[:2] == pytest.approx([0.02, -0.01], abs=1e-4)
+
+
 def test_gyro_rate_alone_gives_the_yaw_when_no_foot_set_fits():
     odo = LegOdometry()
     none = np.zeros(6, bool)
