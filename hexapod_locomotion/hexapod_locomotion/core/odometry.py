@@ -70,11 +70,8 @@ class OdometryConfig:
     # degrees off the truth, and the walk's heading with it
     slip_gate_sigma: float = 3.0
     # a foot whose displacement since the keyframe is further than this from the feet's median is left
-    # out of the displacement (three feet or more): about 3 standard deviations of the difference of two
-    # feet's read noise (foot_sigma_m). Over the 30 corrected walks over the blocks (10 per gait, 2 m),
-    # watching the same walks, the odometry with the IMU ended 1.05 cm (median) and at most 4.4 cm off
-    # its lateral truth with the displacement of the legs' own yaw and every foot, 0.79 and 4.3 with the
-    # fused yaw, 0.74 and 3.6 with the fused yaw and this gate
+    # out of the displacement (three feet or more): it slid, or hangs, while the others stand. About 3
+    # standard deviations of the difference of two feet's read noise (foot_sigma_m)
     slip_foot_gate_m: float = 0.01
     # fewer feet in contact at both updates than this: no fit, the pose holds (and its covariance grows)
     min_feet: int = 2
