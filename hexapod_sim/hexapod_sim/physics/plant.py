@@ -546,7 +546,7 @@ class HexapodSim(ServoBus, SimulatedServos, PlantTables):
     def foot_positions(self) -> np.ndarray:
         """Foot-tip positions (6, 3) in the world frame (truth)."""
         mujoco.mj_kinematics(self.model, self.data)
-        return self.data.site_xpos[self._foot_tip_site].copy()
+        return self.feet_at_last_step()
 
     def feet_at_last_step(self) -> np.ndarray:
         """The foot tips (6, 3, world) as the physics step that just ran found them at its start, at no cost
