@@ -23,6 +23,11 @@ def body_feet(world, x, y, z, yaw):
     return (world - np.array([x, y, z])) @ rz(yaw)
 
 
+def yaw_imu(yaw):
+    """An IMU reading of a level body at heading ``yaw``."""
+    return ImuReading(quat_wxyz=np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]))
+
+
 def test_translation_of_the_body_is_the_opposite_motion_of_the_feet():
     odo = LegOdometry()
     e = odo.update(0.0, body_feet(WORLD, 0, 0, 0.1, 0), ALL)
@@ -101,12 +106,8 @@ def test_imu_yaw_is_fused_by_the_variances():
     contact = np.array([1, 1, 1, 1, 0, 0], bool)
     cfg = OdometryConfig(foot_sigma_m=0.003, gyro_sigma_rad_s=0.005)
     odo = LegOdometry(cfg)
-
-    def imu(yaw):
-        x, y, z, w = np.r_[0, 0, math.sin(yaw / 2), math.cos(yaw / 2)]
-        return ImuReading(quat_wxyz=np.array([w, x, y, z]))
-    odo.update(0.0, body_feet(square, 0, 0, 0.1, 0), contact, imu(0.0))
-    e = odo.update(1.0, body_feet(square, 0, 0, 0.1, 0.10), contact, imu(0.12))
+    odo.update(0.0, body_feet(square, 0, 0, 0.1, 0), contact, yaw_imu(0.0))
+    e = odo.update(1.0, body_feet(square, 0, 0, 0.1, 0.10), contact, yaw_imu(0.12))
     assert e.rpy[2] == pytest.approx(0.1 * 0.10 + 0.9 * 0.12)
     assert e.pose_cov[5, 5] == pytest.approx(2.5e-5 * 2.25e-4 / 2.5e-4)
 
@@ -118,17 +119,10 @@ def test_legs_that_slipped_together_leave_the_yaw_to_the_imu():
     square = np.array([[0.1, 0.1, 0], [-0.1, 0.1, 0], [-0.1, -0.1, 0], [0.1, -0.1, 0], [0, 0, 0], [0, 0, 0]])
     contact = np.array([1, 1, 1, 1, 0, 0], bool)
     odo = LegOdometry(OdometryConfig(foot_sigma_m=0.003, gyro_sigma_rad_s=0.005, slip_gate_sigma=3.0))
-
-    def imu(yaw):
-        return ImuReading(quat_wxyz=np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]))
-    odo.update(0.0, body_feet(square, 0, 0, 0.1, 0), contact, imu(0.0))
-    e = odo.update(1.0, body_feet(square, 0, 0, 0.1, 0.10), contact, imu(0.20))
+    odo.update(0.0, body_feet(square, 0, 0, 0.1, 0), contact, yaw_imu(0.0))
+    e = odo.update(1.0, body_feet(square, 0, 0, 0.1, 0.10), contact, yaw_imu(0.20))
     assert e.rpy[2] == pytest.approx(0.20)
     assert e.pose_cov[5, 5] == pytest.approx(2.5e-5)
-
-
-def yaw_imu(yaw):
-    return ImuReading(quat_wxyz=np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]))
 
 
 def test_feet_that_twisted_together_turn_the_body_about_their_centre():

@@ -11,8 +11,7 @@ now to where they were then. Each update:
    footholds on rough ground);
 2. the feet are rotated into the gravity-aligned heading frame (body frame without roll and pitch);
 3. a least-squares planar rigid fit (2-D Kabsch) between the feet in contact at the keyframe and now
-   gives the yaw and horizontal displacement since the keyframe; the mean vertical offset of those
-   feet the height change;
+   gives the yaw and horizontal displacement since the keyframe;
 4. with an IMU, that yaw is fused with the IMU's since the keyframe (orientation difference, else the
    integrated yaw rate), weighted by their variances; where the two differ by more than
    ``slip_gate_sigma`` standard deviations the feet taken as standing did not stand still (they
@@ -132,25 +131,31 @@ def plane_tilt(feet_body: np.ndarray) -> tuple[float, float] | None:
     return roll, pitch
 
 
+def _rot2(a: float) -> np.ndarray:
+    """The rotation by ``a`` in the plane (2 x 2)."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s], [s, c]])
+
+
 def planar_fit(before: np.ndarray, after: np.ndarray) -> tuple[float, np.ndarray, float]:
     """Least-squares rigid motion in the plane: (dyaw, d_xy, rms residual) with
     ``before[:, :2] ~ Rz(dyaw) @ after[:, :2] + d_xy`` (2-D Kabsch; n >= 2 points)."""
     p, q = before[:, :2], after[:, :2]
     pc, qc = p - p.mean(axis=0), q - q.mean(axis=0)
     dyaw = math.atan2(float(np.sum(qc[:, 0] * pc[:, 1] - qc[:, 1] * pc[:, 0])), float(np.sum(qc * pc)))
-    c, s = math.cos(dyaw), math.sin(dyaw)
-    rot = np.array([[c, -s], [s, c]])
+    rot = _rot2(dyaw)
     d = p.mean(axis=0) - rot @ q.mean(axis=0)
     res = p - (q @ rot.T + d)
     return dyaw, d, float(math.sqrt(np.mean(np.sum(res ** 2, axis=1))))
 
 
 class _LegFit(NamedTuple):
-    """The legs' motion since the keyframe (steps 2-3 of the module doc) in the level frame."""
+    """The legs' motion since the keyframe (steps 2-3 of the module doc, the displacement and height
+    change as step 5 takes them) in the level frame."""
 
     dyaw: float            # yaw change [rad]
     d_xy: np.ndarray       # horizontal displacement [m]
-    dz: float              # height change [m]
+    dz: float              # height change [m] (0 from the fit; step 5 sets it with the feet it keeps)
     step: float            # |d_xy| [m]
     var_legs: float        # the yaw's variance [rad^2] (inf without a fit)
     used: int              # feet in the fit (0: none)
@@ -284,12 +289,11 @@ class LegOdometry:
         if n < cfg.min_feet:
             return _LegFit(0.0, np.zeros(2), 0.0, 0.0, math.inf, 0, 0.0, 0.0)
         dyaw, d_xy, resid = planar_fit(key_feet[both], level[both])
-        dz = float(np.mean(key_feet[both, 2] - level[both, 2]))
         spread2 = float(np.mean(np.sum((level[both, :2] - level[both, :2].mean(axis=0)) ** 2, axis=1)))
         sig2 = cfg.foot_sigma_m ** 2 + resid ** 2
         step = float(np.hypot(*d_xy))
         var_legs = 2 * sig2 / (n * max(spread2, 1e-4)) + (cfg.yaw_slip_rad_per_m * step) ** 2
-        return _LegFit(dyaw, d_xy, dz, step, var_legs, n, resid, sig2)
+        return _LegFit(dyaw, d_xy, 0.0, step, var_legs, n, resid, sig2)
 
     def _displacement(self, fit: _LegFit, level: np.ndarray, both: np.ndarray, dyaw: float) -> _LegFit:
         """Step 5: ``fit`` with its displacement and height change fitted again under the yaw change
@@ -299,8 +303,7 @@ class LegOdometry:
         if not fit.used:
             return fit
         before, now = self._key[0][both], level[both]
-        c, s = math.cos(dyaw), math.sin(dyaw)
-        each = before[:, :2] - now[:, :2] @ np.array([[c, -s], [s, c]]).T
+        each = before[:, :2] - now[:, :2] @ _rot2(dyaw).T
         keep = np.ones(len(each), bool)
         if len(each) >= 3:
             apart = np.linalg.norm(each - np.median(each, axis=0), axis=1) > self.config.slip_foot_gate_m
