@@ -94,3 +94,43 @@ def test_roll_pitch_yaw_of_known_rotations():
     assert roll_pitch_yaw((h, h, 0, 0)) == pytest.approx((math.pi / 2, 0, 0))
     assert roll_pitch_yaw((math.cos(0.1), 0, math.sin(0.1), 0)) == pytest.approx((0, 0.2, 0))
     assert roll_pitch_yaw((math.cos(0.3), 0, 0, math.sin(0.3))) == pytest.approx((0, 0, 0.6))
+
+
+def test_a_turn_on_top_of_the_stride_shortens_the_step():
+    """No foothold moves further than the stride per cycle, the turn's part of its path included: the
+    step is shortened and the turn kept; a straight step and a turn in place within the gait's limits
+    are left as they are; a turn longer than the stride on its own is cut to it."""
+    import numpy as np
+
+    from hexapod_locomotion.core.controller import step_within_stride
+    from hexapod_locomotion.core.locomotion_params import LocomotionParams
+    from hexapod_model.description import load_robot
+    from hexapod_model.kinematics import stance_feet
+    neutral = stance_feet(load_robot())[:, :2]
+    p = LocomotionParams()
+
+    def rot(a):
+        return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+
+    def widest(d, yaw):      # landing (turned by yaw/2, d/2 ahead) to lift-off (turned back, d/2 behind)
+        land = neutral @ rot(yaw / 2).T + d / 2
+        lift = neutral @ rot(-yaw / 2).T - d / 2
+        return float(np.max(np.linalg.norm(land - lift, axis=1)))
+
+    for name in ('tripod', 'tetrapod', 'pentapod'):
+        gait = get_gait(name)
+        stride, turn = p.stride_m(gait), p.turn_rad(gait)
+        for d in (np.array([stride, 0.0]), np.array([0.6, -0.8]) * stride):
+            assert step_within_stride(d, 0.0, stride, neutral) == (d, 0.0)
+            for yaw in (0.02, -0.1, turn, -turn):
+                d2, yaw2 = step_within_stride(d, yaw, stride, neutral)
+                assert yaw2 == yaw
+                assert widest(d2, yaw2) == pytest.approx(stride, rel=1e-9)
+                k = d2[0] / d[0]
+                assert 0 < k < 1 and d2 == pytest.approx(k * d)
+        assert step_within_stride(2 * np.array([stride, 0.0]), 0.0, stride, neutral)[0] == pytest.approx([stride, 0])
+        assert step_within_stride(np.zeros(2), turn, stride, neutral)[1] == turn
+        slow = np.array([0.3 * stride, 0.0])
+        assert step_within_stride(slow, 0.05, stride, neutral) == (slow, 0.05)
+        d2, yaw2 = step_within_stride(np.array([stride, 0.0]), 1.0, stride, neutral)
+        assert not d2.any() and 0 < yaw2 < 1.0 and widest(d2, yaw2) == pytest.approx(stride)
