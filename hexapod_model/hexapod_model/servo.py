@@ -79,6 +79,16 @@ def joint_tick_of_servo_tick(tick, servo: ServoParams, bus: BusJoint):
     return servo.center_tick + bus.direction * (np.asarray(tick, dtype=float) - servo.center_tick - bus.offset_ticks)
 
 
+def goal_joint_tick(theta_rad, servo: ServoParams, bus: BusJoint) -> np.ndarray:
+    """The integer goal the servo receives for commanded joint angles, on the joint's tick axis.
+
+    The driver writes ``rint`` of the raw servo tick (mounting direction and offset applied) and
+    clips it to the servo's range; mapped back to the joint's tick axis (:func:`theta_to_tick`'s).
+    """
+    raw = quantize_tick(np.array([servo_tick(float(v), servo, bus) for v in np.atleast_1d(theta_rad)]), servo)
+    return joint_tick_of_servo_tick(raw, servo, bus)
+
+
 def winding_current_a(torque_nm, speed_rad_s, servo: ServoParams):
     """Winding current [A] (signed, as the torque) of a servo whose firmware asks for ``torque_nm`` while the
     joint turns at ``speed_rad_s``.

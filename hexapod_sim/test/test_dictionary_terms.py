@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hexapod_model.description import ALL_JOINTS, DescriptionError, Effect, joint_name, load_robot, robot_from_dict
+from hexapod_model.servo import goal_joint_tick
 from hexapod_model.swing_model import LegModel
-from hexapod_sim.discrepancy.simulate import goal_joint_ticks
 
 sim_mod = pytest.importorskip('hexapod_sim.physics.plant', reason='the MuJoCo sim package is not importable')
 
@@ -41,7 +41,8 @@ def _sim(robot):
 
 
 def _model(robot, i_ext=None):
-    goals = np.stack([goal_joint_ticks(TH2, robot, FEMUR), goal_joint_ticks(TH3, robot, TIBIA)], axis=1)
+    goals = np.stack([goal_joint_tick(TH2, robot.servo, robot.bus.by_joint(FEMUR)),
+                      goal_joint_tick(TH3, robot.servo, robot.bus.by_joint(TIBIA))], axis=1)
     return LegModel(robot, LEG).rollout([TH2[0], TH3[0]], [0.0, 0.0], goals, i_ext=i_ext).q_rad[:N]
 
 

@@ -25,21 +25,9 @@ import numpy as np
 from hexapod_model.description import Robot
 from hexapod_model.dictionary import supply_resistance_ohm
 from hexapod_model.joints import LEG_JOINTS, Joint, joint_names
-from hexapod_model.servo import firmware_torque_nm, joint_tick_of_servo_tick, quantize_tick, servo_tick, theta_to_tick, tick_to_theta
+from hexapod_model.servo import firmware_torque_nm, goal_joint_tick, theta_to_tick, tick_to_theta
 from hexapod_model.swing_model import CoxaModel, LegModel, rollout_batch
 from hexapod_sim.discrepancy.recording import Recording, RecordingError
-
-
-def goal_joint_ticks(theta_rad, robot: Robot, joint: Joint) -> np.ndarray:
-    """Integer goal in joint-tick space that the servo firmware receives for commanded angles.
-
-    The driver writes ``rint`` of the raw servo tick (mounting direction and offset applied) and
-    clips it to the servo's range; mapped back to the joint's tick axis (``theta_to_tick``).
-    """
-    s = robot.servo
-    bj = robot.bus.by_joint(joint)
-    raw = quantize_tick(np.array([servo_tick(float(v), s, bj) for v in np.atleast_1d(theta_rad)]), s)
-    return joint_tick_of_servo_tick(raw, s, bj)
 
 
 @dataclass(frozen=True)
@@ -70,6 +58,8 @@ class Replay:
         self.state_window_s = state_window_s
         self.rec = rec
         self.dt = robot.servo.control_period_s
+        # each joint's bus entry (mounting direction and offset), for the goals the servos receive
+        self.mount = {Joint.of(b.joint): b for b in robot.bus.joints}
         avail = rec.joints
         if joints is not None:
             unknown = [j for j in joints if j not in rec.states]
@@ -142,7 +132,7 @@ class Replay:
         if cmd is None or len(cmd) == 0:
             return np.full(len(k), hold)
         kc = np.ceil(cmd.t_s / self.dt - 1e-9).astype(np.int64)
-        g = goal_joint_ticks(cmd.theta_rad, self.robot, j)
+        g = goal_joint_tick(cmd.theta_rad, self.robot.servo, self.mount[j])
         idx = np.searchsorted(kc, k, side='right') - 1
         out = np.where(idx >= 0, g[np.clip(idx, 0, None)], hold)
         return np.ascontiguousarray(out, dtype=np.float64)
@@ -153,7 +143,7 @@ class Replay:
             cmd = self.rec.commands.get(j)
             if cmd is None or len(cmd) == 0:
                 return float(self.robot.servo.center_tick)
-            return float(goal_joint_ticks(cmd.theta_rad[:1], self.robot, j)[0])
+            return float(goal_joint_tick(cmd.theta_rad[:1], self.robot.servo, self.mount[j])[0])
         return float(np.rint(theta_to_tick(s.theta_rad[0], self.robot.servo)))
 
     def _state_at(self, j: Joint, t: float) -> float:
