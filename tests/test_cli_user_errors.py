@@ -95,9 +95,14 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_sim', 'sim_node', ['--ros-args', '-p', '-p']),
     ('hexapod_driver', 'driver_node', ['--ros-args', '-p', '-p']),
     ('hexapod_sim', 'replay', ['BAG', '--ros-args', '-p', '-p']),
+    # a bag the terrain classifier cannot read: the bag reader's one line, under the subcommand's name
+    ('hexapod_locomotion', 'terrain', ['evaluate', 'nonexistent_bag']),
+    ('hexapod_locomotion', 'terrain', ['evaluate', 'BAD_YAML']),
+    ('hexapod_locomotion', 'terrain', ['train', 'EMPTY_DIR']),
 ]
 ROS_NODES = {'robot', 'driver_node', 'locomotion_node', 'model_node', 'sim_node'}    # --help lists ROS parameters: 'name (default X): ...'
-NO_DEFAULTS = {'analyse'}               # every option is an output asked for (--json, --plot) or a switch
+NO_DEFAULTS = {'analyse',               # every option is an output asked for (--json, --plot) or a switch
+               'terrain'}               # only subcommands at the top; their options show their defaults
 
 
 @pytest.mark.parametrize('pkg, exe, args', CASES, ids=[f'{c[1]} {" ".join(c[2])}' for c in CASES])

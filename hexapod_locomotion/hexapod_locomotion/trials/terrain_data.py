@@ -309,18 +309,21 @@ def bag_messages(path: str | os.PathLike, extra=()):
     import warnings
 
     from hexapod_locomotion.core.terrain_features import OPTIONAL_TOPICS
-    from hexapod_sim.bagio import BagReader, BagWarning
+    from hexapod_sim.bagio import BagError, BagReader, BagWarning
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', BagWarning)
-        reader = BagReader(path)
-        have = {topic_key(t): t for t in reader.topics()}
-        missing = [t for t in REQUIRED_TOPICS if t not in have]
-        if missing:
-            raise TerrainDataError(f'{path}: no {", ".join("/" + m for m in missing)} in the bag - the terrain '
-                                   f'features need {", ".join("/" + t for t in REQUIRED_TOPICS)}')
-        wanted = [have[t] for t in (*REQUIRED_TOPICS, *OPTIONAL_TOPICS, *extra) if t in have]
-        for name, _type, t_ns, msg in reader.messages(topics=wanted):
-            yield topic_key(name), msg, t_ns * 1e-9
+        try:
+            reader = BagReader(path)
+            have = {topic_key(t): t for t in reader.topics()}
+            missing = [t for t in REQUIRED_TOPICS if t not in have]
+            if missing:
+                raise TerrainDataError(f'{path}: no {", ".join("/" + m for m in missing)} in the bag - the terrain '
+                                       f'features need {", ".join("/" + t for t in REQUIRED_TOPICS)}')
+            wanted = [have[t] for t in (*REQUIRED_TOPICS, *OPTIONAL_TOPICS, *extra) if t in have]
+            for name, _type, t_ns, msg in reader.messages(topics=wanted):
+                yield topic_key(name), msg, t_ns * 1e-9
+        except BagError as exc:          # a missing, unreadable or damaged bag: the user's input
+            raise TerrainDataError(str(exc)) from None
 
 
 def bag_cycles(path: str | os.PathLike, robot, classes=None, labels: bool = True) -> dict:
