@@ -99,6 +99,8 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_locomotion', 'terrain', ['evaluate', 'nonexistent_bag']),
     ('hexapod_locomotion', 'terrain', ['evaluate', 'BAD_YAML']),
     ('hexapod_locomotion', 'terrain', ['train', 'EMPTY_DIR']),
+    ('hexapod_locomotion', 'terrain', ['train', '--set', 'train', '--out', '/proc/no_folder/m.pkl.gz']),  # not after the walks
+    ('hexapod_locomotion', 'terrain', ['record', 'BAG', '--terrain', 'class_flat']),    # exists: nothing overwritten
 ]
 ROS_NODES = {'robot', 'driver_node', 'locomotion_node', 'model_node', 'sim_node'}    # --help lists ROS parameters: 'name (default X): ...'
 NO_DEFAULTS = {'analyse',               # every option is an output asked for (--json, --plot) or a switch

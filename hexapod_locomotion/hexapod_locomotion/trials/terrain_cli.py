@@ -44,7 +44,16 @@ from hexapod_locomotion.trials.terrain_data import (
     truth_labels,
     write_labels,
 )
-from hexapod_model.cli_common import add_no_progress_option, interrupted, make_parser, nonnegative_int, positive_float
+from hexapod_model.cli_common import (
+    add_no_progress_option,
+    existing_file,
+    interrupted,
+    make_parser,
+    new_directory,
+    nonnegative_int,
+    output_file,
+    positive_float,
+)
 from hexapod_model.description import LEGS, DescriptionError, load_robot
 
 
@@ -64,7 +73,7 @@ def build_parser():
     t = sub.add_parser('train', help='train a model on generated sets and/or labelled bags')
     t.add_argument('bags', nargs='*', metavar='BAG', help='bags, each with BAG.labels.txt beside it')
     t.add_argument('--set', dest='sets', action='append', type=_sets_arg, default=[], metavar='SET')
-    t.add_argument('--out', required=True, help='model file to write (.pkl.gz); the packaged one is '
+    t.add_argument('--out', required=True, type=output_file(create_parent=True), help='model file to write (.pkl.gz); the packaged one is '
                    'hexapod_locomotion/hexapod_locomotion/data/terrain_model.pkl.gz')
     t.add_argument('--classes', help='comma-separated class names the labels may use (default: the sim classes)')
     t.add_argument('--jobs', type=nonnegative_int, default=1)
@@ -74,12 +83,12 @@ def build_parser():
     e.add_argument('--model', default=str(DEFAULT_MODEL))
     e.add_argument('--jobs', type=nonnegative_int, default=1)
     r = sub.add_parser('record', help='walk the sim and write a bag plus its label file (from the sim truth)')
-    r.add_argument('bag', help='bag directory to write (must not exist)')
+    r.add_argument('bag', type=new_directory, help='bag directory to write (must not exist)')
     r.add_argument('--terrain', required=True, help='class_flat ... class_slippery, or course')
     r.add_argument('--seed', type=nonnegative_int, default=0)
     r.add_argument('--gait', default='tripod', choices=GAITS)
     r.add_argument('--duration', type=positive_float, default=30.0, help='simulated walking time [s]')
-    r.add_argument('--overlay', action='append', default=[], help='robot-description overlay (repeatable)')
+    r.add_argument('--overlay', action='append', default=[], type=existing_file, help='robot-description overlay (repeatable)')
     b = sub.add_parser('bench', help="the classifier's time per gait cycle")
     b.add_argument('--model', default=str(DEFAULT_MODEL))
     b.add_argument('--repeat', type=nonnegative_int, default=200)
