@@ -49,8 +49,8 @@ from hexapod_model.cli_common import (
     existing_file,
     interrupted,
     make_parser,
-    new_directory,
     nonnegative_int,
+    output_directory,
     output_file,
     positive_float,
 )
@@ -62,6 +62,14 @@ def _sets_arg(value: str) -> str:
         import argparse
         raise argparse.ArgumentTypeError(f'unknown set {value!r}; known: {", ".join(SETS)}')
     return value
+
+
+def _new_bag(text: str) -> str:
+    """argparse type: a bag directory to write: must not exist; missing parents are made."""
+    import argparse
+    if Path(text).exists():
+        raise argparse.ArgumentTypeError(f'{text}: already exists (choose a new bag directory)')
+    return output_directory(text)
 
 
 def build_parser():
@@ -83,7 +91,7 @@ def build_parser():
     e.add_argument('--model', default=str(DEFAULT_MODEL))
     e.add_argument('--jobs', type=nonnegative_int, default=1)
     r = sub.add_parser('record', help='walk the sim and write a bag plus its label file (from the sim truth)')
-    r.add_argument('bag', type=new_directory, help='bag directory to write (must not exist)')
+    r.add_argument('bag', type=_new_bag, help='bag directory to write (must not exist)')
     r.add_argument('--terrain', required=True, help='class_flat ... class_slippery, or course')
     r.add_argument('--seed', type=nonnegative_int, default=0)
     r.add_argument('--gait', default='tripod', choices=GAITS)
