@@ -45,7 +45,7 @@ def _replay_step_by_step(rec, robot, ground, joints, t_end_s):
         sim.reset(joint_angles=start)
     dt = sim.dt
     n = int(math.ceil(t_end_s / dt)) + 2
-    writes = ww._writes_by_tick(rec, dt)
+    writes = rec.writes_by_tick(dt)
     cols = [JOINTS.index(j) for j in joints]
     grid = np.empty((n, len(cols)))
     for k in range(n):

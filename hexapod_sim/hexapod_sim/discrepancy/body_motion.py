@@ -70,13 +70,7 @@ def body_motion_correction(replay: Replay, rec: Recording, robot: Robot) -> dict
     links = np.array([b for b in range(m.nbody) if m.body_rootid[b] == m.body_rootid[trunk] and b != trunk
                       and m.body_mass[b] > 0 and m.body_parentid[b] != 0])
     mass = m.body_mass[links][:, None]
-    # the recorded goal writes, by the firmware tick at which they take effect (the plant takes joint names)
-    writes: dict[int, dict[str, float]] = {}
-    for j, cmd in rec.commands.items():
-        name = str(j)
-        ks = np.ceil(cmd.t_s / dt - 1e-9).astype(np.int64)
-        for k, th in zip(ks.tolist(), cmd.theta_rad.tolist()):
-            writes.setdefault(k, {})[name] = th
+    writes = rec.writes_by_tick(dt)
     starts: dict[int, list[tuple[int, int]]] = {}
     for leg in replay.legs:
         for i, (ka, _) in enumerate(replay.segments[leg]):

@@ -77,6 +77,17 @@ class Recording:
         """The time the lost spans cover [s]."""
         return float(sum(b - a for a, b in self.lost))
 
+    def writes_by_tick(self, dt: float) -> dict[int, dict[str, float]]:
+        """The recorded goal writes by the firmware tick (period ``dt`` [s]) they act on, the first at or
+        after the write, with the joints' names (a plant's goals)."""
+        writes: dict[int, dict[str, float]] = {}
+        for j, cmd in self.commands.items():
+            name = str(j)
+            ks = np.ceil(cmd.t_s / dt - 1e-9).astype(np.int64)
+            for k, th in zip(ks.tolist(), cmd.theta_rad.tolist()):
+                writes.setdefault(k, {})[name] = th
+        return writes
+
     def before(self, t_end_s: float) -> 'Recording':
         """This recording up to ``t_end_s`` [s] (the samples before it), without lost spans after it."""
         def cut(d):

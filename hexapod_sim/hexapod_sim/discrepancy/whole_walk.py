@@ -29,21 +29,9 @@ from hexapod_sim.physics.terrain import Ground, TerrainError, make_terrain
 from hexapod_sim.physics.write_schedule import WriteSchedule, can_replay, replay_writes
 
 
-def _writes_by_tick(rec: Recording, dt: float) -> dict[int, dict[str, float]]:
-    """The recorded goal writes by the firmware tick they act on (the first at or after the write), with
-    the joints' names (the plant's goals)."""
-    writes: dict[int, dict[str, float]] = {}
-    for j, cmd in rec.commands.items():
-        name = str(j)
-        ks = np.ceil(cmd.t_s / dt - 1e-9).astype(np.int64)
-        for k, th in zip(ks.tolist(), cmd.theta_rad.tolist()):
-            writes.setdefault(k, {})[name] = th
-    return writes
-
-
 def sorted_writes(rec: Recording, dt: float) -> list[tuple[int, dict[str, float]]]:
-    """:func:`_writes_by_tick` as (tick, goals) in tick order."""
-    writes = _writes_by_tick(rec, dt)
+    """:meth:`~.recording.Recording.writes_by_tick` as (tick, goals) in tick order."""
+    writes = rec.writes_by_tick(dt)
     return [(k, writes[k]) for k in sorted(writes)]
 
 
