@@ -15,6 +15,8 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_locomotion', 'demo', ['--t-des', 'nan']),
     ('hexapod_locomotion', 'demo', ['--t-des', '-1']),
     ('hexapod_locomotion', 'demo', ['--t-des', '1e9']),      # refused up front, not a memory error mid-run
+    ('hexapod_locomotion', 'demo', ['--video', 'walk.gif', '--duration', '1e6']),   # the GIF's frames: the same
+    ('hexapod_sim', 'sim', ['--video', 'x.gif', '--duration', '1e9']),
     ('hexapod_sim', 'discrepancy', ['BAG', '--json', '/proc/no_folder/x.json']),   # a folder that cannot be made
     ('hexapod_locomotion', 'demo', ['--duration', '-5']),
     ('hexapod_locomotion', 'demo', ['--video', 'walk.mp4']),

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from hexapod_locomotion.core.metrics import COT_WINDOW_S
-from hexapod_locomotion.trials.trial_runner import TrialConfig, run_trial
+from hexapod_locomotion.trials.trial_runner import TrialConfig, check_video, run_trial
 from hexapod_model.cli_common import (
     add_no_progress_option,
     add_overlay_option,
@@ -106,6 +106,12 @@ def _checked_outputs(ap, args):
     live view or None)``; a problem ends the program with one line."""
     if args.course_end <= args.start_x:
         fail(ap, f'--course-end {args.course_end} must lie beyond --start-x {args.start_x}')
+    if args.video:
+        from hexapod_sim.tools.render import RenderError
+        try:
+            check_video(TrialConfig(duration_s=args.duration, video=args.video))
+        except RenderError as exc:
+            fail(ap, str(exc))
     from hexapod_model.description import DescriptionError, load_robot
     try:
         load_robot(overlays=args.overlay)

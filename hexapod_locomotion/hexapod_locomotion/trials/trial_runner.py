@@ -310,14 +310,23 @@ def _open_recorder(cfg: TrialConfig, robot: Robot, ground, live, recorder):
     return recorder
 
 
+def check_video(cfg: TrialConfig) -> None:
+    """Raise :class:`~hexapod_sim.tools.render.RenderError` when the GIF of a walk of ``cfg.duration_s``
+    would not fit in memory (:func:`~hexapod_sim.tools.render.check_video_memory`)."""
+    from hexapod_sim.tools.render import check_video_memory
+    check_video_memory(cfg.duration_s, cfg.video_fps, _Video.WIDTH, _Video.HEIGHT)
+
+
 class _Video:
     """The frames of ``cfg.video``: one rendered every 1 / video_fps s of the truth probes."""
+
+    WIDTH, HEIGHT = 480, 300       # pixels of a frame
 
     def __init__(self, cfg: TrialConfig, sim):
         import mujoco
         self.cfg = cfg
         self.frames = []
-        self.renderer = mujoco.Renderer(sim.model, height=300, width=480)
+        self.renderer = mujoco.Renderer(sim.model, height=self.HEIGHT, width=self.WIDTH)
         self.every = max(1, int(round(1.0 / (cfg.video_fps * cfg.probe_period_s))))
         self.count = 0
 
@@ -409,6 +418,8 @@ def run_trial(cfg: TrialConfig, progress=None, on_video_write=None, live=None, r
     phase in progress is cut off and not counted), at the course end, or when the robot falls."""
     from hexapod_sim.physics.plant import HexapodSim
     from hexapod_sim.physics.terrain import Ground
+    if cfg.video:
+        check_video(cfg)
     robot = load_robot(overlays=cfg.overlays)
     ground = Ground(cfg.terrain, cfg.seed, (cfg.start_x_m, cfg.start_y_m))
     sim = HexapodSim(robot, terrain=ground.terrain, seed=ground.seed, t_com_s=cfg.t_com_s or None,

@@ -85,6 +85,13 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.urdf is not None:
         return _write_urdf(ap, args)
+    if args.video is not None:          # refused before anything is written or simulated
+        from hexapod_sim.tools.render import VIDEO_FPS, RenderError, check_video_memory
+        try:
+            check_video_memory(args.duration, VIDEO_FPS, args.width or 480, args.height or 360)
+        except RenderError as exc:
+            print(f'{ap.prog}: error: {exc}', file=sys.stderr)
+            return 2
     if args.render is None and args.video is None and args.mjcf is None:
         from hexapod_sim.bagio.recorder import RecorderError, check_bag_dir, resolve_bag_dir
         try:                  # a bad overlay or bag place is named here, in this command's words, before the node starts

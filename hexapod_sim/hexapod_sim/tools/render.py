@@ -74,16 +74,32 @@ def render_png(sim: HexapodSim, path: str | Path, width: int = 960, height: int 
 
 
 VIDEO_EXTENSIONS = ('.gif',)      # what record_video and the demo's --video write (animated GIF, Pillow)
+# Pillow holds every frame of a GIF (RGB at 4 bytes a pixel) until the file is written: a clip that would
+# need more than this is refused before anything is simulated
+MAX_VIDEO_BYTES = 4 * 2 ** 30
+VIDEO_FPS = 25.0                  # record_video's frames per simulated second
+
+
+def check_video_memory(duration_s: float, fps: float, width: int, height: int) -> None:
+    """Raise :class:`RenderError` when a GIF of ``duration_s`` simulated seconds at ``fps`` frames per
+    second and ``width`` x ``height`` pixels would hold more than :data:`MAX_VIDEO_BYTES` in memory."""
+    frames = math.floor(duration_s * fps) + 1
+    need = frames * width * height * 4
+    if need > MAX_VIDEO_BYTES:
+        raise RenderError(f'a {duration_s:g} s GIF at {fps:g} frames/s and {width}x{height} pixels is {frames} frames, '
+                          f'{need / 2 ** 30:.1f} GiB held in memory until it is written (at most '
+                          f'{MAX_VIDEO_BYTES / 2 ** 30:g} GiB): make it shorter or smaller')
 
 
 def record_video(sim: HexapodSim, path: str | Path, duration_s: float,
-                 goals_at: Callable[[float], Mapping[str, float]] | None = None, fps: float = 25.0,
+                 goals_at: Callable[[float], Mapping[str, float]] | None = None, fps: float = VIDEO_FPS,
                  width: int = 480, height: int = 360, **camera) -> Path:
     """Run ``sim`` for ``duration_s`` driven by ``goals_at(t)`` (default: :func:`scripted_tripod`)
     and write an animated GIF with ``fps`` frames per simulated second."""
     from PIL import Image
     if duration_s <= 0 or fps <= 0:
         raise ValueError(f'duration_s and fps must be > 0, got {duration_s!r}, {fps!r}')
+    check_video_memory(duration_s, fps, width, height)
     goals_at = goals_at or scripted_tripod(sim.robot)
     r = _renderer(sim, width, height)
     frames = []
