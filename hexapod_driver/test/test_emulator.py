@@ -418,3 +418,28 @@ def test_the_reply_record_marks_dropped_and_corrupted_replies(emu, line, tmp_pat
     rows = load_replies(tmp_path / 'replies.bin')
     assert rows[:, 1].tolist() == [sid] * 3
     assert rows[:, 2].tolist() == [u16(good.params), UNANSWERED, CORRUPTED]
+
+
+@pytest.mark.parametrize('args', [
+    ['--robot', 'BAD_YAML'],
+    ['--robot', 'MISSING/robot.yaml'],
+    ['--link', 'MISSING/hexapod_dynamixel'],
+    ['--reply-latency-ms', 'nan'],
+    ['--corrupt-probability', 'inf'],
+    ['--events-out', 'MISSING/faults.jsonl'],
+    ['--replies-out', 'MISSING/replies.bin'],
+], ids=lambda a: ' '.join(a))
+def test_bad_emulator_arguments_are_one_line_before_the_bus_opens(tmp_path, args):
+    """The emulator process refuses a bad description, output place or number in one line, before it
+    opens a pseudo-terminal (no port line on stdout, nothing created)."""
+    import subprocess
+    import sys
+    (tmp_path / 'broken.yaml').write_text('servo: [unclosed\n')
+    args = [a.replace('BAD_YAML', str(tmp_path / 'broken.yaml')).replace('MISSING', str(tmp_path / 'missing'))
+            for a in args]
+    r = subprocess.run([sys.executable, '-m', 'hexapod_driver.emulator', *args], capture_output=True, text=True,
+                       timeout=60, stdin=subprocess.DEVNULL)
+    err = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and r.stdout == ''
+    assert len(err) == 1 and err[0].startswith('bus_emulator: error: ') and 'Traceback' not in r.stderr, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['broken.yaml']

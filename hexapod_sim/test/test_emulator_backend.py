@@ -87,3 +87,15 @@ def test_reads_through_the_emulator_leave_the_physics_on_the_emulator_clock(robo
     assert len(ticks) == 54
     backend.idle(t + 0.001)
     assert sim.now() - backend.t0 == pytest.approx(t + 0.001, abs=sim.dt)
+
+
+def test_an_unwritable_truth_file_is_refused_before_the_physics_is_built(tmp_path):
+    """--truth-out is written at exit: a folder that cannot take it, or another extension, is one line at start."""
+    import sys
+    for out in (tmp_path / 'missing' / 'truth.npz', tmp_path / 'truth.csv'):
+        r = subprocess.run([sys.executable, '-m', 'hexapod_driver.emulator', '--backend', 'sim', '--truth-out', str(out)],
+                           capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+        err = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and r.stdout == '' and 'Traceback' not in r.stderr, r.stderr
+        assert len(err) == 1 and err[0].startswith('bus_emulator: error: argument --truth-out: '), r.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -13,7 +13,8 @@ from hexapod_driver import protocol as p
 from hexapod_driver.emulator.backends import BACKEND_GROUP, backend_plugins
 from hexapod_driver.emulator.fault_schedule import ReplyRecorder, ScheduleError, ScheduleRunner, load_schedule, servo_registers
 from hexapod_driver.emulator.pty_server import BusEmulator
-from hexapod_model.description import load_robot
+from hexapod_model.cli_common import ArgumentParser, existing_file, nonnegative_float, output_file
+from hexapod_model.description import DescriptionError, load_robot
 
 
 def _load_plugins(ap: argparse.ArgumentParser) -> dict:
@@ -29,13 +30,13 @@ def _load_plugins(ap: argparse.ArgumentParser) -> dict:
 
 def _parser() -> tuple[argparse.ArgumentParser, dict]:
     """The command line, with the options of every installed backend plug-in; (parser, plug-ins)."""
-    ap = argparse.ArgumentParser(
+    ap = ArgumentParser(       # usage errors are one line
         prog='bus_emulator',
-        description='Emulated AX-12A bus (Dynamixel Protocol 1.0) on a pseudo-terminal: prints the port path, '
-                    'serves until Ctrl-C. Point the driver at it: ros2 run hexapod_driver driver_node '
-                    '--ros-args -p device:=<path>.')
-    ap.add_argument('--robot', default=None, help='robot description YAML (default: the packaged robot.yaml)')
-    ap.add_argument('--link', default=None,
+        description='Emulated AX-12A bus (Dynamixel Protocol 1.0) on a pseudo-terminal: prints the port path,\n'
+                    'serves until Ctrl-C. Point the driver at it:\n'
+                    '  ros2 run hexapod_driver driver_node --ros-args -p device:=<path>')
+    ap.add_argument('--robot', default=None, type=existing_file, help='robot description YAML (default: the packaged robot.yaml)')
+    ap.add_argument('--link', default=None, type=output_file(),
                     help='also create this symlink to the pty (a stable name, like a udev symlink)')
     plugins = _load_plugins(ap)
     ap.add_argument('--backend', default='ideal', metavar='NAME',
@@ -47,10 +48,10 @@ def _parser() -> tuple[argparse.ArgumentParser, dict]:
     ap.add_argument('--wire-time', action='store_true',
                     help='delay replies by the 1 Mbps wire time of both packets (10 bits/byte)')
     ap.add_argument('--absent', type=int, nargs='*', default=[], help='servo IDs that are not on the bus')
-    ap.add_argument('--drop-probability', type=float, default=0.0, help='lose each reply with this probability')
-    ap.add_argument('--corrupt-probability', type=float, default=0.0,
+    ap.add_argument('--drop-probability', type=nonnegative_float, default=0.0, help='lose each reply with this probability')
+    ap.add_argument('--corrupt-probability', type=nonnegative_float, default=0.0,
                     help='corrupt the checksum of each reply with this probability')
-    ap.add_argument('--reply-latency-ms', type=float, default=0.0,
+    ap.add_argument('--reply-latency-ms', type=nonnegative_float, default=0.0,
                     help='hold every reply back this long, like an FTDI adapter with its 16 ms default latency timer')
     ap.add_argument('--servo-baud', type=int, default=None,
                     help='baud rate register (address 4) of every servo, e.g. 34 for 57600 baud; a servo answers '
@@ -59,22 +60,22 @@ def _parser() -> tuple[argparse.ArgumentParser, dict]:
                     help='status return level (address 16) of every servo: 0 PING only, 1 reads only, 2 all')
     ap.add_argument('--seed', type=int, default=0, help='seed of the random faults')
     ap.add_argument('--verbose', action='store_true', help='print every instruction packet (slow)')
-    ap.add_argument('--timing-out', default=None, metavar='FILE.npy',
+    ap.add_argument('--timing-out', default=None, metavar='FILE.npy', type=output_file(),
                     help='at exit, write the wall-clock arrival and reply times of every answered instruction '
                          '(an N x 2 array, time.time() seconds) still in the log (last 100000), for benchmarks '
                          'that split a round trip into transport and servo time')
     ap.add_argument('--fault-schedule', default=None, metavar='FILE.json',
                     help='faults that come and go (hexapod_driver.emulator.fault_schedule): their times count '
                          'from the first SIGUSR1 the emulator receives')
-    ap.add_argument('--events-out', default=None, metavar='FILE.jsonl',
+    ap.add_argument('--events-out', default=None, metavar='FILE.jsonl', type=output_file(),
                     help='append one JSON line per fault start and end, and at exit the servos\' torque registers')
-    ap.add_argument('--replies-out', default=None, metavar='FILE.bin',
+    ap.add_argument('--replies-out', default=None, metavar='FILE.bin', type=output_file(),
                     help='append every present position a servo reported (float64 rows: wall time, id, tick)')
     return ap, plugins
 
 
-def _parse(argv) -> tuple[argparse.Namespace, dict, list]:
-    """(arguments, backend plug-ins, fault schedule); a bad argument is a one-line usage error."""
+def _parse(argv) -> tuple[argparse.Namespace, dict, list, object]:
+    """(arguments, backend plug-ins, fault schedule, robot); a bad argument is a one-line usage error."""
     ap, plugins = _parser()
     args, unknown = ap.parse_known_args(argv)
     if args.backend != 'ideal' and args.backend not in plugins:
@@ -89,15 +90,17 @@ def _parse(argv) -> tuple[argparse.Namespace, dict, list]:
             ap.error(f'--{name.replace("_", "-")} must be within 0..1, got {v}')
     if args.timing_out and not args.timing_out.endswith('.npy'):
         ap.error(f'--timing-out {args.timing_out}: must name a .npy file')
-    if args.reply_latency_ms < 0:
-        ap.error(f'--reply-latency-ms must be >= 0, got {args.reply_latency_ms}')
     if args.servo_baud is not None and not 0 <= args.servo_baud <= 254:
         ap.error(f'--servo-baud is register 4 (0..254), got {args.servo_baud}')
     try:
         schedule = load_schedule(args.fault_schedule) if args.fault_schedule else []
     except ScheduleError as exc:
         ap.error(f'--fault-schedule {exc}')
-    return args, plugins, schedule
+    try:
+        robot = load_robot(args.robot)
+    except DescriptionError as exc:
+        ap.error(str(exc))
+    return args, plugins, schedule, robot
 
 
 def _emulator(args: argparse.Namespace, robot, backend) -> BusEmulator:
@@ -136,8 +139,7 @@ def _serve(emu: BusEmulator, verbose: bool) -> None:
 
 
 def main(argv=None) -> int:
-    args, plugins, schedule = _parse(argv)
-    robot = load_robot(args.robot)
+    args, plugins, schedule, robot = _parse(argv)
     backend = None if args.backend == 'ideal' else plugins[args.backend].create(robot, args)
     emu = _emulator(args, robot, backend)
     # What start-up made (the robot model, a backend's physics and compiled code) is moved out of the

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from hexapod_driver.emulator import ServoBusBackend
+from hexapod_model.cli_common import output_file
 from hexapod_model.description import Robot
 from hexapod_sim.physics.truth_log import TruthLog
 
@@ -46,7 +47,7 @@ class SimBackend:
         group.add_argument('--max-catch-up-ms', type=float, default=2.0,
                            help='sim backend: at most this much physics is run before a reply (an overloaded '
                                 'host answers from slightly older physics instead of after the driver\'s timeout)')
-        group.add_argument('--truth-out', default=None, metavar='FILE.npz',
+        group.add_argument('--truth-out', default=None, metavar='FILE.npz', type=output_file(('.npz',)),
                            help='sim backend: at exit, write body position and foot contacts per ms of physics '
                                 '(wall and sim time) here (for benchmarks)')
 
