@@ -10,7 +10,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', ['config/locomotion_node.yaml', 'config/calibration_walk.yaml']),   # --ros-args --params-file
+        ('share/' + package_name + '/config', ['config/locomotion_node.yaml', 'config/terrain_node.yaml', 'config/calibration_walk.yaml']),   # --ros-args --params-file
         ('share/' + package_name + '/launch', ['launch/robot.launch.py', 'launch/sim.launch.py']),
     ],
     install_requires=['setuptools'],

@@ -96,6 +96,8 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_model', 'model_node', ['--ros-args', '-r']),
     ('hexapod_sim', 'sim_node', ['--ros-args', '-p', '-p']),
     ('hexapod_driver', 'driver_node', ['--ros-args', '-p', '-p']),
+    ('hexapod_locomotion', 'terrain_node', ['--ros-args', '-p', '-p']),
+    ('hexapod_locomotion', 'terrain_node', ['--model', 'm.pkl.gz']),    # a node: parameters are -p NAME:=VALUE
     ('hexapod_sim', 'replay', ['BAG', '--ros-args', '-p', '-p']),
     # a bag the terrain classifier cannot read: the bag reader's one line, under the subcommand's name
     ('hexapod_locomotion', 'terrain', ['evaluate', 'nonexistent_bag']),
@@ -104,7 +106,8 @@ CASES = [   # (package, executable, arguments)
     ('hexapod_locomotion', 'terrain', ['train', '--set', 'train', '--out', '/proc/no_folder/m.pkl.gz']),  # not after the walks
     ('hexapod_locomotion', 'terrain', ['record', 'BAG', '--terrain', 'class_flat']),    # exists: nothing overwritten
 ]
-ROS_NODES = {'robot', 'driver_node', 'locomotion_node', 'model_node', 'sim_node'}    # --help lists ROS parameters: 'name (default X): ...'
+# --help lists ROS parameters: 'name (default X): ...'
+ROS_NODES = {'robot', 'driver_node', 'locomotion_node', 'model_node', 'sim_node', 'terrain_node'}
 NO_DEFAULTS = {'analyse',               # every option is an output asked for (--json, --plot) or a switch
                'terrain'}               # only subcommands at the top; their options show their defaults
 

@@ -14,11 +14,12 @@ rclpy = pytest.importorskip('rclpy')
 
 from hexapod_driver.config import NODE as DRIVER  # noqa: E402
 from hexapod_locomotion.nodes.params import NODE as LOCOMOTION  # noqa: E402
+from hexapod_locomotion.nodes.params import TERRAIN_NODE  # noqa: E402
 from hexapod_model.param_schema import MODEL_NODE, params_yaml  # noqa: E402
 from hexapod_sim.node.params import NODE as SIM  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
-NODES = {n.executable: n for n in (DRIVER, SIM, MODEL_NODE, LOCOMOTION)}
+NODES = {n.executable: n for n in (DRIVER, SIM, MODEL_NODE, LOCOMOTION, TERRAIN_NODE)}
 ROS_DECLARED = {'use_sim_time', 'start_type_description_service'}     # rclpy declares these on every node
 LAUNCH_FILES = sorted((REPO / 'hexapod_locomotion' / 'launch').glob('*.launch.py'))
 
@@ -50,6 +51,9 @@ def _start_in_process(exe, ctx, tmp_path):
     if exe == 'model_node':
         from hexapod_model.model_node import ModelNode
         return ModelNode(context=ctx), lambda: None
+    if exe == 'terrain_node':
+        from hexapod_locomotion.nodes.terrain_node import TerrainNode
+        return TerrainNode(context=ctx), lambda: None
     if exe == 'locomotion_node':
         from hexapod_locomotion.nodes.locomotion_node import LocomotionNode
         n = LocomotionNode(context=ctx)          # waits for a bus master in its thread; stopped below
@@ -98,6 +102,7 @@ BAD_START = {
                                   "class_rough, class_blocks, class_soft, class_slippery, course, got 'moon'"),
     'model_node': ('robot_overlays:=[7]', 'parameter robot_overlays: must be a list of strings'),
     'locomotion_node': ('t_des_s:=-0.5', 'parameter t_des_s: must be a finite number in (0, 10], got -0.5'),
+    'terrain_node': ('model:=[7]', 'parameter model: must be a string'),
 }
 
 
@@ -144,7 +149,8 @@ UNKNOWN = [('hexapod_sim', 'sim_node', 'sim_node: parameter terain: no such para
            ('hexapod_locomotion', 'locomotion_node', 'locomotion_node: parameter terain: no such parameter'),
            ('hexapod_model', 'model_node', 'model_node: parameter terain: no such parameter'),
            ('hexapod_model', 'robot_state', 'robot_state: parameter terain: no such parameter'),
-           ('hexapod_driver', 'driver_node', '[hexapod_driver] parameter terain: no such parameter')]
+           ('hexapod_driver', 'driver_node', '[hexapod_driver] parameter terain: no such parameter'),
+           ('hexapod_locomotion', 'terrain_node', 'terrain_node: parameter terain: no such parameter')]
 
 
 @pytest.mark.parametrize('package, exe, line', UNKNOWN, ids=[u[1] for u in UNKNOWN])

@@ -1,7 +1,7 @@
 """Write (or --check) each node's parameter file <package>/config/<executable>.yaml from its schema
 dataclasses, so the files list exactly the declared parameters at their defaults.
 
-    ./hexapod shell python tools/params_files.py            # rewrite the four files
+    ./hexapod shell python tools/params_files.py            # rewrite the files
     ./hexapod shell python tools/params_files.py --check    # exit 1 naming the stale ones
 """
 from __future__ import annotations
@@ -16,9 +16,10 @@ REPO = Path(__file__).resolve().parent.parent
 def nodes():
     from hexapod_driver.config import NODE as DRIVER
     from hexapod_locomotion.nodes.params import NODE as LOCOMOTION
+    from hexapod_locomotion.nodes.params import TERRAIN_NODE
     from hexapod_model.param_schema import MODEL_NODE, ROBOT_STATE_NODE
     from hexapod_sim.node.params import NODE as SIM
-    return [DRIVER, SIM, MODEL_NODE, ROBOT_STATE_NODE, LOCOMOTION]
+    return [DRIVER, SIM, MODEL_NODE, ROBOT_STATE_NODE, LOCOMOTION, TERRAIN_NODE]
 
 
 def config_path(node) -> Path:

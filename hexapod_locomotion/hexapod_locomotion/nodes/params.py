@@ -60,3 +60,14 @@ class ComposedParams:
 
 NODE = NodeSpec('hexapod_locomotion', 'locomotion_node', 'locomotion_node',
                 (RobotSource, GaitChoice, LocomotionParams, DetectorConfig, ReadTime, CourseChoice, LocomotionNodeParams))
+
+
+@dataclass(frozen=True)
+class TerrainNodeParams:
+    """terrain_node's own parameter (the robot description's are :class:`RobotSource`'s)."""
+
+    model: str = param('', 'terrain model file (./hexapod terrain train writes one); empty = the packaged '
+                       'hexapod_locomotion/data/terrain_model.pkl.gz')
+
+
+TERRAIN_NODE = NodeSpec('hexapod_locomotion', 'terrain_node', 'terrain_node', (RobotSource, TerrainNodeParams))

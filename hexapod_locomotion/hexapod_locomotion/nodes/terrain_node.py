@@ -12,25 +12,26 @@ train``); a model file this code cannot use stops the node at start with one lin
 """
 from __future__ import annotations
 
-import sys
-
-import rclpy
 from rclpy.node import Node
 
 from hexapod_locomotion.core.terrain_features import CycleFeatureExtractor, feed_message
 from hexapod_locomotion.core.terrain_model import DEFAULT_MODEL, TerrainModel, TerrainModelError
+from hexapod_locomotion.nodes.params import TERRAIN_NODE, TerrainNodeParams
 from hexapod_model.contract import GROUND_DETECTION, JOINT_COMMANDS, JOINT_STATES, POWER, SWING_DOWN, TERRAIN, stamp_parts
-from hexapod_model.description import DescriptionError, load_robot
+from hexapod_model.description import DescriptionError
+from hexapod_model.node_params import NodeParams, node_help, run_node
+from hexapod_model.param_schema import RobotSource
 
 
 class TerrainNode(Node):
     def __init__(self, model: TerrainModel | None = None, robot=None, **node_kwargs):
         """``model`` / ``robot``: the classifier and the description (None: from the parameters)."""
         super().__init__('terrain_node', **node_kwargs)
-        path = self.declare_parameter('model', '').value or str(DEFAULT_MODEL)
-        overlays = list(self.declare_parameter('robot_overlays', ['']).value or [])
+        params = NodeParams(self)
+        source = params.declare(RobotSource)
+        path = params.declare(TerrainNodeParams).model or str(DEFAULT_MODEL)
         self.model = model if model is not None else TerrainModel.load(path)
-        self.robot = robot if robot is not None else load_robot(overlays=[o for o in overlays if o])
+        self.robot = robot if robot is not None else source.load()
         self.extractor = CycleFeatureExtractor(self.robot)
         from sensor_msgs.msg import BatteryState, JointState
 
@@ -64,20 +65,8 @@ class TerrainNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = TerrainNode()
-    except (TerrainModelError, DescriptionError) as exc:
-        print(f'terrain_node: error: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node('terrain_node', TerrainNode, node_help('terrain_node', __doc__, TERRAIN_NODE.schemas), args,
+             errors=(TerrainModelError, DescriptionError), spec=TERRAIN_NODE)
 
 
 if __name__ == '__main__':
