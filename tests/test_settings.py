@@ -25,7 +25,7 @@ from hexapod_locomotion.core.detector import (
 from hexapod_locomotion.core.gait import GaitChoice
 from hexapod_locomotion.core.locomotion_params import LocomotionError, LocomotionParams
 from hexapod_locomotion.nodes.params import NODE as LOCOMOTION
-from hexapod_locomotion.nodes.params import ComposedParams, LocomotionNodeParams
+from hexapod_locomotion.nodes.params import TERRAIN_NODE, ComposedParams, LocomotionNodeParams
 from hexapod_locomotion.trials import sweep
 from hexapod_locomotion.trials.trial_config import TRIAL_DEFAULTS, TRIAL_GROUPS, TrialConfig, TrialSettings
 from hexapod_model.param_schema import (
@@ -45,7 +45,7 @@ from hexapod_sim.node.params import SimParams
 from hexapod_sim.physics.scene_params import SceneParams
 
 REPO = Path(__file__).resolve().parent.parent
-NODES = (DRIVER, SIM, MODEL_NODE, ROBOT_STATE_NODE, LOCOMOTION)
+NODES = (DRIVER, SIM, MODEL_NODE, ROBOT_STATE_NODE, LOCOMOTION, TERRAIN_NODE)
 GROUPS = (RobotSource, ReadTime, RobotStateParams, GaitChoice, LocomotionParams, DetectorConfig, CourseChoice,
           LocomotionNodeParams, ComposedParams, SceneParams, SimParams, DriverConfig, DriverNodeParams, TrialSettings)
 # The names two groups declare with a meaning of their own each (nothing else may be declared twice)
